@@ -1,0 +1,31 @@
+"""actors: processes with mailboxes, topics and shared memory over ZeroMQ."""
+
+from actors.codec import Codec, message, register
+from actors.errors import (
+    ActorCrashed,
+    ActorError,
+    ActorNotFound,
+    CodecError,
+    CorruptFrame,
+    MessageTooLarge,
+    RemoteError,
+    StaleFrame,
+    Timeout,
+    UnregisteredType,
+)
+
+__all__ = [
+    "ActorCrashed",
+    "ActorError",
+    "ActorNotFound",
+    "Codec",
+    "CodecError",
+    "CorruptFrame",
+    "MessageTooLarge",
+    "RemoteError",
+    "StaleFrame",
+    "Timeout",
+    "UnregisteredType",
+    "message",
+    "register",
+]

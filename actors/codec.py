@@ -1,0 +1,207 @@
+"""msgpack encoding with extension types for numpy arrays and message classes.
+
+No pickle: a frame can only ever decode to msgpack-native values, numpy
+arrays of plain dtypes, and attrs classes registered with :func:`message`.
+A socket is therefore never a way to run code.
+
+Example::
+
+    >>> import attrs
+    >>> @message("demo/Point")
+    ... @attrs.define
+    ... class Point:
+    ...     x: float
+    ...     y: float
+    >>> codec = Codec()
+    >>> codec.decode(codec.encode(Point(1.0, 2.0))[0])
+    Point(x=1.0, y=2.0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar
+
+import attrs
+import msgpack
+import numpy as np
+
+from actors.errors import CorruptFrame, MessageTooLarge, UnregisteredType
+
+__all__ = [
+    "Codec",
+    "SHM_THRESHOLD",
+    "ShmSink",
+    "ShmSource",
+    "message",
+    "message_class",
+    "message_name",
+    "register",
+]
+
+EXT_NDARRAY = 1
+EXT_MESSAGE = 2
+EXT_SHM = 3
+
+#: Arrays at or above this many bytes travel through shared memory.
+SHM_THRESHOLD = 64 * 1024
+#: Default cap on one encoded frame (shared-memory payloads not counted).
+MAX_FRAME_BYTES = 64 * 1024 * 1024
+
+_by_class: dict[type, tuple[str, tuple[str, ...]]] = {}
+_by_name: dict[str, type] = {}
+
+T = TypeVar("T", bound=type)
+
+
+def register(cls: T, name: str | None = None) -> T:
+    """Register an attrs class so instances can cross process boundaries.
+
+    ``name`` is the stable wire name (default ``module.QualName``); both ends
+    must register the class under the same name.
+    """
+    if not attrs.has(cls):
+        raise TypeError(f"{cls.__qualname__} must be an attrs class (decorate it with @attrs.define)")
+    wire = name or f"{cls.__module__}.{cls.__qualname__}"
+    other = _by_name.get(wire)
+    if other is not None and other is not cls and other.__qualname__ != cls.__qualname__:
+        raise ValueError(f"message name {wire!r} is already registered for {other!r}")
+    fields = tuple(f.name for f in attrs.fields(cls) if f.init)
+    _by_class[cls] = (wire, fields)
+    _by_name[wire] = cls
+    return cls
+
+
+def message(name: str | None = None) -> Callable[[T], T]:
+    """Class decorator form of :func:`register`."""
+
+    def deco(cls: T) -> T:
+        return register(cls, name)
+
+    return deco
+
+
+def message_name(cls: type) -> str:
+    """The wire name of a registered message class."""
+    try:
+        return _by_class[cls][0]
+    except KeyError:
+        raise UnregisteredType(_unregistered_text(cls)) from None
+
+
+def message_class(name: str) -> type:
+    """The class registered under wire name ``name``."""
+    try:
+        return _by_name[name]
+    except KeyError:
+        raise UnregisteredType(
+            f"unknown message type {name!r}: no class is registered under that name in this "
+            "process; import the module that defines it (and decorate it with @actors.message)"
+        ) from None
+
+
+def _unregistered_text(cls: type) -> str:
+    return (
+        f"cannot send an object of type {cls.__module__}.{cls.__qualname__}: it is not a "
+        "registered message type; decorate its attrs class with @actors.message(...) "
+        "or send msgpack-native data (dict, list, str, bytes, numbers, numpy arrays)"
+    )
+
+
+class ShmSink(Protocol):
+    """Where the encoder puts large arrays (see :mod:`actors.shm`)."""
+
+    def put(self, arr: np.ndarray) -> list[Any]: ...
+
+
+class ShmSource(Protocol):
+    """Where the decoder maps shared-memory handles from."""
+
+    def view(self, handle: list[Any], on_release: Callable[[str, int], None] | None) -> np.ndarray: ...
+
+
+class _Enc:
+    __slots__ = ("sink", "threshold", "segments")
+
+    def __init__(self, sink: ShmSink | None, threshold: int) -> None:
+        self.sink = sink
+        self.threshold = threshold
+        self.segments: list[str] = []
+
+    def default(self, obj: Any) -> Any:
+        cls = type(obj)
+        entry = _by_class.get(cls)
+        if entry is not None:
+            wire, fields = entry
+            body = [wire, {f: getattr(obj, f) for f in fields}]
+            return msgpack.ExtType(EXT_MESSAGE, msgpack.packb(body, default=self.default))
+        if isinstance(obj, np.ndarray):
+            if obj.dtype.hasobject:
+                raise UnregisteredType("numpy arrays of dtype object cannot be sent; use a plain dtype")
+            if self.sink is not None and obj.nbytes >= self.threshold:
+                handle = self.sink.put(obj)
+                self.segments.append(handle[0])
+                return msgpack.ExtType(EXT_SHM, msgpack.packb(handle))
+            arr = np.ascontiguousarray(obj)
+            return msgpack.ExtType(
+                EXT_NDARRAY, msgpack.packb([arr.dtype.str, list(arr.shape), arr.tobytes()])
+            )
+        if isinstance(obj, np.generic):
+            return obj.item()
+        if isinstance(obj, (set, frozenset, tuple)):
+            return list(obj)
+        raise UnregisteredType(_unregistered_text(cls))
+
+
+class Codec:
+    """Encode and decode frames; optionally route large arrays through shared memory.
+
+    ``sink`` receives arrays of ``threshold`` bytes or more when encoding;
+    ``source`` maps their handles when decoding. Without them, arrays travel
+    inline in the frame.
+    """
+
+    def __init__(
+        self,
+        sink: ShmSink | None = None,
+        source: ShmSource | None = None,
+        *,
+        threshold: int = SHM_THRESHOLD,
+        max_frame_bytes: int = MAX_FRAME_BYTES,
+    ) -> None:
+        self.sink = sink
+        self.source = source
+        self.threshold = threshold
+        self.max_frame_bytes = max_frame_bytes
+
+    def encode(self, obj: Any, *, shm: bool = True) -> tuple[bytes, list[str]]:
+        """Return the frame and the names of the shared-memory segments it refers to."""
+        enc = _Enc(self.sink if shm else None, self.threshold)
+        data = msgpack.packb(obj, default=enc.default)
+        if len(data) > self.max_frame_bytes:
+            raise MessageTooLarge(len(data), self.max_frame_bytes)
+        return data, enc.segments
+
+    def decode(self, data: bytes | memoryview, on_release: Callable[[str, int], None] | None = None) -> Any:
+        """Decode one frame; raise :class:`CorruptFrame` for anything that is not ours."""
+        source = self.source
+
+        def ext_hook(code: int, payload: bytes) -> Any:
+            if code == EXT_NDARRAY:
+                dtype, shape, raw = msgpack.unpackb(payload)
+                return np.frombuffer(raw, dtype=np.dtype(dtype)).reshape(shape)
+            if code == EXT_MESSAGE:
+                wire, fields = msgpack.unpackb(payload, ext_hook=ext_hook, strict_map_key=False)
+                return message_class(wire)(**fields)
+            if code == EXT_SHM:
+                if source is None:
+                    raise CorruptFrame("shared-memory handle on a channel that does not accept them")
+                return source.view(msgpack.unpackb(payload), on_release)
+            raise CorruptFrame(f"unknown msgpack extension type {code}")
+
+        try:
+            return msgpack.unpackb(data, ext_hook=ext_hook, strict_map_key=False)
+        except (CorruptFrame, UnregisteredType):
+            raise
+        except Exception as exc:  # msgpack raises many types for garbage input
+            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc

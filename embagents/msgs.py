@@ -1,0 +1,194 @@
+"""Message types of the robotics layer: attrs classes with msgpack codecs.
+
+Arrays (images, audio, boxes, grids) are numpy arrays; above ~64 KB they
+travel through shared memory between actor processes without copies.
+
+Example::
+
+    >>> from embagents.msgs import String, Twist
+    >>> String(data="hello")
+    String(data='hello')
+    >>> Twist(linear=(0.2, 0.0, 0.0)).angular
+    (0.0, 0.0, 0.0)
+"""
+
+from __future__ import annotations
+
+import attrs
+import numpy as np
+
+from actors.codec import message
+
+__all__ = [
+    "MESSAGE_TYPES",
+    "Audio",
+    "CompressedImage",
+    "Detections",
+    "Image",
+    "JointState",
+    "Odometry",
+    "OccupancyGrid",
+    "String",
+    "StreamingString",
+    "Twist",
+]
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+
+
+def _vec3(v: object) -> Vec3:
+    x, y, z = (float(c) for c in v)  # type: ignore[union-attr]
+    return (x, y, z)
+
+
+def _quat(v: object) -> Quat:
+    x, y, z, w = (float(c) for c in v)  # type: ignore[union-attr]
+    return (x, y, z, w)
+
+
+def _array(dtype: str, ndim: int | None = None):  # noqa: ANN202 - attrs converter factory
+    def conv(v: object) -> np.ndarray:
+        a = np.asarray(v, dtype=dtype)
+        if ndim is not None and a.ndim != ndim:
+            if a.size == 0:
+                return a.reshape((0,) * ndim) if ndim > 1 else a.reshape(0)
+            raise ValueError(f"expected a {ndim}-D array, got shape {a.shape}")
+        return a
+
+    return conv
+
+
+@message("embagents/String")
+@attrs.define
+class String:
+    """A piece of text."""
+
+    data: str = ""
+
+
+@message("embagents/StreamingString")
+@attrs.define
+class StreamingString:
+    """One chunk of a streamed text; ``done`` marks the last chunk of ``stream_id``."""
+
+    data: str = ""
+    done: bool = False
+    stream_id: str = ""
+
+
+@message("embagents/Image")
+@attrs.define(eq=False)
+class Image:
+    """A raw image, ``data`` of shape (height, width, channels) or (height, width)."""
+
+    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0, 3), np.uint8))
+    encoding: str = "rgb8"
+    stamp: float = 0.0
+    frame_id: str = ""
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+
+@message("embagents/CompressedImage")
+@attrs.define
+class CompressedImage:
+    """An encoded image (``format`` is "jpeg" or "png")."""
+
+    data: bytes = b""
+    format: str = "jpeg"
+    stamp: float = 0.0
+    frame_id: str = ""
+
+
+@message("embagents/Audio")
+@attrs.define(eq=False)
+class Audio:
+    """PCM audio: ``data`` int16 or float32 samples, interleaved when channels > 1."""
+
+    data: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.int16))
+    sample_rate: int = 16000
+    channels: int = 1
+    stamp: float = 0.0
+
+
+@message("embagents/Detections")
+@attrs.define(eq=False)
+class Detections:
+    """Object detections in one image: ``boxes`` (N, 4) as x1, y1, x2, y2 pixels."""
+
+    boxes: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 4), np.float32), converter=_array("float32", 2))
+    labels: list[str] = attrs.field(factory=list)
+    scores: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.float32), converter=_array("float32", 1))
+    image_width: int = 0
+    image_height: int = 0
+    stamp: float = 0.0
+    frame_id: str = ""
+
+    def __attrs_post_init__(self) -> None:
+        n = len(self.boxes)
+        if len(self.labels) != n or len(self.scores) != n:
+            raise ValueError(
+                f"Detections needs as many labels and scores as boxes: {n} boxes, "
+                f"{len(self.labels)} labels, {len(self.scores)} scores"
+            )
+
+
+@message("embagents/Twist")
+@attrs.define
+class Twist:
+    """Velocity command: linear (m/s) and angular (rad/s) vectors."""
+
+    linear: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    angular: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+
+
+@message("embagents/Odometry")
+@attrs.define
+class Odometry:
+    """Pose (position, orientation quaternion x, y, z, w) and twist of ``child_frame_id``."""
+
+    position: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    orientation: Quat = attrs.field(default=(0.0, 0.0, 0.0, 1.0), converter=_quat)
+    linear: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    angular: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    frame_id: str = "odom"
+    child_frame_id: str = "base_link"
+    stamp: float = 0.0
+
+
+@message("embagents/OccupancyGrid")
+@attrs.define(eq=False)
+class OccupancyGrid:
+    """A 2-D map: ``data`` (height, width) int8, -1 unknown, 0..100 occupancy."""
+
+    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0), np.int8), converter=_array("int8", 2))
+    resolution: float = 0.05
+    origin_position: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    origin_orientation: Quat = attrs.field(default=(0.0, 0.0, 0.0, 1.0), converter=_quat)
+    frame_id: str = "map"
+    stamp: float = 0.0
+
+
+@message("embagents/JointState")
+@attrs.define(eq=False)
+class JointState:
+    """Joint names with positions (rad or m), velocities and efforts."""
+
+    name: list[str] = attrs.field(factory=list)
+    position: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
+    velocity: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
+    effort: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
+    stamp: float = 0.0
+
+
+MESSAGE_TYPES: dict[str, type] = {
+    cls.__name__: cls
+    for cls in (String, StreamingString, Image, CompressedImage, Audio, Detections, Twist, Odometry, OccupancyGrid, JointState)
+}
