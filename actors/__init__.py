@@ -29,3 +29,9 @@ __all__ = [
     "message",
     "register",
 ]
+
+from actors.actor import Actor, ActorContext  # noqa: E402
+from actors.ref import ActorRef  # noqa: E402
+from actors.system import ActorSystem  # noqa: E402
+
+__all__ += ["Actor", "ActorContext", "ActorRef", "ActorSystem"]

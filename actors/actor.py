@@ -1,0 +1,94 @@
+"""The ``Actor`` base class: hooks in the style of pykka.
+
+Subclass it, override :meth:`Actor.on_receive`, and spawn it with
+:meth:`actors.ActorSystem.spawn`; it then runs in its own process (or, with
+``attached=True``, as a pykka thread in the spawning process) behind the
+same :class:`~actors.ActorRef` API.
+
+Example::
+
+    >>> class Echo(Actor):
+    ...     def on_receive(self, message):
+    ...         return message
+    >>> ref = system.spawn(Echo, "echo")               # doctest: +SKIP
+    >>> ref.ask("hi", timeout=1).get()                 # doctest: +SKIP
+    'hi'
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+
+from actors.ref import ActorRef
+
+__all__ = ["Actor", "ActorContext"]
+
+
+class ActorContext:
+    """What the runtime offers an actor: its name, refs, topics, stopping."""
+
+    def __init__(self, name: str, host: Any) -> None:
+        self.name = name
+        self._host = host
+
+    def ref(self, name: str) -> ActorRef:
+        """A ref to another actor of the run (raises ActorNotFound if unknown)."""
+        self._host.rt.lookup(name)
+        return ActorRef(name)
+
+    def publish(self, topic: str, message: Any) -> None:
+        self._host.publisher(topic).publish(message)
+
+    def subscribe(
+        self,
+        topic: str,
+        callback: Callable[[Any], None],
+        *,
+        queue_size: int = 10,
+        keep: str = "latest",
+        msg_type: type | None = None,
+    ) -> None:
+        self._host.subscribe(topic, callback, queue_size=queue_size, keep=keep, msg_type=msg_type)
+
+    def stop(self) -> None:
+        """Stop this actor after the current message (a normal exit)."""
+        self._host.request_stop()
+
+    @property
+    def incarnation(self) -> int:
+        """1 for the first start, 2 after the first restart, and so on."""
+        return self._host.incarnation
+
+
+class Actor:
+    """Base class of actors. Override the hooks you need."""
+
+    #: Set by the runtime before ``on_start``.
+    context: ActorContext
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+    @property
+    def name(self) -> str:
+        return self.context.name
+
+    def on_start(self) -> None:
+        """Called in the actor's process before the first message."""
+
+    def on_stop(self) -> None:
+        """Called on a requested stop, after the last message."""
+
+    def on_failure(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Called when a told message raised; the actor then exits (and may be restarted)."""
+
+    def on_receive(self, message: Any) -> Any:
+        """Handle one message; the return value answers an ``ask``."""
+        raise NotImplementedError(f"{type(self).__name__} does not handle messages: override on_receive")

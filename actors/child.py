@@ -1,0 +1,109 @@
+"""The main function of an actor process (runs in a child of the fork server)."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import socket
+import sys
+import traceback
+from typing import Any
+
+import msgpack
+import zmq
+
+from actors.host import ActorHost, load_class
+from actors.loop import Loop
+from actors.runtime import Runtime, set_current
+
+__all__ = ["child_main", "configure_logging"]
+
+
+class _ActorFilter(logging.Filter):
+    def __init__(self, actor: str) -> None:
+        super().__init__()
+        self.actor = actor
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.actor = getattr(record, "actor", self.actor)
+        return True
+
+
+def configure_logging(actor: str, level: int = logging.INFO) -> None:
+    """Every log line of this process says which actor said it."""
+    root = logging.getLogger()
+    for h in list(root.handlers):
+        root.removeHandler(h)
+    h = logging.StreamHandler(sys.stderr)
+    h.addFilter(_ActorFilter(actor))
+    h.setFormatter(logging.Formatter("%(asctime)s [%(actor)s] %(levelname)s %(name)s: %(message)s"))
+    root.addHandler(h)
+    root.setLevel(level)
+
+
+def _notify(rt: Runtime, msg: list[Any]) -> None:
+    """Tell the root something (ready, failed) on a short-lived socket."""
+    s = rt.ctx.socket(zmq.DEALER)
+    s.setsockopt(zmq.LINGER, 1000)
+    s.connect(f"ipc://{rt.run_dir}/_root.ctl")
+    s.send(msgpack.packb(msg))
+    s.close()
+
+
+def child_main(spec: dict[str, Any]) -> None:
+    """Build the actor described by ``spec``, serve it, and exit with a status that says how it ended."""
+    name = spec["name"]
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    configure_logging(name, spec.get("log_level", logging.INFO))
+    with contextlib.suppress(Exception):
+        import setproctitle  # type: ignore[import-not-found]
+
+        setproctitle.setproctitle(f"embagents:{name}")
+    if spec.get("nice"):
+        os.nice(int(spec["nice"]))
+    if spec.get("cpu_affinity"):
+        os.sched_setaffinity(0, spec["cpu_affinity"])
+    rt = Runtime(spec["run_dir"], spec["run_id"])
+    set_current(rt)
+    loop = Loop()
+    rt.adopt_loop(loop)
+    host = None
+    try:
+        cls = load_class(spec["cls"])
+        actor = cls(*spec.get("args", ()), **spec.get("kwargs", {}))
+        host = ActorHost(
+            rt, loop, name, actor, heartbeat=spec.get("heartbeat"), poison_limit=spec.get("poison_limit", 3)
+        )
+        for path in spec.get("hooks", ()):
+            load_class(path)(host, spec)  # type: ignore[call-arg]
+        # SIGTERM asks for a clean stop; the wakeup socket interrupts a blocked poll.
+        rsock, wsock = socket.socketpair()
+        rsock.setblocking(False)
+        wsock.setblocking(False)
+        signal.set_wakeup_fd(wsock.fileno())
+        signal.signal(signal.SIGTERM, lambda *_: host.request_stop())  # type: ignore[union-attr]
+
+        def drain() -> None:
+            with contextlib.suppress(BlockingIOError):
+                rsock.recv(512)
+
+        loop.add(rsock.fileno(), drain)
+        host.start()
+        _notify(rt, ["ready", name, os.getpid(), host.incarnation])
+        host.serve()
+    except BaseException as exc:
+        text = traceback.format_exc()
+        logging.getLogger("actors").error("actor crashed: %s\n%s", exc, text)
+        with contextlib.suppress(Exception):
+            _notify(rt, ["failed", name, os.getpid(), f"{type(exc).__name__}: {exc}"])
+        with contextlib.suppress(Exception):
+            rt.pool.close()
+        os._exit(1)
+    try:
+        host.actor.on_stop()
+    finally:
+        host.close()
+        rt.close()
+    os._exit(0)

@@ -1,0 +1,213 @@
+"""A pre-imported, single-threaded fork server; actor processes are its children.
+
+The root forks it once, before it creates any thread or socket of its own,
+so every module the root had imported is already loaded: a new actor
+process is one ``fork()`` away (milliseconds), and no spec ever needs
+pickling (specs are msgpack, classes are found by ``module:QualName``).
+
+It reports every child's exit the moment SIGCHLD arrives, removes the dead
+child's shared-memory segments and subscription files, and when the root
+goes away (its socket closes, even on SIGKILL) it kills every child and
+removes the run's segments and directory: no orphans, no leaks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import glob
+import logging
+import os
+import select
+import shutil
+import signal
+import socket
+import sys
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+
+from actors.shm import sweep
+
+__all__ = ["ForkServer", "set_pdeathsig"]
+
+_PR_SET_PDEATHSIG = 1
+_MAX = 1 << 20
+
+
+def set_pdeathsig(sig: int = signal.SIGKILL) -> None:
+    """Ask the kernel to send ``sig`` to this process when its parent dies."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+    except (OSError, AttributeError):  # not Linux: the EOF path still cleans up
+        pass
+
+
+def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
+    sweep(f"{prefix}{pid}_")
+    for path in glob.glob(os.path.join(run_dir, "topics", "*", f"{pid}-*")):
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+    for path in glob.glob(os.path.join(run_dir, f"s.{pid}-*")):
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+
+
+def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: Callable[[dict[str, Any]], None]) -> None:
+    keep = {0, 1, 2, sock.fileno()}
+    os.closerange(3, sock.fileno())
+    os.closerange(sock.fileno() + 1, 4096)
+    del keep
+    # Streams a test runner swapped in may sit on fds we just closed.
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
+    rfd, wfd = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+    signal.set_wakeup_fd(wfd)
+    signal.signal(signal.SIGCHLD, lambda *_: None)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the root's to handle
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    children: dict[int, str] = {}
+
+    def send(msg: list[Any]) -> None:
+        with contextlib.suppress(OSError):
+            sock.send(msgpack.packb(msg))
+
+    def reap() -> None:
+        while True:
+            try:
+                pid, status = os.waitpid(-1, os.WNOHANG)
+            except ChildProcessError:
+                return
+            if pid == 0:
+                return
+            code = os.waitstatus_to_exitcode(status)
+            name = children.pop(pid, "?")
+            _cleanup_pid(run_dir, shm_run_prefix, pid)
+            send(["exit", pid, code, name])
+
+    while True:
+        try:
+            ready, _, _ = select.select([sock, rfd], [], [])
+        except InterruptedError:
+            continue
+        if rfd in ready:
+            with contextlib.suppress(BlockingIOError):
+                os.read(rfd, 4096)
+            reap()
+        if sock in ready:
+            try:
+                data = sock.recv(_MAX)
+            except OSError:
+                data = b""
+            if not data:
+                break  # the root is gone
+            cmd = msgpack.unpackb(data)
+            if cmd[0] == "spawn":
+                token, spec = cmd[1], cmd[2]
+                pid = os.fork()
+                if pid == 0:
+                    signal.set_wakeup_fd(-1)
+                    os.close(rfd)
+                    os.close(wfd)
+                    sock.close()
+                    signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+                    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                    set_pdeathsig(signal.SIGKILL)
+                    code = 0
+                    try:
+                        child_main(spec)
+                    except SystemExit as exc:
+                        code = exc.code if isinstance(exc.code, int) else 1
+                    except BaseException:
+                        traceback.print_exc()
+                        code = 1
+                    finally:
+                        with contextlib.suppress(Exception):
+                            sys.stdout.flush()
+                            sys.stderr.flush()
+                        os._exit(code)
+                children[pid] = spec.get("name", "?")
+                send(["spawned", token, pid])
+            elif cmd[0] == "kill":
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(cmd[1], cmd[2])
+            elif cmd[0] == "exit":
+                break
+    # The root is gone or asked us to go: nothing of the run may survive us.
+    for pid in list(children):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    for pid in list(children):
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(pid, 0)
+    sweep(shm_run_prefix)
+    shutil.rmtree(run_dir, ignore_errors=True)
+
+
+class ForkServer:
+    """The root's handle on its fork server."""
+
+    def __init__(self, run_dir: str, shm_run_prefix: str, child_main: Callable[[dict[str, Any]], None]) -> None:
+        parent, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        pid = os.fork()
+        if pid == 0:
+            parent.close()
+            code = 0
+            try:
+                logging.shutdown = lambda *a, **k: None  # type: ignore[assignment]
+                _serve(child, run_dir, shm_run_prefix, child_main)
+            except BaseException:
+                traceback.print_exc()
+                code = 1
+            os._exit(code)
+        child.close()
+        self.pid = pid
+        self.sock = parent
+        self.sock.setblocking(False)
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def send(self, msg: list[Any]) -> None:
+        self.sock.setblocking(True)
+        try:
+            self.sock.send(msgpack.packb(msg))
+        finally:
+            self.sock.setblocking(False)
+
+    def recv_all(self) -> list[list[Any]]:
+        out = []
+        while True:
+            try:
+                data = self.sock.recv(_MAX)
+            except BlockingIOError:
+                return out
+            if not data:
+                return out
+            out.append(msgpack.unpackb(data))
+
+    def close(self, timeout: float = 5.0) -> None:
+        with contextlib.suppress(OSError):
+            self.send(["exit"])
+        self.sock.close()
+        try:
+            _wait_pid(self.pid, timeout)
+        except ChildProcessError:
+            pass
+
+
+def _wait_pid(pid: int, timeout: float) -> None:
+    import time
+
+    deadline = time.monotonic() + timeout
+    while True:
+        done, _ = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return
+        time.sleep(0.005)

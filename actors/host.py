@@ -1,0 +1,166 @@
+"""Runs one actor: its mailbox, topics, heartbeat and hooks, in the current thread.
+
+In an actor process the host owns the main thread; the same class hosts an
+attached actor's IO in a thread of the spawning process.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+
+from actors import wire
+from actors.actor import Actor, ActorContext
+from actors.journal import Journal
+from actors.loop import Loop
+from actors.mailbox import Mailbox
+from actors.runtime import Runtime
+from actors.topics import Publisher, Subscription
+
+__all__ = ["ActorHost", "load_class"]
+
+log = logging.getLogger("actors.host")
+
+
+def load_class(path: str) -> type[Actor]:
+    """Import ``module:QualName``; a clear error if it cannot be found."""
+    mod_name, _, qual = path.partition(":")
+    try:
+        mod = sys.modules.get(mod_name) or importlib.import_module(mod_name)
+        obj: Any = mod
+        for part in qual.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as exc:
+        raise ImportError(
+            f"cannot load actor class {path!r}: {exc}; define actor classes at module top level "
+            "(and import them before the ActorSystem starts)"
+        ) from exc
+    return obj
+
+
+class ActorHost:
+    """Hosts ``actor`` named ``name`` on ``loop``."""
+
+    def __init__(
+        self,
+        rt: Runtime,
+        loop: Loop,
+        name: str,
+        actor: Actor,
+        *,
+        heartbeat: float | None = 1.0,
+        poison_limit: int = 3,
+    ) -> None:
+        self.rt = rt
+        self.loop = loop
+        self.name = name
+        self.actor = actor
+        self.journal = Journal(os.path.join(rt.run_dir, f"{name}.journal"))
+        self.journal.on_restart()
+        self.incarnation = self.journal.incarnation
+        self.mailbox = Mailbox(
+            rt, name, rt.endpoint(name), self._dispatch, self.journal,
+            poison_limit=poison_limit, dead_letter=self._dead_letter,
+        )
+        self.mailbox.loop = loop  # type: ignore[attr-defined]
+        self.publishers: dict[str, Publisher] = {}
+        self.subscriptions: list[Subscription] = []
+        self.ctrl_handlers: dict[str, Callable[..., Any]] = {
+            "ping": lambda: "pong",
+            "stop": self._ctrl_stop,
+            "stats": self.stats,
+        }
+        self.stop_requested = False
+        self.exit_reason = "normal"
+        actor.context = ActorContext(name, self)
+        loop.add(self.mailbox.sock, self.mailbox.on_readable)
+        loop.after_poll.append(self._after_poll)
+        if heartbeat:
+            loop.max_wait = heartbeat / 4
+        self.journal.beat()
+
+    # -- dispatch -----------------------------------------------------------
+    def _dispatch(self, kind: int, body: Any) -> Any:
+        if kind == wire.CTRL:
+            cmd, args = body[0], body[1] if len(body) > 1 else []
+            fn = self.ctrl_handlers.get(cmd)
+            if fn is None:
+                raise ValueError(f"unknown control command {cmd!r}")
+            return fn(*args)
+        try:
+            return self.actor.on_receive(body)
+        except Exception:
+            if kind == wire.TELL:
+                self.actor.on_failure(*sys.exc_info())
+            raise
+
+    def _after_poll(self) -> None:
+        self.journal.beat()
+        self.mailbox.flush()
+        if self.stop_requested:
+            self.loop.stop()
+
+    def _ctrl_stop(self) -> str:
+        self.stop_requested = True
+        return "stopping"
+
+    def request_stop(self) -> None:
+        self.stop_requested = True
+
+    def _dead_letter(self, record: dict[str, Any]) -> None:
+        with open(os.path.join(self.rt.run_dir, "deadletters.log"), "ab") as f:
+            f.write(msgpack.packb(record))
+
+    def stats(self) -> dict[str, Any]:
+        mb = self.mailbox
+        return {
+            "name": self.name,
+            "pid": os.getpid(),
+            "incarnation": self.incarnation,
+            "mailbox_depth": mb.depth,
+            "received": mb.received,
+            "handled": mb.handled,
+            "dropped": mb.dropped,
+            "dead_lettered": mb.dead_lettered,
+            "busy_for": time.monotonic() - mb.busy_since if mb.busy_since else 0.0,
+        }
+
+    # -- topics -------------------------------------------------------------
+    def publisher(self, topic: str) -> Publisher:
+        pub = self.publishers.get(topic)
+        if pub is None:
+            pub = self.publishers[topic] = Publisher(self.rt, topic)
+        return pub
+
+    def subscribe(self, topic: str, callback: Callable[[Any], None], **kw: Any) -> None:
+        self.subscriptions.append(Subscription(self.rt, self.loop, topic, callback, **kw))
+
+    # -- life ---------------------------------------------------------------
+    def start(self) -> None:
+        self.actor.on_start()
+
+    def serve(self) -> None:
+        """Handle messages until a stop is requested; a told message that raises propagates."""
+        self.mailbox.on_readable()  # messages may have queued before we polled
+        while not self.stop_requested:
+            self.loop.run()
+
+    def close(self) -> None:
+        for sub in self.subscriptions:
+            sub.close()
+        for pub in self.publishers.values():
+            pub.close()
+        self.loop.remove(self.mailbox.sock)
+        self.mailbox.close()
+        self.journal.end()
+        self.journal.close()
+
+

@@ -1,0 +1,218 @@
+"""The sending side of a mailbox: one DEALER per (IO thread, target actor).
+
+The link keeps every message until the actor acknowledges it and re-sends
+the unacknowledged ones, in order, when it connects to the actor's next
+incarnation (at-least-once). An ``ask`` sent to an incarnation that then
+dies fails with :class:`~actors.errors.ActorCrashed` at once; it is not
+re-sent, because its caller has been told it failed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import zmq
+
+from actors import wire
+from actors.errors import ActorCrashed, CorruptFrame, RemoteError
+
+if TYPE_CHECKING:
+    from actors.runtime import Runtime
+
+__all__ = ["Link", "Pending"]
+
+log = logging.getLogger("actors.link")
+_ids = itertools.count()
+
+
+class Pending:
+    """Where an ask's outcome goes: a callable taking (ok, value_or_exception)."""
+
+    __slots__ = ("done", "ok", "value", "callback")
+
+    def __init__(self, callback: Callable[[bool, Any], None] | None = None) -> None:
+        self.done = False
+        self.ok = False
+        self.value: Any = None
+        self.callback = callback
+
+    def resolve(self, ok: bool, value: Any) -> None:
+        if self.done:
+            return
+        self.done, self.ok, self.value = True, ok, value
+        if self.callback is not None:
+            self.callback(ok, value)
+
+
+class _Out:
+    __slots__ = ("kind", "frame", "segments", "epoch", "pending")
+
+    def __init__(self, kind: int, frame: bytes, segments: list[str], pending: Pending | None) -> None:
+        self.kind = kind
+        self.frame = frame
+        self.segments = segments
+        self.epoch = -1  # connection epoch it was last sent on; -1 = never sent
+        self.pending = pending
+
+
+class Link:
+    """Messages from this IO thread to the actor ``name`` at ``endpoint``."""
+
+    def __init__(self, rt: Runtime, name: str, endpoint: str) -> None:
+        self.rt = rt
+        self.name = name
+        self.endpoint = endpoint
+        self.ident = f"{os.getpid()}.{threading.get_ident() % 100000}.{next(_ids)}".encode()
+        s = rt.ctx.socket(zmq.DEALER)
+        s.setsockopt(zmq.ROUTING_ID, self.ident)
+        s.setsockopt(zmq.IMMEDIATE, 1)  # never queue into zmq for an absent peer: we keep it
+        s.setsockopt(zmq.LINGER, 0)
+        s.setsockopt(zmq.SNDHWM, 0)
+        s.setsockopt(zmq.RCVHWM, 0)
+        s.setsockopt(zmq.RECONNECT_IVL, 5)
+        s.setsockopt(zmq.RECONNECT_IVL_MAX, 50)
+        self.monitor = s.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED)
+        s.connect(endpoint)
+        self.sock = s
+        self.connected = False
+        self.epoch = 0
+        self.seq = 0
+        self.unacked: OrderedDict[int, _Out] = OrderedDict()
+        self.releases: list[str] = []
+        self.closed = False
+        self.sent_count = 0
+
+    # -- sending ------------------------------------------------------------
+    def send(self, kind: int, body: Any, pending: Pending | None = None) -> int:
+        self.seq += 1
+        frame, segs = self.rt.codec.encode([kind, self.seq, body])
+        out = _Out(kind, frame, segs, pending)
+        self.unacked[self.seq] = out
+        if self.connected:
+            self._transmit(out)
+        return self.seq
+
+    def _transmit(self, out: _Out) -> bool:
+        try:
+            self.sock.send(out.frame, zmq.NOBLOCK, copy=len(out.frame) > 4096)
+        except zmq.Again:
+            self.connected = False
+            return False
+        out.epoch = self.epoch
+        if out.segments:
+            self.rt.pool.sent(out.segments, self)
+        self.sent_count += 1
+        return True
+
+    def flush_releases(self) -> None:
+        if self.releases and self.connected:
+            names, self.releases = self.releases, []
+            try:
+                self.sock.send(self.rt.codec.encode([wire.RELEASE, names], shm=False)[0], zmq.NOBLOCK)
+            except zmq.Again:
+                pass
+
+    # -- receiving ----------------------------------------------------------
+    def on_monitor(self) -> None:
+        while True:
+            try:
+                frames = self.monitor.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            event = int.from_bytes(frames[0][:2], "little")
+            if event == zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                self._on_connected()
+            elif event == zmq.EVENT_DISCONNECTED:
+                self._on_disconnected()
+
+    def _on_connected(self) -> None:
+        self.connected = True
+        self.epoch += 1
+        for out in list(self.unacked.values()):
+            if not self._transmit(out):
+                break
+
+    def _on_disconnected(self) -> None:
+        self.connected = False
+        self.rt.pool.link_lost(self)
+        self.releases.clear()  # those segments belonged to the dead incarnation's replies
+        for seq, out in list(self.unacked.items()):
+            if out.kind != wire.TELL and out.epoch >= 0:
+                del self.unacked[seq]
+                self.rt.pool.acked(out.segments)
+                if out.pending is not None:
+                    out.pending.resolve(False, ActorCrashed(self.name, "its process exited"))
+
+    def on_readable(self) -> None:
+        sock = self.sock
+        decode = self.rt.codec.decode
+        while True:
+            try:
+                frame = sock.recv(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return
+            try:
+                msg = decode(frame.buffer, self._release)
+                kind = msg[0]
+                if kind == wire.ACK:
+                    self._ack(msg[1])
+                elif kind == wire.REPLY:
+                    _, seq, ok, value = msg
+                    out = self.unacked.pop(seq, None)
+                    self._ack(seq)
+                    if out is not None:
+                        self.rt.pool.acked(out.segments)
+                        if out.pending is not None:
+                            out.pending.resolve(ok, value if ok else RemoteError(self.name, *value))
+                elif kind == wire.RELEASE:
+                    for n in msg[1]:
+                        self.rt.pool.released(n, self)
+                elif kind == wire.DEAD:
+                    _, seq, reason = msg
+                    out = self.unacked.pop(seq, None)
+                    if out is not None:
+                        self.rt.pool.acked(out.segments)
+                        if out.pending is not None:
+                            out.pending.resolve(False, ActorCrashed(self.name, f"message dead-lettered: {reason}"))
+                else:
+                    raise CorruptFrame(f"unexpected frame kind {kind!r}")
+            except Exception as exc:  # a bad frame must not take the sender down
+                log.warning("dropped a bad frame from actor %r: %s", self.name, exc)
+
+    def _release(self, name: str, gen: int) -> None:
+        # Runs in whatever thread drops the view; list.append is atomic.
+        self.releases.append(name)
+        self.rt.wake(self)
+
+    def _ack(self, upto: int) -> None:
+        # The actor processes in order and replies before it acks, so every
+        # message up to ``upto`` is done.
+        while self.unacked:
+            seq = next(iter(self.unacked))
+            if seq > upto:
+                return
+            out = self.unacked.popitem(last=False)[1]
+            self.rt.pool.acked(out.segments)
+
+    @property
+    def backlog(self) -> int:
+        return len(self.unacked)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for out in self.unacked.values():
+            self.rt.pool.acked(out.segments)
+            if out.pending is not None:
+                out.pending.resolve(False, ActorCrashed(self.name, "the link was closed"))
+        self.unacked.clear()
+        self.sock.disable_monitor()
+        self.monitor.close(0)
+        self.sock.close(0)

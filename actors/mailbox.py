@@ -1,0 +1,207 @@
+"""The receiving side of a mailbox: the actor's ROUTER socket.
+
+Messages are drained into a local queue and handled one at a time, in the
+order each sender sent them. After a batch, every sender gets one ACK for
+the highest sequence number handled; an ASK gets its REPLY (which also
+acknowledges it). Before a message is handled its id is written to the
+actor's journal; if the process dies while handling it, the next
+incarnation counts that against the message, and past ``poison_limit``
+crashes it is dead-lettered with the reason instead of handled again.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import msgpack
+import zmq
+
+from actors import wire
+from actors.errors import CodecError
+
+if TYPE_CHECKING:
+    from actors.journal import Journal
+    from actors.runtime import Runtime
+
+__all__ = ["Mailbox"]
+
+log = logging.getLogger("actors.mailbox")
+
+Handler = Callable[[int, Any], Any]
+
+
+class Mailbox:
+    """Bind ``endpoint`` and feed ``handler(kind, body)`` one message at a time."""
+
+    def __init__(
+        self,
+        rt: Runtime,
+        name: str,
+        endpoint: str,
+        handler: Handler,
+        journal: Journal | None = None,
+        *,
+        poison_limit: int = 3,
+        dead_letter: Callable[[dict[str, Any]], None] | None = None,
+    ) -> None:
+        self.rt = rt
+        self.name = name
+        self.handler = handler
+        self.journal = journal
+        self.poison_limit = poison_limit
+        self.dead_letter = dead_letter
+        s = rt.ctx.socket(zmq.ROUTER)
+        s.setsockopt(zmq.LINGER, 500)  # let final acks and replies go out on stop
+        s.setsockopt(zmq.SNDHWM, 0)
+        s.setsockopt(zmq.RCVHWM, 0)
+        s.setsockopt(zmq.ROUTER_MANDATORY, 0)
+        s.setsockopt(zmq.MAXMSGSIZE, rt.codec.max_frame_bytes + 1024)
+        s.bind(endpoint)
+        self.sock = s
+        self.queue: deque[tuple[bytes, Any]] = deque()
+        self.last_seq: dict[bytes, int] = {}
+        self.to_ack: dict[bytes, int] = {}
+        self.releases: dict[bytes, list[str]] = {}
+        self.crashed = journal.crashed_message() if journal is not None else None
+        self.received = 0
+        self.handled = 0
+        self.dropped = 0
+        self.dead_lettered = 0
+        self.busy_since = 0.0
+        self.stopping = False
+
+    @property
+    def depth(self) -> int:
+        return len(self.queue)
+
+    def on_readable(self) -> None:
+        """Drain the socket, then handle what came in (acks go out per batch)."""
+        self._drain()
+        jr = self.journal
+        while self.queue and not self.stopping:
+            ident, frame = self.queue.popleft()
+            self._handle(ident, frame)
+            if jr is not None:
+                jr.beat()
+            if not self.queue:
+                self._drain()
+        self.flush()
+
+    def _drain(self) -> None:
+        sock = self.sock
+        for _ in range(4096):
+            try:
+                ident, frame = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return
+            except ValueError:  # not two frames: foreign peer
+                self.dropped += 1
+                log.warning("[%s] dropped a frame with the wrong number of parts", self.name)
+                continue
+            self.received += 1
+            self.queue.append((ident.bytes, frame))
+
+    def _handle(self, ident: bytes, frame: Any) -> None:
+        try:
+            msg = self.rt.codec.decode(frame.buffer, lambda n, g, i=ident: self._release(i, n))
+            kind, seq, body = msg[0], msg[1], msg[2] if len(msg) > 2 else None
+        except CodecError as exc:
+            self.dropped += 1
+            log.warning("[%s] dropped a corrupt frame from %r: %s", self.name, ident, exc)
+            return
+        except (TypeError, IndexError, KeyError):
+            self.dropped += 1
+            log.warning("[%s] dropped a foreign frame from %r", self.name, ident)
+            return
+        if kind == wire.RELEASE:
+            for n in seq:  # [RELEASE, names]
+                self.rt.pool.released(n, ident)
+            return
+        if kind not in (wire.TELL, wire.ASK, wire.CTRL) or not isinstance(seq, int):
+            self.dropped += 1
+            log.warning("[%s] dropped a frame of unknown kind %r from %r", self.name, kind, ident)
+            return
+        if seq <= self.last_seq.get(ident, 0):
+            self.to_ack[ident] = self.last_seq[ident]  # a duplicate after a resend
+            return
+        self.last_seq[ident] = seq
+        if self.crashed is not None and self.crashed[0] == ident and self.crashed[1] == seq:
+            if self.crashed[2] >= self.poison_limit:
+                self._dead_letter(ident, seq, kind, body)
+                return
+        jr = self.journal
+        if jr is not None:
+            jr.begin(ident, seq)
+        self.busy_since = time.monotonic()
+        try:
+            result = self.handler(kind, body)
+            ok = True
+        except Exception as exc:
+            if kind == wire.TELL:
+                raise  # the actor crashes; the runtime reports it
+            ok = False
+            result = [type(exc).__name__, str(exc), traceback.format_exc()]
+        finally:
+            self.busy_since = 0.0
+            if jr is not None:
+                jr.end()
+        self.handled += 1
+        if kind == wire.TELL:
+            self.to_ack[ident] = seq
+        else:
+            self.to_ack.pop(ident, None)
+            self._reply(ident, seq, ok, result)
+
+    def _reply(self, ident: bytes, seq: int, ok: bool, result: Any) -> None:
+        try:
+            frame, segs = self.rt.codec.encode([wire.REPLY, seq, ok, result])
+        except Exception as exc:
+            frame, segs = self.rt.codec.encode(
+                [wire.REPLY, seq, False, [type(exc).__name__, f"cannot send the reply: {exc}", ""]]
+            )
+        self.sock.send_multipart([ident, frame], copy=len(frame) > 4096)
+        if segs:
+            self.rt.pool.sent(segs, ident)
+            self.rt.pool.acked(segs)  # replies are not re-sent: only the view holds them
+
+    def _dead_letter(self, ident: bytes, seq: int, kind: int, body: Any) -> None:
+        self.dead_lettered += 1
+        reason = f"it crashed actor {self.name!r} {self.crashed[2] if self.crashed else '?'} times"
+        record = {
+            "actor": self.name,
+            "sender": ident.decode(errors="replace"),
+            "seq": seq,
+            "kind": {wire.TELL: "tell", wire.ASK: "ask", wire.CTRL: "ctrl"}.get(kind, str(kind)),
+            "reason": reason,
+            "message": repr(body)[:500],
+            "time": time.time(),
+        }
+        log.error("[%s] dead-lettered message %s from %s: %s", self.name, seq, record["sender"], reason)
+        if self.dead_letter is not None:
+            self.dead_letter(record)
+        self.sock.send_multipart([ident, msgpack.packb([wire.DEAD, seq, reason])])
+        self.crashed = None
+
+    def _release(self, ident: bytes, name: str) -> None:
+        self.releases.setdefault(ident, []).append(name)
+        self.rt.wake(self)
+
+    def flush(self) -> None:
+        """Send batched acks and view releases."""
+        if self.to_ack:
+            acks, self.to_ack = self.to_ack, {}
+            for ident, seq in acks.items():
+                self.sock.send_multipart([ident, msgpack.packb([wire.ACK, seq])])
+        if self.releases:
+            rel, self.releases = self.releases, {}
+            for ident, names in rel.items():
+                self.sock.send_multipart([ident, msgpack.packb([wire.RELEASE, names])])
+
+    def close(self) -> None:
+        self.flush()
+        self.sock.close()

@@ -1,0 +1,268 @@
+"""Large arrays through POSIX shared memory (``/dev/shm``), written once.
+
+A sender's :class:`ShmPool` copies an array into a segment it owns and the
+frame carries a small handle; a receiver's :class:`ShmReader` maps the
+segment and returns a read-only numpy view, without copying.
+
+Lifetime is explicit:
+
+* mailbox messages (tell / ask / reply): a segment stays reserved until the
+  message is acknowledged *and* every view a receiver made of it has been
+  released (the receiver reports it when the view is garbage collected), or
+  the receiving process is gone. Then the pool reuses it, pages still hot.
+* topics: the publisher keeps a ring per topic and reuses a segment only
+  after ``ring`` newer frames *and* ``min_age`` seconds; a subscriber that
+  maps a reused segment gets :class:`~actors.errors.StaleFrame` (the frame
+  is dropped, as sensor data may be). Copy a frame to keep it longer.
+* segment names carry the run and the owner pid (``ea<run>_<pid>_<n>``), so
+  whoever reaps a dead process removes its segments with :func:`sweep`, and
+  the run's end removes all of them.
+
+Example::
+
+    >>> pool, reader = ShmPool("eadoc_1_"), ShmReader()
+    >>> h = pool.put(np.arange(100_000, dtype=np.int32))
+    >>> int(reader.view(h, None)[-1])
+    99999
+    >>> pool.close()
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import struct
+import time
+import weakref
+from collections import OrderedDict, deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from actors.errors import StaleFrame
+
+__all__ = ["SHM_DIR", "ShmPool", "ShmReader", "sweep"]
+
+SHM_DIR = "/dev/shm"
+_HEADER = 64  # magic + generation; data starts cache-line aligned
+_MAGIC = 0x45415348  # "EASH"
+_HDR = struct.Struct("<IIQ")
+_PAGE = mmap.PAGESIZE
+
+
+class _Segment:
+    __slots__ = ("name", "size", "mm", "gen", "msg_refs", "views", "stamp")
+
+    def __init__(self, name: str, size: int) -> None:
+        self.name = name
+        self.size = size
+        fd = os.open(os.path.join(SHM_DIR, name), os.O_CREAT | os.O_EXCL | os.O_RDWR, 0o600)
+        try:
+            os.ftruncate(fd, size)
+            self.mm = mmap.mmap(fd, size, flags=mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0))
+        finally:
+            os.close(fd)
+        self.gen = 0
+        self.msg_refs = 0  # messages (unacked or in flight) that refer to it
+        self.views: dict[Any, int] = {}  # receiver link -> views not yet released
+        self.stamp = 0.0
+
+    def write(self, arr: np.ndarray) -> None:
+        self.gen += 1
+        _HDR.pack_into(self.mm, 0, _MAGIC, 0, self.gen)
+        dst = np.frombuffer(self.mm, dtype=np.uint8, count=arr.nbytes, offset=_HEADER)
+        np.copyto(dst.view(arr.dtype).reshape(arr.shape), arr, casting="no")
+        self.stamp = time.monotonic()
+
+    def busy(self) -> bool:
+        return self.msg_refs > 0 or any(self.views.values())
+
+    def unlink(self) -> None:
+        try:
+            os.unlink(os.path.join(SHM_DIR, self.name))
+        except FileNotFoundError:
+            pass
+        try:
+            self.mm.close()
+        except BufferError:  # a local view still exists; the kernel frees it with the view
+            pass
+
+
+class ShmPool:
+    """The segments one process writes; names start with ``prefix``.
+
+    ``put`` reserves a segment for a mailbox message; :meth:`sent`,
+    :meth:`acked` and :meth:`released` drive its reuse. ``put_ring`` is the
+    topic variant.
+    """
+
+    def __init__(self, prefix: str, *, max_free_bytes: int = 1 << 30) -> None:
+        self.prefix = prefix
+        self._seq = 0
+        self._segs: dict[str, _Segment] = {}
+        self._free: list[_Segment] = []
+        self._rings: dict[str, deque[_Segment]] = {}
+        self.max_free_bytes = max_free_bytes
+
+    def _new(self, nbytes: int) -> _Segment:
+        self._seq += 1
+        size = _HEADER + -(-nbytes // _PAGE) * _PAGE
+        seg = _Segment(f"{self.prefix}{self._seq}", size)
+        self._segs[seg.name] = seg
+        return seg
+
+    def _take_free(self, nbytes: int) -> _Segment | None:
+        best = None
+        for seg in self._free:
+            if _HEADER + nbytes <= seg.size <= 2 * (_HEADER + nbytes) + _PAGE:
+                if best is None or seg.size < best.size:
+                    best = seg
+        if best is not None:
+            self._free.remove(best)
+        return best
+
+    @staticmethod
+    def _handle(seg: _Segment, arr: np.ndarray) -> list[Any]:
+        return [seg.name, seg.gen, _HEADER, arr.dtype.str, list(arr.shape)]
+
+    def put(self, arr: np.ndarray) -> list[Any]:
+        """Copy ``arr`` into a reserved segment and return its handle."""
+        arr = np.ascontiguousarray(arr)
+        seg = self._take_free(arr.nbytes) or self._new(arr.nbytes)
+        seg.write(arr)
+        seg.msg_refs += 1
+        return self._handle(seg, arr)
+
+    def put_ring(self, key: str, arr: np.ndarray, *, ring: int = 8, min_age: float = 0.5) -> list[Any]:
+        """Copy ``arr`` into topic ``key``'s ring (see the module docstring)."""
+        arr = np.ascontiguousarray(arr)
+        q = self._rings.setdefault(key, deque())
+        seg = None
+        if q and (len(q) >= 4 * ring or (len(q) >= ring and time.monotonic() - q[0].stamp >= min_age)):
+            seg = q.popleft()
+            if seg.size < _HEADER + arr.nbytes or seg.size > 2 * (_HEADER + arr.nbytes) + _PAGE:
+                self._drop(seg)
+                seg = None
+        if seg is None:
+            seg = self._new(arr.nbytes)
+        seg.write(arr)
+        q.append(seg)
+        return self._handle(seg, arr)
+
+    # -- mailbox accounting -------------------------------------------------
+    def sent(self, names: list[str], link: Any) -> None:
+        """A message referring to ``names`` went out on ``link`` (one view each)."""
+        for n in names:
+            seg = self._segs.get(n)
+            if seg is not None:
+                seg.views[link] = seg.views.get(link, 0) + 1
+
+    def acked(self, names: list[str]) -> None:
+        """The message referring to ``names`` is done (acknowledged or abandoned)."""
+        for n in names:
+            seg = self._segs.get(n)
+            if seg is not None:
+                seg.msg_refs -= 1
+                self._maybe_free(seg)
+
+    def released(self, name: str, link: Any) -> None:
+        """A receiver on ``link`` dropped its view of ``name``."""
+        seg = self._segs.get(name)
+        if seg is not None and seg.views.get(link, 0) > 0:
+            seg.views[link] -= 1
+            self._maybe_free(seg)
+
+    def link_lost(self, link: Any) -> None:
+        """The process behind ``link`` is gone: its views went with it."""
+        for seg in list(self._segs.values()):
+            if seg.views.pop(link, None):
+                self._maybe_free(seg)
+
+    def _maybe_free(self, seg: _Segment) -> None:
+        if seg.busy() or seg in self._free or any(seg in q for q in self._rings.values()):
+            return
+        seg.views.clear()
+        self._free.append(seg)
+        # Keep hot segments for reuse, but bound what idles in /dev/shm.
+        while sum(s.size for s in self._free) > self.max_free_bytes:
+            self._drop(self._free.pop(0))
+
+    def _drop(self, seg: _Segment) -> None:
+        self._segs.pop(seg.name, None)
+        seg.unlink()
+
+    @property
+    def segment_count(self) -> int:
+        return len(self._segs)
+
+    def close(self) -> None:
+        """Unlink every segment this pool created."""
+        for seg in list(self._segs.values()):
+            seg.unlink()
+        self._segs.clear()
+        self._free.clear()
+        self._rings.clear()
+
+
+class ShmReader:
+    """Maps segments written by other processes; caches recent mappings."""
+
+    def __init__(self, max_cached: int = 128) -> None:
+        self._maps: OrderedDict[str, mmap.mmap] = OrderedDict()
+        self.max_cached = max_cached
+
+    def _map(self, name: str) -> mmap.mmap:
+        mm = self._maps.get(name)
+        if mm is not None:
+            self._maps.move_to_end(name)
+            return mm
+        try:
+            fd = os.open(os.path.join(SHM_DIR, name), os.O_RDONLY)
+        except FileNotFoundError:
+            raise StaleFrame(f"shared-memory frame {name} is gone (its writer released or died)") from None
+        try:
+            mm = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
+        finally:
+            os.close(fd)
+        self._maps[name] = mm
+        while len(self._maps) > self.max_cached:
+            self._maps.popitem(last=False)  # live views keep their mapping alive
+        return mm
+
+    def view(self, handle: list[Any], on_release: Callable[[str, int], None] | None) -> np.ndarray:
+        """A read-only view of the frame ``handle``; ``on_release`` runs when it is collected."""
+        name, gen, offset, dtype, shape = handle
+        mm = self._map(name)
+        magic, _, cur = _HDR.unpack_from(mm, 0)
+        if magic != _MAGIC or cur != gen:
+            raise StaleFrame(f"shared-memory frame {name} was reused before it was read")
+        dt = np.dtype(dtype)
+        count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+        mv = memoryview(mm)[offset : offset + count * dt.itemsize]
+        if on_release is not None:
+            weakref.finalize(mv, on_release, name, gen)
+        return np.frombuffer(mv, dtype=dt).reshape(shape)
+
+    def forget(self, name: str) -> None:
+        self._maps.pop(name, None)
+
+    def close(self) -> None:
+        self._maps.clear()
+
+
+def sweep(prefix: str) -> int:
+    """Unlink every segment whose name starts with ``prefix``; return how many."""
+    n = 0
+    try:
+        names = os.listdir(SHM_DIR)
+    except FileNotFoundError:
+        return 0
+    for f in names:
+        if f.startswith(prefix):
+            try:
+                os.unlink(os.path.join(SHM_DIR, f))
+                n += 1
+            except FileNotFoundError:
+                pass
+    return n

@@ -1,0 +1,1 @@
+"""In-process inference backends (llama.cpp, ...), each importing its library lazily."""

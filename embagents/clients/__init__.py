@@ -1,0 +1,1 @@
+"""Model clients that talk to inference servers (OpenAI-compatible HTTP, ...)."""

@@ -1,0 +1,396 @@
+"""The manager: a fixed-rate main loop over handlers and a shared state.
+
+For users who think in main loops (the ROS Base style): the loop waits for
+its handshake rules, then ticks at ``rate_hz``, running every handler in
+registration order on each tick. Deadlines are absolute (tick *n* is due at
+``start + n / rate_hz``), so the rate does not drift; between ticks the loop
+sleeps on an event, so it costs no CPU and :meth:`Manager.stop` wakes it at
+once from any thread or a signal handler.
+
+Example::
+
+    >>> manager = Manager(rate_hz=100)
+    >>> @manager.add_handler
+    ... def count(state, tick):
+    ...     state.update(last=tick)
+    >>> manager.run(max_ticks=3)
+    3
+    >>> manager.state.last, manager.tick
+    (3, 3)
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from types import TracebackType
+from typing import Any, Literal, TypeVar
+
+import pykka
+
+from embagents.manager.attached import Attachments, R
+from embagents.manager.handler import Handler, as_handler
+from embagents.manager.handshake import HandshakeRule, wait_for_handshake
+from embagents.manager.state import State
+
+__all__ = ["ErrorPolicy", "Manager"]
+
+ErrorPolicy = Literal["log", "raise", "stop"]
+H = TypeVar("H", bound="Handler | Callable[[State, int], object]")
+
+#: Seconds between log lines for a handler that keeps failing (after its first traceback).
+REPEAT_LOG_INTERVAL = 5.0
+
+
+class Manager:
+    """A fixed-rate loop; see the module docstring.
+
+    ``handshake`` rules must all hold before tick 1 (checked at the loop
+    rate; :class:`~embagents.manager.handshake.HandshakeTimeout` after
+    ``handshake_timeout`` seconds, None waits forever). With
+    ``log_rate_every`` set, the achieved rate and overruns are logged that
+    often to ``embagents.manager.<name>``. ``on_handler_error`` says what a
+    handler exception does: ``"log"`` it and go on, ``"raise"`` it out of
+    :meth:`run` (after shutdown), or log it and ``"stop"`` the loop.
+    """
+
+    def __init__(
+        self,
+        rate_hz: float,
+        *,
+        handshake: Sequence[HandshakeRule] = (),
+        handshake_timeout: float | None = 30.0,
+        log_rate_every: float | None = None,
+        on_handler_error: ErrorPolicy = "log",
+        name: str = "manager",
+    ) -> None:
+        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz must be a positive number (ticks per second), got {rate_hz!r}")
+        for label, value in [
+            ("handshake_timeout", handshake_timeout),
+            ("log_rate_every", log_rate_every),
+        ]:
+            if value is not None and not value > 0:
+                raise ValueError(f"{label} must be positive seconds or None, got {value!r}")
+        if on_handler_error not in ("log", "raise", "stop"):
+            raise ValueError(
+                f"on_handler_error must be 'log', 'raise' or 'stop', got {on_handler_error!r}"
+            )
+        for rule in handshake:
+            if not isinstance(rule, HandshakeRule):
+                raise TypeError(f"handshake rules must be HandshakeRule instances, got {rule!r}")
+        self.name = name
+        self.rate_hz = float(rate_hz)
+        self.period = 1.0 / self.rate_hz
+        self.handshake = tuple(handshake)
+        self.handshake_timeout = handshake_timeout
+        self.log_rate_every = log_rate_every
+        self.on_handler_error: ErrorPolicy = on_handler_error
+        self.logger = logging.getLogger(f"embagents.manager.{name}")
+        self.state = State()
+        #: Number of the current (or last) tick; 0 before the first.
+        self.tick = 0
+        #: Ticks whose handlers finished after the next tick was due.
+        self.overruns = 0
+        #: Rate achieved over the last logging window (needs ``log_rate_every``).
+        self.achieved_rate: float | None = None
+        self._handlers: list[Handler] = []
+        self._started: list[Handler] = []
+        self._attachments = Attachments(self.logger)
+        self._failures: dict[int, tuple[type[BaseException], int, float]] = {}
+        self._wake = threading.Event()
+        self._stop_requested = False
+        self._sleeping = False
+        self._loop_ident: int | None = None
+        self._state_lock = threading.Lock()
+        self._running = False
+        self._closed = False
+        self._finished = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._thread_error: BaseException | None = None
+
+    # Building ------------------------------------------------------------
+
+    def add_handler(self, handler: H) -> H:
+        """Run ``handler`` every tick, after those added before it.
+
+        Takes a :class:`Handler` or a plain ``fn(state, tick)``; returns it
+        unchanged, so it also works as a decorator.
+        """
+        with self._state_lock:
+            if self._running or self._closed:
+                raise RuntimeError(f"manager {self.name!r}: add handlers before run()")
+            self._handlers.append(as_handler(handler))
+        return handler
+
+    @property
+    def handlers(self) -> tuple[Handler, ...]:
+        return tuple(self._handlers)
+
+    def attach(self, resource: R, *, name: str | None = None) -> R:
+        """Start ``resource`` (anything with ``start()``/``stop()``) now; stop it at shutdown."""
+        return self._attachments.attach(resource, name=name)
+
+    def attach_actor(
+        self, actor_class: type[pykka.Actor], *args: Any, **kwargs: Any
+    ) -> pykka.ActorRef[Any]:
+        """Start a pykka actor in this process (a thread); it stops at shutdown.
+
+        Returns its ref. A ``stop_timeout`` keyword (default 5 s) bounds the wait
+        for its mailbox to drain at shutdown; other arguments go to the actor.
+        """
+        return self._attachments.attach_actor(actor_class, *args, **kwargs)
+
+    @property
+    def attached(self) -> tuple[str, ...]:
+        """Names of attached resources, in attachment (= start) order."""
+        return self._attachments.names
+
+    def on_message(self, key: str) -> Callable[[Any], None]:
+        """A callback that stores each message it gets in ``state[key]``.
+
+        Hand it to a topic subscription (from any thread); it also marks
+        ``state.received[key]``, which ``HandshakeRule.message_received`` waits for.
+        """
+
+        def store(message: Any) -> None:
+            self.state.receive(key, message)
+
+        store.__name__ = f"store_{key}"
+        return store
+
+    # Running -------------------------------------------------------------
+
+    def run(self, max_ticks: int | None = None) -> int:
+        """Handshake, then tick until :meth:`stop` or ``max_ticks``; returns ticks run.
+
+        Shuts the manager down on the way out (handlers' ``on_stop``, then
+        attached resources in reverse order), whatever ended the loop.
+        """
+        self._claim(max_ticks)
+        return self._run(max_ticks)
+
+    def run_in_thread(self, max_ticks: int | None = None) -> threading.Thread:
+        """Start :meth:`run` in a new thread; :meth:`join` it to get its outcome."""
+        # Claimed here, not in the thread, so that a stop() or shutdown()
+        # right after this call already sees a running manager.
+        self._claim(max_ticks)
+
+        def target() -> None:
+            try:
+                self._run(max_ticks)
+            except BaseException as exc:
+                self._thread_error = exc
+                self.logger.exception("manager loop failed")
+
+        self._thread = threading.Thread(target=target, name=f"embagents.manager.{self.name}")
+        self._thread.start()
+        return self._thread
+
+    def _claim(self, max_ticks: int | None) -> None:
+        if max_ticks is not None and max_ticks < 0:
+            raise ValueError(f"max_ticks must be >= 0 or None, got {max_ticks!r}")
+        with self._state_lock:
+            if self._running:
+                raise RuntimeError(f"manager {self.name!r} is already running")
+            if self._closed:
+                raise RuntimeError(f"manager {self.name!r} has shut down; create a new one")
+            self._running = True
+
+    def _run(self, max_ticks: int | None) -> int:
+        self._loop_ident = threading.get_ident()
+        try:
+            if not self._wait_for_handshake():
+                return 0
+            for handler in self._handlers:
+                handler.on_start(self.state)
+                self._started.append(handler)
+            return self._spin(max_ticks)
+        finally:
+            try:
+                self._close()
+            finally:
+                self._running = False
+                self._loop_ident = None
+                self._finished.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for the :meth:`run_in_thread` loop; re-raise what ended it, if anything."""
+        if self._thread is None:
+            raise RuntimeError(f"manager {self.name!r} has no loop thread")
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise TimeoutError(f"manager {self.name!r} still running after {timeout} s")
+        if self._thread_error is not None:
+            raise self._thread_error
+
+    def stop(self) -> None:
+        """Ask the loop to end after the current tick; returns at once.
+
+        Safe from any thread and from signal handlers. A stopped manager
+        does not run again.
+        """
+        self._stop_requested = True
+        if threading.get_ident() != self._loop_ident:
+            self._wake.set()
+        elif self._sleeping:
+            # A signal handler that interrupted the loop's own wait, maybe
+            # while it held the event's internal lock: setting the event here
+            # could deadlock, so a helper thread does it.
+            threading.Thread(target=self._wake.set, daemon=True).start()
+        # else: the loop thread between waits; it checks the flag before sleeping.
+
+    def shutdown(self) -> None:
+        """End the loop (waiting for it), then release everything, newest first.
+
+        Handlers' ``on_stop`` run in reverse registration order, then attached
+        resources stop in reverse attachment order. Idempotent; errors are
+        logged so that every resource is still released.
+        """
+        if self._running:
+            # The loop releases everything on its way out; from inside a
+            # handler we can only ask it to stop.
+            self.stop()
+            if threading.get_ident() != self._loop_ident:
+                self._finished.wait()
+            return
+        self._close()
+
+    def _close(self) -> None:
+        with self._state_lock:
+            if self._closed:
+                return
+            self._closed = True
+        for handler in reversed(self._started):
+            try:
+                handler.on_stop(self.state)
+            except Exception:
+                self.logger.exception("handler %r failed in on_stop", handler.name)
+        self._started.clear()
+        self._attachments.close()
+
+    def __enter__(self) -> Manager:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.shutdown()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join()
+
+    # The loop ------------------------------------------------------------
+
+    def _sleep(self, seconds: float) -> bool:
+        """Wait up to ``seconds`` unless stopped; True if a stop was requested."""
+        # Flag first, check second: a stop() landing in between then wakes us.
+        self._sleeping = True
+        try:
+            if seconds > 0 and not self._stop_requested:
+                self._wake.wait(seconds)
+        finally:
+            self._sleeping = False
+        return self._stop_requested
+
+    def _wait_for_handshake(self) -> bool:
+        if self._stop_requested:
+            return False
+        return wait_for_handshake(
+            self.handshake,
+            self.state,
+            period=self.period,
+            timeout=self.handshake_timeout,
+            sleep=self._sleep,
+            logger=self.logger,
+        )
+
+    def _spin(self, max_ticks: int | None) -> int:
+        handlers = tuple(self._handlers)
+        ticks = 0
+        deadline = window_start = time.monotonic()
+        window_ticks = window_overruns = 0
+        while not self._stop_requested and (max_ticks is None or ticks < max_ticks):
+            ticks += 1
+            self.tick += 1
+            window_ticks += 1
+            if not self._run_handlers(handlers):
+                break
+            deadline += self.period
+            now = time.monotonic()
+            if now > deadline:
+                self.overruns += 1
+                window_overruns += 1
+                # Run the late tick at once, but skip whole missed periods
+                # instead of bursting through them; the phase is kept.
+                deadline += math.floor((now - deadline) / self.period) * self.period
+            window = now - window_start
+            if self.log_rate_every is not None and window >= self.log_rate_every:
+                self._log_rate(window_ticks / window, window_overruns, window)
+                window_start, window_ticks, window_overruns = now, 0, 0
+            if max_ticks is not None and ticks >= max_ticks:
+                break
+            self._sleep(deadline - now)
+        if self._stop_requested:
+            self.logger.info("stopped after tick %d", self.tick)
+        return ticks
+
+    def _run_handlers(self, handlers: tuple[Handler, ...]) -> bool:
+        """One tick over all handlers; False if the loop must end now."""
+        for index, handler in enumerate(handlers):
+            try:
+                handler.on_tick(self.state, self.tick)
+            except Exception as exc:
+                if self.on_handler_error == "raise":
+                    if hasattr(exc, "add_note"):  # Python 3.11+
+                        exc.add_note(f"in handler {handler.name!r} on tick {self.tick}")
+                    raise
+                self._log_failure(index, handler, exc)
+                if self.on_handler_error == "stop":
+                    self.logger.error(
+                        "stopping: handler %r failed (on_handler_error='stop')", handler.name
+                    )
+                    self._stop_requested = True
+                    return False
+            else:
+                if index in self._failures:
+                    _, count, _ = self._failures.pop(index)
+                    self.logger.info(
+                        "handler %r recovered after %d failed ticks", handler.name, count
+                    )
+        return True
+
+    def _log_failure(self, index: int, handler: Handler, exc: Exception) -> None:
+        # The first failure gets a traceback; a handler failing on every tick
+        # is then summarised now and then instead of flooding the log for days.
+        now = time.monotonic()
+        previous = self._failures.get(index)
+        if previous is None or previous[0] is not type(exc):
+            self.logger.exception("handler %r failed on tick %d", handler.name, self.tick)
+            self._failures[index] = (type(exc), 1, now)
+            return
+        kind, count, logged = previous
+        if now - logged >= REPEAT_LOG_INTERVAL:
+            self.logger.error(
+                "handler %r still failing on tick %d: %s: %s (%d ticks in a row)",
+                handler.name, self.tick, kind.__name__, exc, count + 1,
+            )
+            logged = now
+        self._failures[index] = (kind, count + 1, logged)
+
+    def _log_rate(self, rate: float, overruns: int, window: float) -> None:
+        self.achieved_rate = rate
+        level = logging.WARNING if overruns else logging.INFO
+        self.logger.log(
+            level, "%.2f Hz (target %g Hz), %d overruns in the last %.1f s",
+            rate, self.rate_hz, overruns, window,
+        )
+
+    def __repr__(self) -> str:
+        status = "running" if self._running else "closed" if self._closed else "ready"
+        return f"<Manager {self.name!r} {self.rate_hz:g} Hz, {status}, tick {self.tick}>"

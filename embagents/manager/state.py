@@ -1,0 +1,129 @@
+"""The shared state that the manager's handlers read and write each tick.
+
+Values are reachable as attributes and as keys. Every write takes one lock,
+so callbacks on other threads (topic subscriptions, attached agents) can
+feed the loop safely; hold :attr:`State.lock` for read-modify-write.
+
+Example::
+
+    >>> state = State(mode="idle")
+    >>> state.update(speed=0.2, heading=90)
+    >>> state.mode, state["speed"]
+    ('idle', 0.2)
+    >>> with state.lock:
+    ...     state.heading += 10
+    >>> state.receive("camera", "frame-0")
+    >>> state.received["camera"], sorted(state.snapshot())
+    (True, ['camera', 'heading', 'mode', 'speed'])
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator, Mapping, MutableMapping
+from types import MappingProxyType
+from typing import Any
+
+__all__ = ["State"]
+
+
+class State(MutableMapping[str, Any]):
+    """Thread-safe key/value state with attribute access.
+
+    Names of methods (``update``, ``get``, ``keys``, ``lock``, ``received``...)
+    are reserved as attributes; such values are still reachable as keys.
+    """
+
+    def __init__(self, values: Mapping[str, Any] | None = None, /, **kwargs: Any) -> None:
+        # Internals bypass __setattr__, which routes everything else to the data.
+        object.__setattr__(self, "_lock", threading.RLock())
+        object.__setattr__(self, "_data", {})
+        object.__setattr__(self, "_received", {})
+        self.update(values or {}, **kwargs)
+
+    @property
+    def lock(self) -> threading.RLock:
+        """Re-entrant lock guarding every read and write; hold it for compound updates."""
+        return self._lock  # type: ignore[attr-defined]
+
+    @property
+    def received(self) -> Mapping[str, bool]:
+        """Read-only view: ``received[key]`` is True once :meth:`receive` stored ``key``."""
+        return MappingProxyType(self._received)  # type: ignore[attr-defined]
+
+    def receive(self, key: str, message: Any) -> None:
+        """Store an incoming ``message`` under ``key`` and mark it received."""
+        with self.lock:
+            self._data[key] = message  # type: ignore[attr-defined]
+            self._received[key] = True  # type: ignore[attr-defined]
+
+    def update(self, values: Any = (), /, **kwargs: Any) -> None:  # type: ignore[override]
+        """Set several values at once, atomically (readers never see half of them)."""
+        new = dict(values, **kwargs)
+        with self.lock:
+            self._data.update(new)  # type: ignore[attr-defined]
+
+    def snapshot(self) -> dict[str, Any]:
+        """A plain-dict copy of the values (shallow), consistent at one instant."""
+        with self.lock:
+            return dict(self._data)  # type: ignore[attr-defined]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        with self.lock:
+            return self._data.get(key, default)  # type: ignore[attr-defined]
+
+    def setdefault(self, key: str, default: Any = None) -> Any:
+        with self.lock:
+            return self._data.setdefault(key, default)  # type: ignore[attr-defined]
+
+    # Mapping protocol ----------------------------------------------------
+
+    def __getitem__(self, key: str) -> Any:
+        with self.lock:
+            return self._data[key]  # type: ignore[attr-defined]
+
+    def __setitem__(self, key: str, value: Any) -> None:
+        with self.lock:
+            self._data[key] = value  # type: ignore[attr-defined]
+
+    def __delitem__(self, key: str) -> None:
+        with self.lock:
+            del self._data[key]  # type: ignore[attr-defined]
+            self._received.pop(key, None)  # type: ignore[attr-defined]
+
+    def __iter__(self) -> Iterator[str]:
+        # Iterate a copy: another thread may add keys meanwhile.
+        return iter(self.snapshot())
+
+    def __len__(self) -> int:
+        return len(self._data)  # type: ignore[attr-defined]
+
+    # Attribute access ----------------------------------------------------
+
+    def __getattr__(self, name: str) -> Any:
+        # Only called when normal lookup fails. Private names never come from
+        # the data, so copy/pickle probes during construction cannot recurse.
+        if name.startswith("_"):
+            raise AttributeError(name)
+        try:
+            return self[name]
+        except KeyError:
+            known = ", ".join(sorted(self._data)) or "none"  # type: ignore[attr-defined]
+            raise AttributeError(f"state has no value {name!r} (keys: {known})") from None
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name.startswith("_") or hasattr(type(self), name):
+            raise AttributeError(
+                f"{name!r} is reserved on State; use state[{name!r}] = ... instead"
+            )
+        self[name] = value
+
+    def __delattr__(self, name: str) -> None:
+        try:
+            del self[name]
+        except KeyError:
+            raise AttributeError(f"state has no value {name!r}") from None
+
+    def __repr__(self) -> str:
+        items = ", ".join(f"{k}={v!r}" for k, v in self.snapshot().items())
+        return f"State({items})"

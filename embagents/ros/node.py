@@ -1,0 +1,266 @@
+"""The rclpy side of the ROS 2 bridge: one node, its own Context, one spin thread.
+
+:class:`RosBridgeCore` knows nothing of actors: the bridge actor creates it
+in its process, hands it an ``on_message`` callback that forwards incoming
+messages onto internal topics, and calls :meth:`RosBridgeCore.publish` for
+internal messages bound for ROS. Importing this module imports rclpy.
+
+Example::
+
+    from embagents.msgs import String
+    from embagents.ros import RosInput, RosOutput
+    from embagents.ros.node import RosBridgeCore
+
+    core = RosBridgeCore(
+        inputs=[RosInput("/text_in", "std_msgs/String")],
+        outputs=[RosOutput("answer", ros_type="std_msgs/String")],
+    )
+    core.start("embagents_bridge", lambda topic, msg: print(topic, msg))
+    core.publish("answer", String(data="hello ROS"))
+    core.stop()
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import attrs
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+
+from embagents.msgs import StreamingString
+from embagents.ros.convert import from_ros, ros_msg_class, to_ros
+from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, ros_type_for
+
+__all__ = ["RosBridgeCore", "qos_profile"]
+
+log = logging.getLogger("embagents.ros")
+
+OnMessage = Callable[[str, object], None]
+
+_RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+def qos_profile(q: QoS) -> QoSProfile:
+    """Our QoS declaration -> rclpy QoSProfile (keep-last history)."""
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=q.depth,
+        reliability=_RELIABILITY[q.reliability],
+        durability=_DURABILITY[q.durability],
+    )
+
+
+@attrs.define
+class _Counts:
+    received: int = 0
+    published: int = 0
+    errors: int = 0
+
+
+@attrs.define
+class _Running:
+    context: Context
+    node: Node
+    executor: SingleThreadedExecutor
+    thread: threading.Thread
+    stopping: Future
+    publishers: dict[str, Any]  # internal topic -> rclpy Publisher
+
+
+class RosBridgeCore:
+    """ROS 2 node mapping ROS topics to internal topics and back.
+
+    ``start`` calls ``on_message(internal_topic, our_msg)`` from its spin
+    thread for each incoming ROS message; ``publish`` may be called from any
+    thread. Each ``start`` uses a fresh rclpy Context, so a core can be
+    stopped and started again, and several can coexist in one process.
+    """
+
+    def __init__(self, inputs: Sequence[RosInput] = (), outputs: Sequence[RosOutput] = ()) -> None:
+        self.inputs = list(inputs)
+        self.outputs = list(outputs)
+        check_bridge(self.inputs, self.outputs)
+        self._outputs = {o.topic: o for o in self.outputs}
+        self._lock = threading.Lock()
+        self._run: _Running | None = None
+        self.counts: dict[str, _Counts] = {}
+
+    @property
+    def running(self) -> bool:
+        return self._run is not None
+
+    @property
+    def node(self) -> Node | None:
+        """The rclpy node while running (for advanced use: timers, services)."""
+        run = self._run
+        return run.node if run else None
+
+    def start(
+        self,
+        node_name: str,
+        on_message: OnMessage,
+        *,
+        domain_id: int | None = None,
+        namespace: str | None = None,
+    ) -> None:
+        """Init a Context (``domain_id`` default: $ROS_DOMAIN_ID), create the node and spin it.
+
+        Raises RuntimeError if already started; on any failure everything
+        created so far is torn down before the error propagates.
+        """
+        with self._lock:
+            if self._run is not None:
+                raise RuntimeError("RosBridgeCore is already started; stop() it first")
+            context = Context()
+            # No signal handlers: the supervisor owns this process's signals.
+            rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+            node = executor = None
+            try:
+                node = Node(node_name, namespace=namespace, context=context, start_parameter_services=False)
+                self.counts = {d.topic: _Counts() for d in [*self.inputs, *self.outputs]}
+                for inp in self.inputs:
+                    node.create_subscription(
+                        ros_msg_class(inp.ros_type), inp.ros_topic, self._callback(inp, on_message), qos_profile(inp.qos)
+                    )
+                publishers = {
+                    o.topic: node.create_publisher(ros_msg_class(o.ros_type), o.ros_topic, qos_profile(o.qos))
+                    for o in self.outputs
+                    if o.ros_type is not None
+                }
+                executor = SingleThreadedExecutor(context=context)
+                executor.add_node(node)
+                stopping = Future()
+                thread = threading.Thread(
+                    target=self._spin, args=(executor, context, stopping), name=f"ros-spin-{node_name}", daemon=True
+                )
+                self._run = _Running(context, node, executor, thread, stopping, publishers)
+                thread.start()
+            except BaseException:
+                self._run = None
+                _teardown(context, node, executor)
+                raise
+        log.info("ROS bridge node %r up: %d inputs, %d outputs", node_name, len(self.inputs), len(self.outputs))
+
+    def _callback(self, inp: RosInput, on_message: OnMessage) -> Callable[[Any], None]:
+        topic, ros_type = inp.topic, inp.ros_type
+        counts = self.counts[topic]
+
+        def cb(ros_msg: Any) -> None:
+            # Never let one bad message (or a failing consumer) stop the spin thread.
+            try:
+                msg = from_ros(ros_msg, ros_type)
+            except Exception:
+                counts.errors += 1
+                log.exception("dropping a %s from %s: cannot convert it", ros_type, inp.ros_topic)
+                return
+            counts.received += 1
+            try:
+                on_message(topic, msg)
+            except Exception:
+                counts.errors += 1
+                log.exception("on_message failed for internal topic %r", topic)
+
+        return cb
+
+    @staticmethod
+    def _spin(executor: SingleThreadedExecutor, context: Context, stopping: Future) -> None:
+        # Waiting on a future (not spin_once in a loop) lets stop() wake the
+        # wait at once: a bare executor.wake() is swallowed until the timeout.
+        while not stopping.done() and context.ok():
+            try:
+                executor.spin_until_future_complete(stopping)
+            except ExternalShutdownException:
+                break
+            except Exception:
+                if stopping.done() or not context.ok():
+                    break
+                log.exception("ROS executor error; continuing")
+
+    def publish(self, internal_topic: str, msg: object) -> None:
+        """Convert ``msg`` and publish it on the ROS topic declared for ``internal_topic``.
+
+        Raises ValueError for an undeclared topic, TypeError for a message
+        class the topic does not carry, RuntimeError when not started.
+        Empty StreamingString chunks are skipped (see :mod:`embagents.ros.spec`).
+        """
+        out = self._outputs.get(internal_topic)
+        if out is None:
+            declared = ", ".join(sorted(self._outputs)) or "none"
+            raise ValueError(f"no RosOutput is declared for internal topic {internal_topic!r}; declared: {declared}")
+        ros_type = out.ros_type or self._ros_type_of(out, msg)
+        accepted = out.accepts if out.ros_type else (type(msg),)
+        if type(msg) not in accepted:
+            raise TypeError(
+                f"topic {internal_topic!r} (ROS {out.ros_topic}, {ros_type}) expects "
+                f"{' or '.join(c.__name__ for c in accepted)}, got {type(msg).__name__}"
+            )
+        if isinstance(msg, StreamingString) and not msg.data:
+            return
+        ros_msg = to_ros(msg, ros_type)  # outside the lock: big images take ~1 ms
+        with self._lock:
+            run = self._run
+            if run is None:
+                raise RuntimeError(f"cannot publish on {internal_topic!r}: RosBridgeCore is not started")
+            pub = run.publishers.get(internal_topic)
+            if pub is None:  # output declared without ros_type: its first message fixes the type
+                out = self._outputs[internal_topic] = out.resolved(type(msg))
+                pub = run.node.create_publisher(ros_msg_class(out.ros_type), out.ros_topic, qos_profile(out.qos))
+                run.publishers[internal_topic] = pub
+            pub.publish(ros_msg)
+        self.counts[internal_topic].published += 1
+
+    @staticmethod
+    def _ros_type_of(out: RosOutput, msg: object) -> str:
+        try:
+            return ros_type_for(type(msg))
+        except ValueError as e:
+            raise TypeError(f"topic {out.topic!r} (ROS {out.ros_topic}): {e}") from None
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop spinning, destroy the node and shut the Context down (idempotent)."""
+        with self._lock:
+            run, self._run = self._run, None
+        if run is None:
+            return
+        run.stopping.set_result(None)
+        run.executor.wake()
+        run.thread.join(timeout)
+        if run.thread.is_alive():
+            # A callback is stuck in on_message; shutting the context down ends
+            # the loop as soon as it returns.
+            log.error("ROS spin thread did not stop within %.1f s", timeout)
+        _teardown(run.context, run.node, run.executor)
+        run.thread.join(timeout)
+        log.info("ROS bridge node stopped")
+
+    def __enter__(self) -> RosBridgeCore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _teardown(context: Context, node: Node | None, executor: SingleThreadedExecutor | None) -> None:
+    # Each step may fail on a half-built core; none may keep the others from running.
+    for step in (
+        (lambda: executor.shutdown(timeout_sec=0)) if executor else None,
+        node.destroy_node if node else None,
+        context.try_shutdown,
+        context.destroy,
+    ):
+        if step is None:
+            continue
+        try:
+            step()
+        except Exception:
+            log.debug("ROS teardown step failed", exc_info=True)
