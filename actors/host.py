@@ -11,7 +11,6 @@ import logging
 import os
 import sys
 import time
-import traceback
 from collections.abc import Callable
 from typing import Any
 

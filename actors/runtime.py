@@ -177,14 +177,25 @@ class Runtime:
     def close(self) -> None:
         if self.closed:
             return
+        client = self._client
+        if client is not None and self._client_thread is not threading.current_thread():
+            # Sockets belong to their loop's thread: close them there, then stop it.
+            def finish() -> None:
+                for key, link in list(self._links.items()):
+                    if key[0] == client.thread_id:
+                        client.remove(link.sock)
+                        client.remove(link.monitor)
+                        link.close()
+                self.closed = True
+                client.stop()
+
+            client.call_soon_threadsafe(finish)
+            if self._client_thread is not None:
+                self._client_thread.join(timeout=5)
         self.closed = True
         for link in list(self._links.values()):
             link.close()
         self._links.clear()
-        if self._client is not None:
-            self._client.call_soon_threadsafe(self._client.stop)
-            if self._client_thread is not None and self._client_thread is not threading.current_thread():
-                self._client_thread.join(timeout=2)
         self.pool.close()
         self.reader.close()
         self.ctx.destroy(linger=0)

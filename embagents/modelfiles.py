@@ -181,7 +181,9 @@ def _download_from_hub(
             return hub.hf_hub_download(repo_id, filename)
         files = hub.list_repo_files(repo_id)
         matches = sorted(
-            f for f in files if fnmatch.fnmatch(f, pattern) or fnmatch.fnmatch(os.path.basename(f), pattern)
+            f
+            for f in files
+            if fnmatch.fnmatch(f, pattern) or fnmatch.fnmatch(os.path.basename(f), pattern)
         )
         if not matches:
             ggufs = [f for f in files if f.endswith(".gguf")]
@@ -265,7 +267,9 @@ def make_tiny_llama_gguf(path: str, *, seed: int = 0) -> str:
     # Byte fallback tokens: any text can be tokenized (llama.cpp's SPM needs them).
     tokens += [f"<0x{b:02X}>" for b in range(256)]
     types += [gguf.TokenType.BYTE] * 256
-    pieces = ["\u2581"] + list("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789.,!?'")
+    pieces = ["\u2581"] + list(
+        "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789.,!?'"
+    )
     pieces += ["\u2581" + w for w in _TINY_WORDS]
     n_special = len(tokens)
     tokens += pieces

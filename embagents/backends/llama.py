@@ -116,7 +116,9 @@ class LlamaBackend:
         try:
             import llama_cpp
         except ImportError as exc:
-            raise ModuleNotFoundError(f"LlamaBackend needs llama-cpp-python: {_INSTALL_HINT}") from exc
+            raise ModuleNotFoundError(
+                f"LlamaBackend needs llama-cpp-python: {_INSTALL_HINT}"
+            ) from exc
         start = time.perf_counter()
         try:
             with _model_params(self.use_extra_bufts):
@@ -357,7 +359,11 @@ def _response_as_chunks(response: dict) -> Iterator[dict]:
         message = choice.get("message") or {}
         calls = [{**call, "index": i} for i, call in enumerate(message.get("tool_calls") or [])]
         delta = {"content": message.get("content"), "tool_calls": calls or None}
-        yield {"choices": [{"index": index, "delta": delta, "finish_reason": choice.get("finish_reason")}]}
+        yield {
+            "choices": [
+                {"index": index, "delta": delta, "finish_reason": choice.get("finish_reason")}
+            ]
+        }
 
 
 class _TokenCounter:
@@ -412,13 +418,17 @@ def collect_stream(chunks: Iterable[dict]) -> dict:
 def _check_messages(messages: list[dict]) -> None:
     """Fail early, with the offending index, on malformed chat messages."""
     if not isinstance(messages, list) or not messages:
-        raise ValueError(f"messages must be a non-empty list of dicts, got {type(messages).__name__}")
+        raise ValueError(
+            f"messages must be a non-empty list of dicts, got {type(messages).__name__}"
+        )
     for i, msg in enumerate(messages):
         if not isinstance(msg, dict) or not isinstance(msg.get("role"), str):
             raise ValueError(f"messages[{i}] must be a dict with a 'role' string, got {msg!r}")
         content = msg.get("content")
         if content is not None and not isinstance(content, (str, list)):
-            raise ValueError(f"messages[{i}]['content'] must be a string, got {type(content).__name__}")
+            raise ValueError(
+                f"messages[{i}]['content'] must be a string, got {type(content).__name__}"
+            )
 
 
 # --------------------------------------------------------------------------
@@ -477,7 +487,9 @@ class ToolCallAccumulator:
             if isinstance(args, dict):  # Ollama sends whole objects, not fragments
                 call["arguments"] = args
             elif args:
-                call["arguments"] = (call["arguments"] if isinstance(call["arguments"], str) else "") + args
+                call["arguments"] = (
+                    call["arguments"] if isinstance(call["arguments"], str) else ""
+                ) + args
 
     def result(self) -> list[dict] | None:
         if not self._calls:

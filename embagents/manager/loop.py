@@ -316,9 +316,16 @@ class Manager:
         deadline = window_start = time.monotonic()
         window_ticks = window_overruns = 0
         while not self._stop_requested and (max_ticks is None or ticks < max_ticks):
+            if self.log_rate_every is not None:
+                # Measured from tick start to tick start: n ticks, n periods.
+                begun = time.monotonic()
+                if begun - window_start >= self.log_rate_every:
+                    window = begun - window_start
+                    self._log_rate(window_ticks / window, window_overruns, window)
+                    window_start, window_ticks, window_overruns = begun, 0, 0
+                window_ticks += 1
             ticks += 1
             self.tick += 1
-            window_ticks += 1
             if not self._run_handlers(handlers):
                 break
             deadline += self.period
@@ -329,10 +336,6 @@ class Manager:
                 # Run the late tick at once, but skip whole missed periods
                 # instead of bursting through them; the phase is kept.
                 deadline += math.floor((now - deadline) / self.period) * self.period
-            window = now - window_start
-            if self.log_rate_every is not None and window >= self.log_rate_every:
-                self._log_rate(window_ticks / window, window_overruns, window)
-                window_start, window_ticks, window_overruns = now, 0, 0
             if max_ticks is not None and ticks >= max_ticks:
                 break
             self._sleep(deadline - now)

@@ -161,7 +161,7 @@ def _float_array(values: np.ndarray, typecode: str) -> array.array:
 
 def _f32(x: float) -> float:
     # ROS float32 fields: give back the shortest decimal (0.05, not 0.0500000007).
-    return float(repr(np.float32(x)))
+    return float(str(np.float32(x)))
 
 
 # --- per type ---------------------------------------------------------------

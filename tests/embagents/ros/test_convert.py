@@ -269,3 +269,16 @@ def test_type_mismatches():
         from_ros(to_ros(String(data="x")), "sensor_msgs/Image")
     with pytest.raises(ValueError, match="unsupported ROS type 'sensor_msgs/msg/Imu'; supported: .*std_msgs/msg/String"):
         from_ros(to_ros(String(data="x")), "sensor_msgs/msg/Imu")
+
+
+def test_public_setter_fallback_gives_the_same_messages(monkeypatch):
+    # Where the generated message code lacks the buffer path, _put_buffer uses array('B').
+    from embagents.ros import convert
+
+    monkeypatch.setattr(convert, "_fast_slot", False)
+    data = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    ros = to_ros(Image(data=data))
+    assert type(ros.data).__name__ == "array"
+    np.testing.assert_array_equal(from_ros(wire(ros), "sensor_msgs/Image").data, data)
+    grid = np.array([[-1, 0], [50, 100]], np.int8)
+    np.testing.assert_array_equal(from_ros(wire(to_ros(OccupancyGrid(data=grid))), "nav_msgs/OccupancyGrid").data, grid)

@@ -1,0 +1,220 @@
+"""Validate a system's wiring without starting anything (``embagents check``).
+
+Every problem found is reported, not only the first; each names the
+component it is about. Levels:
+
+- **error** (the system must not start): a component declared wrongly
+  (missing required input, input or output type not allowed, trigger not
+  among its inputs, bad config, bad fallback...), two components with one
+  name, one topic name used with two message types, an event or fallback
+  action naming a component that is not in the system (or a method, client
+  or config key it does not have), ROS bridge wiring the bridge refuses.
+- **warning** (it may run, but look): an input topic nothing in the system
+  publishes. It may come from outside (another system, a test harness): say
+  so with ``System(external=[topic])`` and the warning goes away.
+
+Example::
+
+    >>> from embagents.components import Component
+    >>> from embagents.msgs import String
+    >>> from embagents.system import System
+    >>> from embagents.topic import Topic
+    >>> text = Topic("text", String)
+    >>> a, b = Component(name="a", inputs=[text]), Component(name="a", outputs=[text])
+    >>> [p.code for p in check_system(System([a, b]))]
+    ['duplicate-component']
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from typing import Any, Literal
+
+import attrs
+
+from embagents.components.component import Component
+from embagents.components.model_component import ModelComponent
+from embagents.config import ConfigError, apply_config
+from embagents.events import Action
+from embagents.system import System, SystemFileError, load_system
+
+__all__ = ["Problem", "check_file", "check_system", "errors"]
+
+Level = Literal["error", "warning"]
+
+
+@attrs.frozen
+class Problem:
+    """One finding: ``component`` it is about (``None``: the file), a stable ``code``, the message."""
+
+    component: str | None
+    code: str
+    message: str
+    level: Level = "error"
+
+    def __str__(self) -> str:
+        return f"{self.level}: [{self.code}] {self.message}"
+
+
+def errors(problems: list[Problem]) -> list[Problem]:
+    """The problems at error level."""
+    return [p for p in problems if p.level == "error"]
+
+
+def _component_problems(system: System) -> list[Problem]:
+    out = []
+    for c in system.components:
+        out += [Problem(str(c.name), code, msg) for code, msg in c.validate()]
+    counts = Counter(c.name for c in system.components)
+    for name, n in counts.items():
+        if n > 1:
+            where = [f"#{i + 1} {type(c).__name__}" for i, c in enumerate(system.components) if c.name == name]
+            out.append(Problem(str(name), "duplicate-component",
+                               f"component name {name!r} is used by {n} components ({', '.join(where)}); "
+                               "names must be unique"))
+    return out
+
+
+def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
+    """(topics the bridge provides, RosOutputs, problems)."""
+    from embagents.ros.spec import RosInput, RosOutput, check_bridge
+
+    provided, outs, problems = [], [], []
+    ins = [d for d in system.ros if isinstance(d, RosInput)]
+    outs = [d for d in system.ros if isinstance(d, RosOutput)]
+    for d in system.ros:
+        if not isinstance(d, (RosInput, RosOutput)):
+            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput or RosOutput"))
+    provided = [(d.topic, d.msg_type) for d in ins]
+    try:
+        check_bridge(ins, outs)
+    except (TypeError, ValueError) as exc:
+        problems.append(Problem(None, "ros", f"ROS bridge: {exc}"))
+    return provided, outs, problems
+
+
+def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_outputs: list[Any]) -> list[Problem]:
+    out = []
+    uses: dict[str, list[tuple[type, str, str | None]]] = {}  # name -> (type, who, component)
+
+    def use(name: str, msg_type: type, who: str, component: str | None = None) -> None:
+        uses.setdefault(name, []).append((msg_type, who, component))
+
+    for c in system.components:
+        for t in c.outputs:
+            use(t.name, t.msg_type, f"output of component {c.name!r}", c.name)
+        for t in c.subscriptions:
+            use(t.name, t.msg_type, f"input of component {c.name!r}", c.name)
+    for name, msg_type in ros_provided:
+        use(name, msg_type, "RosInput")
+    for t in system.external:
+        use(t.name, t.msg_type, "external topic")
+    for event, actions in system.events:
+        for t in event.topics:
+            use(t.name, t.msg_type, f"event {event.name!r}")
+        for a in actions:
+            if a.kind == "publish":
+                use(a.args["topic"], type(a.args["msg"]), f"publish action of event {event.name!r}")
+    for name, entries in uses.items():
+        types = list(dict.fromkeys(e[0] for e in entries))
+        if len(types) > 1:
+            detail = "; ".join(f"{e[0].__name__} as {e[1]}" for e in entries)
+            first = next((e[2] for e in entries if e[2]), None)
+            out.append(Problem(first, "topic-type-conflict",
+                               f"topic {name!r} is used with {len(types)} message types: {detail}"))
+
+    provided = {t.name for c in system.components for t in c.outputs}
+    provided |= {name for name, _ in ros_provided} | {t.name for t in system.external}
+    for c in system.components:
+        for t in c.subscriptions:
+            if t.name not in provided:
+                out.append(Problem(str(c.name), "unknown-topic",
+                                   f"component {c.name!r}: input topic {t.name!r} ({t.type_name}) has no publisher "
+                                   "in this system (no component output, RosInput or external topic); if it "
+                                   "comes from outside, list it in System(external=[...])", "warning"))
+    for event, _ in system.events:
+        for t in event.topics:
+            if t.name not in provided:
+                out.append(Problem(None, "unknown-topic", f"event {event.name!r}: topic {t.name!r} has no publisher "
+                                   "in this system; list it in System(external=[...]) if it comes from outside",
+                                   "warning"))
+    for d in ros_outputs:
+        types = list(dict.fromkeys(e[0] for e in uses.get(d.topic, [])))
+        if d.topic not in provided:
+            out.append(Problem(None, "unknown-topic", f"RosOutput {d.topic!r}: no component publishes this topic",
+                               "warning"))
+        for msg_type in types:
+            if msg_type not in d.accepts:
+                out.append(Problem(None, "ros", f"RosOutput {d.topic!r} ({d.ros_type}) cannot carry "
+                                   f"{msg_type.__name__}; it carries {', '.join(c.__name__ for c in d.accepts)}"))
+    return out
+
+
+def _action_problem(action: Action, where: str, by_name: dict[str, Component]) -> Problem | None:
+    if action.kind == "publish":
+        return None
+    name = action.component
+    if name is None:
+        return Problem(None, "bad-action", f"{where}: action {action.kind} names no component")
+    comp = by_name.get(name)
+    if comp is None:
+        known = ", ".join(map(str, by_name)) or "none"
+        return Problem(name, "unknown-component", f"{where}: action {action.kind} names component {name!r}, "
+                       f"which is not in the system; components: {known}")
+    if action.kind == "reconfigure":
+        try:
+            apply_config(comp.config, action.args["overrides"])
+        except ConfigError as exc:
+            return Problem(name, "bad-config", f"{where}: reconfigure of component {name!r}: {exc}")
+    if action.kind == "call" and not callable(getattr(comp, action.args["method"], None)):
+        return Problem(name, "bad-action", f"{where}: component {name!r} ({type(comp).__name__}) has no "
+                       f"method {action.args['method']!r}")
+    if action.kind == "switch_model_client":
+        clients = comp.clients if isinstance(comp, ModelComponent) else {}
+        if action.args["client"] not in clients:
+            return Problem(name, "unknown-client", f"{where}: component {name!r} has no model client "
+                           f"{action.args['client']!r}; known: {', '.join(clients) or 'none'}")
+    return None
+
+
+def _event_problems(system: System) -> list[Problem]:
+    out = []
+    by_name = {str(c.name): c for c in system.components}
+    names = Counter(e.name for e, _ in system.events)
+    for name, n in names.items():
+        if n > 1:
+            out.append(Problem(None, "duplicate-event", f"event name {name!r} is used by {n} events"))
+    for event, actions in system.events:
+        for a in actions:
+            p = _action_problem(a, f"event {event.name!r}", by_name)
+            if p is not None:
+                out.append(p)
+    for c in system.components:
+        if c.fallback is None or not hasattr(c.fallback, "actions"):
+            continue
+        for a in c.fallback.actions:
+            if a.component is not None:
+                p = _action_problem(a, f"fallback of component {c.name!r}", by_name)
+                if p is not None:
+                    out.append(p)
+    return out
+
+
+def check_system(system: System) -> list[Problem]:
+    """Every problem of ``system`` (errors and warnings; see the module docstring)."""
+    problems = _component_problems(system)
+    ros_provided, ros_outputs, ros_problems = _ros_declarations(system)
+    problems += ros_problems
+    problems += _topic_problems(system, ros_provided, ros_outputs)
+    problems += _event_problems(system)
+    return problems
+
+
+def check_file(path: str | os.PathLike[str]) -> tuple[System | None, list[Problem]]:
+    """Load ``system.py`` leniently and check it; a file that does not load is one ``load-error``."""
+    try:
+        system = load_system(path, lenient=True)
+    except SystemFileError as exc:
+        return None, [Problem(None, "load-error", str(exc))]
+    return system, check_system(system)

@@ -1,0 +1,34 @@
+"""Components: the units of work of a system, each run as an actor in its own process.
+
+Example::
+
+    >>> from embagents.components import LLM, LLMConfig
+    >>> LLMConfig(chat_history=True).history_size
+    10
+"""
+
+from embagents.components.component import (
+    UNSET,
+    Component,
+    ComponentError,
+    Health,
+    HealthStatus,
+    lenient_construction,
+)
+from embagents.components.llm import LLM, LLMConfig, tool_schema
+from embagents.components.model_component import ChatClient, ModelComponent, client_name
+
+__all__ = [
+    "LLM",
+    "UNSET",
+    "ChatClient",
+    "Component",
+    "ComponentError",
+    "Health",
+    "HealthStatus",
+    "LLMConfig",
+    "ModelComponent",
+    "client_name",
+    "lenient_construction",
+    "tool_schema",
+]

@@ -1,0 +1,553 @@
+"""The component base class: typed inputs and outputs, a trigger, a config, health.
+
+A component declares what it consumes and produces; it is validated when it
+is built (so ``system.py`` fails at the line that is wrong) and knows nothing
+of processes or sockets: the runtime feeds it messages and injects a
+publisher. Subclasses implement :meth:`Component._execution_step`.
+
+Triggers: a number is a rate in Hz (``trigger=10.0`` runs 10 steps per
+second), a :class:`~embagents.topic.Topic` (each message on it runs a step),
+a list of topics (any of them), an :class:`~embagents.events.Event` (each
+time it fires), or ``None``: a server that only runs when called.
+
+Example::
+
+    >>> from embagents.msgs import String
+    >>> from embagents.topic import Topic
+    >>> class Shout(Component):
+    ...     allowed_inputs = {"Required": [String]}
+    ...     allowed_outputs = {"Required": [String]}
+    ...     def _execution_step(self, **inputs):
+    ...         self.publish("loud", String(inputs["text"].data.upper()))
+    >>> text, loud = Topic("text", String), Topic("loud", String)
+    >>> shout = Shout(name="shout", inputs=[text], outputs=[loud], trigger=text)
+    >>> sent = []
+    >>> shout.attach(lambda topic, msg: sent.append((topic, msg)))
+    >>> shout.on_message("text", String("hi")) and shout.execute()
+    True
+    >>> sent
+    [('loud', String(data='HI'))]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import copy
+import enum
+import logging
+import re
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any, ClassVar
+
+import attrs
+
+from actors.codec import message
+from embagents.config import BaseComponentConfig, ConfigError, apply_config
+from embagents.events import Event, Fallback
+from embagents.topic import Topic, add_message_type
+
+__all__ = [
+    "UNSET",
+    "Component",
+    "ComponentError",
+    "Health",
+    "HealthStatus",
+    "Problem",
+    "lenient_construction",
+]
+
+#: A component problem: (code, message); the message names the component.
+Problem = tuple[str, str]
+#: ``{"Required": [...], "Optional": [...]}``; an entry is a class or a list of classes (one of).
+AllowedTypes = Mapping[str, Sequence[type | Sequence[type]]]
+Publisher = Callable[[str, Any], None]
+
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
+_lenient: contextvars.ContextVar[bool] = contextvars.ContextVar("embagents_lenient", default=False)
+
+
+class _Unset:
+    def __repr__(self) -> str:
+        return "UNSET"
+
+
+#: Default of ``trigger``: the component class chooses (:meth:`Component.default_trigger`).
+UNSET: Any = _Unset()
+
+
+class HealthStatus(enum.IntEnum):
+    """How a component is doing; failures drive :class:`~embagents.events.Fallback` rules."""
+
+    HEALTHY = 0
+    ALGORITHM_FAILURE = 1  # a step raised or its result is unusable; the process is fine
+    COMPONENT_FAILURE = 2  # the component itself is broken (crashed, hung, lost its model)
+    SYSTEM_FAILURE = 3  # something outside it is broken (a device, the network)
+
+    @classmethod
+    def parse(cls, value: object) -> HealthStatus:
+        """A status from itself, its value or its name (any case).
+
+        >>> HealthStatus.parse("algorithm_failure")
+        <HealthStatus.ALGORITHM_FAILURE: 1>
+        """
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, str) and value.upper() in cls.__members__:
+            return cls[value.upper()]
+        if isinstance(value, int) and not isinstance(value, bool):
+            with contextlib.suppress(ValueError):
+                return cls(value)
+        raise ValueError(f"unknown health status {value!r}; known: {', '.join(cls.__members__)}")
+
+
+@message("embagents/Health")
+@attrs.define
+class Health:
+    """A component's health report (published by the runtime, read by fallbacks)."""
+
+    component: str = ""
+    status: HealthStatus = attrs.field(default=HealthStatus.HEALTHY, converter=HealthStatus.parse)
+    text: str = ""
+    stamp: float = 0.0
+
+
+add_message_type(Health)
+
+
+class ComponentError(ValueError):
+    """A component is declared wrongly; ``problems`` lists every (code, message) found."""
+
+    def __init__(self, component: str, problems: Sequence[Problem]) -> None:
+        self.component = component
+        self.problems = list(problems)
+        super().__init__("\n".join(msg for _, msg in self.problems))
+
+
+@contextlib.contextmanager
+def lenient_construction() -> Iterator[None]:
+    """Within this block components keep their problems in ``.problems`` instead of raising.
+
+    ``embagents check`` loads ``system.py`` this way to report every problem
+    of a file, not only the first.
+    """
+    token = _lenient.set(True)
+    try:
+        yield
+    finally:
+        _lenient.reset(token)
+
+
+def _type_names(entry: Sequence[type]) -> str:
+    return " or ".join(t.__name__ for t in entry)
+
+
+def _check_allowed_spec(owner: str, what: str, spec: AllowedTypes | None) -> None:
+    # A class-definition mistake: fail at import of the class, not per instance.
+    if spec is None:
+        return
+    if not isinstance(spec, Mapping) or set(spec) - {"Required", "Optional"}:
+        raise TypeError(f"{owner}.{what} must be a dict with keys 'Required' and/or 'Optional', got {spec!r}")
+    for key, entries in spec.items():
+        for entry in entries:
+            classes = entry if isinstance(entry, (list, tuple)) else [entry]
+            if not classes or not all(isinstance(c, type) for c in classes):
+                raise TypeError(f"{owner}.{what}[{key!r}]: entries are message classes or lists of them, got {entry!r}")
+
+
+def _entries(spec: AllowedTypes, key: str) -> list[tuple[type, ...]]:
+    return [tuple(e) if isinstance(e, (list, tuple)) else (e,) for e in spec.get(key, ())]
+
+
+class Component:
+    """Base class of all components (see the module docstring).
+
+    Keyword arguments beyond the named ones are config overrides, e.g.
+    ``MyComponent(name="x", loop_rate_hz=5)``. Subclasses that take their own
+    arguments set them before calling ``super().__init__`` and extend
+    :meth:`validate` (which the constructor runs last).
+
+    Runtime contract (everything that needs no IPC is done here):
+
+    - :meth:`attach` injects the publisher (and a health callback);
+    - subscribe to :attr:`subscriptions` (each Topic carries its queue policy);
+    - for each received message: ``if c.on_message(topic, msg): c.execute()``;
+    - a rate trigger: call :meth:`execute` every ``1 / rate_hz`` seconds;
+    - lifecycle: ``on_configure``, ``on_activate``, ``on_deactivate``,
+      ``on_cleanup``, ``on_shutdown``; after a restart, :meth:`restore` with the
+      last :meth:`snapshot` before ``on_activate``.
+
+    ``_execution_step`` receives the latest message of every input topic as
+    keyword arguments named by topic (``None`` for a topic not heard from yet
+    or older than ``config.input_max_age_s``); a step only runs once every
+    required input has a message. :attr:`fresh_inputs` names the topics with a
+    new message since the previous step. Input topic names may contain ``/``:
+    accept them with ``**inputs``.
+    """
+
+    allowed_inputs: ClassVar[AllowedTypes | None] = None  # None: any input types
+    allowed_outputs: ClassVar[AllowedTypes | None] = None
+    config_class: ClassVar[type] = BaseComponentConfig
+
+    def __init_subclass__(cls, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        _check_allowed_spec(cls.__name__, "allowed_inputs", cls.allowed_inputs)
+        _check_allowed_spec(cls.__name__, "allowed_outputs", cls.allowed_outputs)
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        inputs: Sequence[Topic] | Topic | None = None,
+        outputs: Sequence[Topic] | Topic | None = None,
+        trigger: float | Topic | Sequence[Topic] | Event | None = UNSET,
+        config: Any = None,
+        fallback: Fallback | None = None,
+        **config_overrides: Any,
+    ) -> None:
+        self._init_problems: list[Problem] = []
+        self.name = name
+        self.inputs = self._topics(inputs, "inputs")
+        self.outputs = self._topics(outputs, "outputs")
+        self.config = self._make_config(config, config_overrides)
+        self.fallback = fallback
+        self.trigger = self.default_trigger() if trigger is UNSET else trigger
+        self._parse_trigger()
+        self.logger = logging.getLogger(f"embagents.component.{name}")
+        # Runtime state: filled by attach() and on_message().
+        self._publisher: Publisher | None = None
+        self._on_health: Callable[[Health], None] | None = None
+        self._latest: dict[str, Any] = {}
+        self._received_at: dict[str, float] = {}
+        self._fresh: set[str] = set()
+        self._health = Health(component=str(name))
+        self._health_set_in_step = False
+        self.problems: list[Problem] = self.validate()
+        self._required_inputs: list[Topic] = (
+            self._match(self.allowed_inputs, self.inputs, "input")[1] if self.allowed_inputs is not None else []
+        )
+        if self.problems and not _lenient.get():
+            raise ComponentError(str(name), self.problems)
+
+    # --- declaration ----------------------------------------------------------------------
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(name={self.name!r})"
+
+    def _label(self) -> str:
+        return f"component {self.name!r} ({type(self).__name__})"
+
+    def _problem(self, code: str, text: str) -> None:
+        self._init_problems.append((code, f"{self._label()}: {text}"))
+
+    def _topics(self, value: Sequence[Topic] | Topic | None, what: str) -> tuple[Topic, ...]:
+        if value is None:
+            return ()
+        items = [value] if isinstance(value, Topic) else value
+        if isinstance(items, (str, bytes)) or not isinstance(items, Sequence):
+            self._problem("bad-topic", f"{what} must be a list of Topics, got {value!r}")
+            return ()
+        good = []
+        for item in items:
+            if isinstance(item, Topic):
+                good.append(item)
+            else:
+                self._problem("bad-topic", f"{what} must be Topics, got {item!r}")
+        return tuple(good)
+
+    def _make_config(self, config: Any, overrides: Mapping[str, Any]) -> Any:
+        cls = self.config_class
+        if config is None:
+            config = cls()
+        elif not isinstance(config, cls):
+            self._problem("bad-config", f"config must be a {cls.__name__}, got {type(config).__name__}")
+            config = cls()
+        config = copy.deepcopy(config)  # never share a config object between components
+        if overrides:
+            try:
+                config = apply_config(config, overrides)
+            except ConfigError as exc:
+                self._problem("bad-config", str(exc))
+        return config
+
+    def default_trigger(self) -> float | Topic | Sequence[Topic] | Event | None:
+        """The trigger when none is given; the base class is a server (``None``)."""
+        return None
+
+    def _parse_trigger(self) -> None:
+        trig = self.trigger
+        self.trigger_kind = "none"
+        self.trigger_topics: tuple[Topic, ...] = ()
+        self.trigger_event: Event | None = None
+        if trig is None:
+            return
+        if isinstance(trig, (int, float)) and not isinstance(trig, bool):
+            if not trig > 0:
+                self._problem("bad-trigger", f"a rate trigger is in Hz and must be > 0, got {trig!r}")
+                return
+            self.trigger_kind = "rate"
+            self.config = apply_config(self.config, {"loop_rate_hz": float(trig)})
+        elif isinstance(trig, Topic):
+            self.trigger_kind, self.trigger_topics = "topics", (trig,)
+        elif isinstance(trig, Event):
+            self.trigger_kind, self.trigger_event = "event", trig
+        elif isinstance(trig, Sequence) and not isinstance(trig, str) and trig and all(isinstance(t, Topic) for t in trig):
+            self.trigger_kind, self.trigger_topics = "topics", tuple(trig)
+        else:
+            self._problem(
+                "bad-trigger",
+                f"trigger must be a rate in Hz (e.g. 10.0), a Topic, a non-empty list of Topics, "
+                f"an Event or None; got {trig!r}",
+            )
+
+    @property
+    def rate_hz(self) -> float | None:
+        """The step rate in Hz of a rate-triggered component, else ``None``."""
+        return self.config.loop_rate_hz if self.trigger_kind == "rate" else None
+
+    @property
+    def subscriptions(self) -> tuple[Topic, ...]:
+        """Every topic the runtime must subscribe to: the inputs plus an event trigger's topics."""
+        seen = {t.name: t for t in self.inputs}
+        if self.trigger_event is not None:
+            for t in self.trigger_event.topics:
+                seen.setdefault(t.name, t)
+        return tuple(seen.values())
+
+    def _match(self, spec: AllowedTypes, topics: Sequence[Topic], direction: str) -> tuple[list[Problem], list[Topic]]:
+        """Check ``topics`` against ``spec``; returns problems and the topics filling Required entries."""
+        problems: list[Problem] = []
+        required, optional = _entries(spec, "Required"), _entries(spec, "Optional")
+        allowed = [c for entry in required + optional for c in entry]
+        allowed_text = ", ".join(dict.fromkeys(c.__name__ for c in allowed)) or "(none)"
+        for t in topics:
+            if not issubclass(t.msg_type, tuple(allowed)):
+                code = "wrong-input-type" if direction == "input" else "wrong-output-type"
+                problems.append((code, f"{self._label()}: {direction} topic {t.name!r} carries {t.type_name}, "
+                                       f"which is not allowed; allowed {direction} types: {allowed_text}"))
+        used: list[Topic] = []
+        # Most specific entries first so a one-of list does not take a topic a single type needs.
+        for entry in sorted(required, key=len):
+            match = next((t for t in topics if t not in used and issubclass(t.msg_type, entry)), None)
+            if match is None:
+                given = ", ".join(str(t) for t in topics) or "none"
+                problems.append((f"missing-{direction}", f"{self._label()}: needs an {direction} topic of type "
+                                 f"{_type_names(entry)} (required); {direction}s given: {given}"))
+            else:
+                used.append(match)
+        return problems, used
+
+    def validate(self) -> list[Problem]:
+        """Every declaration problem of this component as (code, message); empty when fine.
+
+        Pure: the constructor and ``embagents check`` both call it.
+        """
+        problems = list(self._init_problems)
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            problems.append(("bad-name", f"{self._label()}: a component name is letters, digits, '_' and '-' "
+                                         "(not starting with a digit or '-')"))
+        for what, topics in (("input", self.inputs), ("output", self.outputs)):
+            names = [t.name for t in topics]
+            for dup in sorted({n for n in names if names.count(n) > 1}):
+                problems.append(("duplicate-topic", f"{self._label()}: {what} topic {dup!r} is listed twice"))
+        if self.allowed_inputs is not None:
+            problems += self._match(self.allowed_inputs, self.inputs, "input")[0]
+        if self.allowed_outputs is not None:
+            problems += self._match(self.allowed_outputs, self.outputs, "output")[0]
+        by_name = {t.name: t for t in self.inputs}
+        for t in self.trigger_topics:
+            if t.name not in by_name or by_name[t.name].msg_type is not t.msg_type:
+                inputs = ", ".join(by_name) or "none"
+                problems.append(("trigger-not-input", f"{self._label()}: trigger topic {t.name!r} is not one of "
+                                                      f"its inputs ({inputs}); add it to inputs"))
+        if self.fallback is not None and not isinstance(self.fallback, Fallback):
+            problems.append(("bad-fallback", f"{self._label()}: fallback must be a Fallback, got {self.fallback!r}"))
+        elif self.fallback is not None:
+            problems += self._validate_fallback(self.fallback)
+        return problems
+
+    def _validate_fallback(self, fallback: Fallback) -> list[Problem]:
+        return [
+            ("bad-fallback", f"{self._label()}: fallback action {a.kind} needs a ModelComponent")
+            for a in fallback.actions
+            if a.kind == "switch_model_client"
+        ]
+
+    # --- runtime: inputs, steps, publishing -----------------------------------------------------
+
+    def attach(self, publisher: Publisher, on_health: Callable[[Health], None] | None = None) -> None:
+        """Give the component its way out: ``publisher(topic_name, msg)``; ``on_health(Health)``."""
+        self._publisher = publisher
+        self._on_health = on_health
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        """Store a received message; True when it triggers a step (then call :meth:`execute`).
+
+        ``now`` is a monotonic time in seconds (for tests of ``input_max_age_s``).
+        """
+        if not any(t.name == topic_name for t in self.subscriptions):
+            return False
+        self._latest[topic_name] = msg
+        self._received_at[topic_name] = time.monotonic() if now is None else now
+        self._fresh.add(topic_name)
+        if self.trigger_kind == "topics":
+            return any(t.name == topic_name for t in self.trigger_topics)
+        if self.trigger_event is not None:
+            return self.trigger_event.check(topic_name, msg, now)
+        return False
+
+    @property
+    def required_inputs(self) -> tuple[Topic, ...]:
+        """The input topics that fill ``allowed_inputs["Required"]``: a step waits for them."""
+        return tuple(self._required_inputs)
+
+    @property
+    def fresh_inputs(self) -> frozenset[str]:
+        """Names of the input topics with a new message since the previous step."""
+        return frozenset(self._fresh)
+
+    def current_inputs(self, now: float | None = None) -> dict[str, Any]:
+        """The latest message of every input topic (``None``: none yet, or too old)."""
+        max_age = self.config.input_max_age_s
+        now = time.monotonic() if now is None else now
+        out: dict[str, Any] = {}
+        for t in self.inputs:
+            msg = self._latest.get(t.name)
+            if msg is not None and max_age is not None and now - self._received_at[t.name] > max_age:
+                msg = None
+            out[t.name] = msg
+        return out
+
+    def missing_inputs(self, now: float | None = None) -> list[str]:
+        """Required input topics without a (recent enough) message; a step waits for them."""
+        inputs = self.current_inputs(now)
+        return [t.name for t in self._required_inputs if inputs.get(t.name) is None]
+
+    def execute(self, now: float | None = None) -> bool:
+        """Run one step if the required inputs are there; True when a step ran and succeeded.
+
+        An exception in the step is logged and reported as ALGORITHM_FAILURE
+        (the process keeps running); a step that does not set a status itself
+        leaves the component HEALTHY.
+        """
+        if self.missing_inputs(now):
+            return False
+        inputs = self.current_inputs(now)
+        self._health_set_in_step = False
+        try:
+            self._execution_step(**inputs)
+        except Exception as exc:
+            self.logger.exception("%s: step failed", self._label())
+            self.set_algorithm_failure(f"{type(exc).__name__}: {exc}")
+            return False
+        finally:
+            self._fresh.clear()
+        if not self._health_set_in_step:
+            self.set_healthy()
+        return True
+
+    def _execution_step(self, **inputs: Any) -> None:
+        """One step of work: read ``inputs``, :meth:`publish` results. Override this."""
+        raise NotImplementedError(f"{type(self).__name__} must implement _execution_step(self, **inputs)")
+
+    def output(self, topic: Topic | str) -> Topic:
+        """The output Topic named ``topic`` (a Topic or its name)."""
+        name = topic.name if isinstance(topic, Topic) else str(topic).lstrip("/")
+        for t in self.outputs:
+            if t.name == name:
+                return t
+        outputs = ", ".join(t.name for t in self.outputs) or "none"
+        raise ValueError(f"{self._label()} has no output topic {name!r}; outputs: {outputs}")
+
+    def publish(self, topic: Topic | str, msg: Any) -> None:
+        """Publish ``msg`` on one of this component's output topics (checked by type)."""
+        out = self.output(topic)
+        if not isinstance(msg, out.msg_type):
+            raise TypeError(
+                f"{self._label()}: output topic {out.name!r} expects {out.type_name}, "
+                f"got {type(msg).__name__}"
+            )
+        if self._publisher is None:
+            raise RuntimeError(f"{self._label()} is not attached to a runtime; call attach(publisher) first")
+        self._publisher(out.name, msg)
+
+    # --- health ---------------------------------------------------------------------------
+
+    @property
+    def health(self) -> Health:
+        """The latest health report."""
+        return self._health
+
+    @property
+    def health_status(self) -> HealthStatus:
+        """The current status; assign a HealthStatus (or its name) to change it."""
+        return self._health.status
+
+    @health_status.setter
+    def health_status(self, status: HealthStatus | str) -> None:
+        self._set_health(HealthStatus.parse(status), "")
+
+    def _set_health(self, status: HealthStatus, text: str) -> None:
+        changed = status != self._health.status or text != self._health.text
+        self._health = Health(component=str(self.name), status=status, text=text, stamp=time.time())
+        self._health_set_in_step = True
+        # Every failure is reported (fallbacks count them); recovery only once.
+        if self._on_health is not None and (status != HealthStatus.HEALTHY or changed):
+            self._on_health(self._health)
+
+    def set_healthy(self) -> None:
+        """Report HEALTHY."""
+        self._set_health(HealthStatus.HEALTHY, "")
+
+    def set_algorithm_failure(self, text: str = "") -> None:
+        """Report that the algorithm failed (bad input, unusable result, exception)."""
+        self._set_health(HealthStatus.ALGORITHM_FAILURE, text)
+
+    def set_component_failure(self, text: str = "") -> None:
+        """Report that this component is broken (e.g. its model client is gone)."""
+        self._set_health(HealthStatus.COMPONENT_FAILURE, text)
+
+    def set_system_failure(self, text: str = "") -> None:
+        """Report that something outside this component is broken (a device, the network)."""
+        self._set_health(HealthStatus.SYSTEM_FAILURE, text)
+
+    # --- lifecycle and state ----------------------------------------------------------------
+
+    def on_configure(self) -> None:
+        """unconfigured -> inactive: load resources (models, devices). No-op by default."""
+
+    def on_activate(self) -> None:
+        """inactive -> active: steps start after this. No-op by default."""
+
+    def on_deactivate(self) -> None:
+        """active -> inactive: steps stop before this. No-op by default."""
+
+    def on_cleanup(self) -> None:
+        """inactive -> unconfigured: release what on_configure took. No-op by default."""
+
+    def on_shutdown(self) -> None:
+        """Any state -> finalized: last chance to release resources. No-op by default."""
+
+    def on_reconfigure(self, old_config: Any) -> None:
+        """Called after :meth:`reconfigure` replaced ``self.config``. No-op by default."""
+
+    def reconfigure(self, overrides: Mapping[str, Any]) -> Any:
+        """Apply config overrides (validated; the component is re-validated too) and return the new config."""
+        old = self.config
+        new = apply_config(old, overrides)
+        self.config = new
+        problems = [p for p in self.validate() if p not in self.problems]
+        if problems:
+            self.config = old
+            self.validate()
+            raise ComponentError(str(self.name), problems)
+        self.on_reconfigure(old)
+        return new
+
+    def snapshot(self) -> Any:
+        """State (plain msgpack-able data) a restarted incarnation should get back; ``None``: nothing."""
+        return None
+
+    def restore(self, state: Any) -> None:
+        """Take back what :meth:`snapshot` returned before a restart. No-op by default."""

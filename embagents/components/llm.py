@@ -1,0 +1,396 @@
+"""The LLM component: text in, text (or a token stream) out, with history and tools.
+
+Each new message on the text input is answered through the model client.
+The answer goes to every ``String`` output whole, and to every
+``StreamingString`` output as chunks of one stream (``stream=True``: one
+chunk per token delta; else one chunk) closed by ``StreamingString(data="",
+done=True)`` with the same ``stream_id``.
+
+Tool calling: ``LLMConfig(tools={"get_time": get_time})`` offers Python
+functions to the model (JSON schemas are derived from their signatures or
+given in ``tool_schemas``); tool calls the model makes are run and their
+results fed back, for at most ``max_tool_rounds`` rounds, then the model
+must answer in text.
+
+Example::
+
+    >>> from embagents.msgs import String
+    >>> from embagents.topic import Topic
+    >>> class Parrot:
+    ...     def chat_stream(self, messages, **options):
+    ...         yield {"delta": "You said: " + messages[-1]["content"]}
+    ...         yield {"done": True, "finish_reason": "stop", "tool_calls": None}
+    >>> question, answer = Topic("question", String), Topic("answer", String)
+    >>> llm = LLM(name="llm", inputs=[question], outputs=[answer], model_client=Parrot(),
+    ...           config=LLMConfig(prompt_template="Q: {text}"))
+    >>> sent = []
+    >>> llm.attach(lambda topic, msg: sent.append(msg))
+    >>> llm.on_message("question", String("hi")) and llm.execute()
+    True
+    >>> sent
+    [String(data='You said: Q: hi')]
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+import json
+import string
+import uuid
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from attrs import define, field
+
+from embagents.components.component import Problem
+from embagents.components.model_component import ModelComponent
+from embagents.config import BaseComponentConfig, ConfigError
+from embagents.msgs import StreamingString, String
+from embagents.topic import Topic
+
+__all__ = ["LLM", "LLMConfig", "template_fields", "tool_schema"]
+
+
+def _bool(value: object) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.lower() in ("true", "yes", "on", "1", "false", "no", "off", "0"):
+        return value.lower() in ("true", "yes", "on", "1")
+    if isinstance(value, int) and value in (0, 1):
+        return bool(value)
+    raise ConfigError(f"expected true or false, got {value!r}")
+
+
+def _int_at_least(low: int) -> Callable[[object], int]:
+    def conv(value: object) -> int:
+        out: int | None = None
+        if isinstance(value, int) and not isinstance(value, bool):
+            out = value
+        elif isinstance(value, float) and value.is_integer():
+            out = int(value)
+        elif isinstance(value, str) and value.strip().lstrip("-").isdigit():
+            out = int(value)
+        if out is None or out < low:
+            raise ConfigError(f"expected an integer >= {low}, got {value!r}")
+        return out
+
+    return conv
+
+
+def _temperature(value: object) -> float:
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        out = -1.0
+    if isinstance(value, bool) or not 0.0 <= out <= 5.0:
+        raise ConfigError(f"temperature must be a number in [0, 5], got {value!r}")
+    return out
+
+
+def _optional_str(_inst: object, attr: Any, value: object) -> None:
+    if value is not None and not isinstance(value, str):
+        raise ConfigError(f"{attr.name} must be a str or None, got {value!r}")
+
+
+def _str_list(value: object) -> list[str]:
+    items = [value] if isinstance(value, str) else list(value)  # type: ignore[call-overload]
+    if not all(isinstance(s, str) and s for s in items):
+        raise ConfigError(f"stop must be a list of non-empty strings, got {value!r}")
+    return items
+
+
+def template_fields(template: str) -> list[str]:
+    """The placeholder names of a prompt template; raises ConfigError if it is malformed.
+
+    >>> template_fields("Context: {location}. Question: {text}")
+    ['location', 'text']
+    """
+    try:
+        parsed = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise ConfigError(f"prompt_template {template!r} is not a valid format string: {exc}") from None
+    names = []
+    for _, name, _, _ in parsed:
+        if name is None:
+            continue
+        if not name.isidentifier():
+            raise ConfigError(
+                f"prompt_template {template!r}: placeholder {{{name}}} must be a plain name such as "
+                "{text} (no positional {}, indexes or attributes); write {{ }} for literal braces"
+            )
+        names.append(name)
+    return names
+
+
+def _check_template(_inst: object, _attr: object, value: str | None) -> None:
+    if value is None:
+        return
+    if not isinstance(value, str):
+        raise ConfigError(f"prompt_template must be a str or None, got {value!r}")
+    if "text" not in template_fields(value):
+        raise ConfigError(f"prompt_template {value!r} must contain the {{text}} placeholder (the input text)")
+
+
+def _check_tools(_inst: object, _attr: object, value: dict[str, Any]) -> None:
+    if not isinstance(value, Mapping):
+        raise ConfigError(f"tools must be a dict of name -> function, got {value!r}")
+    for name, fn in value.items():
+        if not isinstance(name, str) or not name.isidentifier() or not callable(fn):
+            raise ConfigError(f"tools must map identifier names to callables; got {name!r}: {fn!r}")
+
+
+_JSON_TYPES = {str: "string", int: "integer", float: "number", bool: "boolean", list: "array", dict: "object"}
+_JSON_TYPE_NAMES = {t.__name__: j for t, j in _JSON_TYPES.items()}
+
+
+def tool_schema(name: str, fn: Callable[..., Any], parameters: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """An OpenAI-style tool description of ``fn``, parameters derived from its signature.
+
+    >>> def turn(angle: float, unit: str = "deg"):
+    ...     '''Turn the robot in place.'''
+    >>> tool_schema("turn", turn)["function"]["parameters"]["required"]
+    ['angle']
+    """
+    if parameters is None:
+        props: dict[str, Any] = {}
+        required = []
+        for p in inspect.signature(fn).parameters.values():
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                continue
+            ann = p.annotation
+            # With `from __future__ import annotations` the annotation is a string.
+            jtype = _JSON_TYPES.get(ann) or _JSON_TYPE_NAMES.get(ann if isinstance(ann, str) else "", "string")
+            props[p.name] = {"type": jtype}
+            if p.default is p.empty:
+                required.append(p.name)
+        parameters = {"type": "object", "properties": props, "required": required}
+    doc = inspect.getdoc(fn) or ""
+    return {
+        "type": "function",
+        "function": {"name": name, "description": doc.split("\n\n")[0], "parameters": dict(parameters)},
+    }
+
+
+@define(kw_only=True)
+class LLMConfig(BaseComponentConfig):
+    """Settings of :class:`LLM`.
+
+    - ``chat_history``: keep the conversation; ``history_size``: turns kept
+      (a turn is a question, its tool calls and its answer).
+    - ``system_prompt``: the system message; ``prompt_template``: a format
+      string wrapping the input text, e.g. ``"Answer briefly: {text}"``; other
+      String inputs fill placeholders named after their topic (``/`` -> ``_``).
+    - ``stream``: publish token deltas on the StreamingString output.
+    - ``max_new_tokens``, ``temperature``, ``stop``: generation options.
+    - ``tools``: name -> Python function the model may call; ``tool_schemas``:
+      name -> JSON schema of its parameters (else derived from the signature);
+      ``max_tool_rounds``: tool rounds before the model must answer.
+
+    >>> LLMConfig(history_size="4", stream="true").history_size
+    4
+    """
+
+    chat_history: bool = field(default=False, converter=_bool)
+    history_size: int = field(default=10, converter=_int_at_least(1))
+    system_prompt: str | None = field(default=None, validator=_optional_str)
+    prompt_template: str | None = field(default=None, validator=_check_template)
+    stream: bool = field(default=False, converter=_bool)
+    max_new_tokens: int = field(default=256, converter=_int_at_least(1))
+    temperature: float = field(default=0.7, converter=_temperature)
+    stop: list[str] = field(factory=list, converter=_str_list)
+    tools: dict[str, Callable[..., Any]] = field(factory=dict, validator=_check_tools)
+    tool_schemas: dict[str, dict[str, Any]] = field(factory=dict)
+    max_tool_rounds: int = field(default=3, converter=_int_at_least(0))
+
+    def __attrs_post_init__(self) -> None:
+        extra = sorted(set(self.tool_schemas) - set(self.tools))
+        if extra:
+            raise ConfigError(f"tool_schemas names tools that are not in tools: {', '.join(extra)}")
+
+
+def _placeholder(topic: Topic) -> str:
+    return topic.name.replace("/", "_")
+
+
+class LLM(ModelComponent):
+    """Answers text with a language model (see the module docstring).
+
+    The trigger defaults to the first input topic; a step answers the newest
+    message of the first fresh trigger topic. :meth:`answer` is also callable
+    directly (e.g. by a ``call(llm, "answer", "...")`` action on a server LLM).
+    ``snapshot()`` / ``restore()`` carry the chat history across restarts.
+    """
+
+    allowed_inputs = {"Required": [String], "Optional": [String]}
+    allowed_outputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString]}
+    config_class = LLMConfig
+
+    def __init__(self, *, name: str, **kw: Any) -> None:
+        self._history: list[dict[str, Any]] = []
+        self._stream_count = 0
+        super().__init__(name=name, **kw)
+
+    def default_trigger(self) -> Topic | None:
+        return self.inputs[0] if self.inputs else None
+
+    def validate(self) -> list[Problem]:
+        problems = super().validate()
+        cfg = self.config
+        if cfg.prompt_template is not None:
+            allowed = ["text", *(_placeholder(t) for t in self.inputs)]
+            for name in template_fields(cfg.prompt_template):
+                if name not in allowed:
+                    problems.append(("bad-config", f"{self._label()}: prompt_template placeholder {{{name}}} is "
+                                                   f"not an input; allowed: {', '.join(dict.fromkeys(allowed))}"))
+        if cfg.stream and not any(t.msg_type is StreamingString for t in self.outputs):
+            problems.append(("bad-config", f"{self._label()}: stream=True needs a StreamingString output topic"))
+        return problems
+
+    # --- history ----------------------------------------------------------------------------
+
+    @property
+    def history(self) -> list[dict[str, Any]]:
+        """A copy of the chat history (user, assistant and tool messages)."""
+        return copy.deepcopy(self._history)
+
+    def reset_history(self) -> None:
+        """Forget the conversation."""
+        self._history.clear()
+
+    def _trim_history(self) -> None:
+        starts = [i for i, m in enumerate(self._history) if m.get("role") == "user"]
+        excess = len(starts) - self.config.history_size
+        if excess > 0:
+            del self._history[: starts[excess]]
+
+    def snapshot(self) -> dict[str, Any]:
+        """``{"history": [...]}``: plain dicts, msgpack-able."""
+        return {"history": copy.deepcopy(self._history)}
+
+    def restore(self, state: Any) -> None:
+        """Take back a :meth:`snapshot` (``None`` is ignored)."""
+        if state is None:
+            return
+        history = state.get("history") if isinstance(state, Mapping) else None
+        if not isinstance(history, list) or not all(isinstance(m, Mapping) and "role" in m for m in history):
+            raise ValueError(f"{self._label()}: restore() expects {{'history': [{{'role': ..., ...}}, ...]}}, got {state!r}")
+        self._history = [dict(m) for m in history]
+        self._trim_history()
+
+    # --- prompting --------------------------------------------------------------------------
+
+    def build_messages(self, text: str, context: Mapping[str, str] | None = None) -> list[dict[str, Any]]:
+        """The messages sent for ``text``: system prompt, history (if kept), the templated question.
+
+        ``context`` fills the template's other placeholders (missing ones are "").
+        """
+        cfg = self.config
+        content = text
+        if cfg.prompt_template is not None:
+            values = dict.fromkeys(template_fields(cfg.prompt_template), "")
+            values.update(context or {})
+            values["text"] = text
+            content = cfg.prompt_template.format(**values)
+        messages: list[dict[str, Any]] = []
+        if cfg.system_prompt:
+            messages.append({"role": "system", "content": cfg.system_prompt})
+        if cfg.chat_history:
+            messages += copy.deepcopy(self._history)
+        messages.append({"role": "user", "content": content})
+        return messages
+
+    def tool_specs(self) -> list[dict[str, Any]]:
+        """The tool descriptions offered to the model."""
+        cfg = self.config
+        return [tool_schema(name, fn, cfg.tool_schemas.get(name)) for name, fn in cfg.tools.items()]
+
+    # --- steps ------------------------------------------------------------------------------
+
+    def _execution_step(self, **inputs: Any) -> None:
+        candidates = self.trigger_topics if self.trigger_kind == "topics" else self.inputs
+        question = next((t for t in candidates if t.name in self.fresh_inputs and inputs.get(t.name) is not None), None)
+        if question is None:
+            return  # nothing new to answer (e.g. a rate tick with no new question)
+        context = {_placeholder(t): inputs[t.name].data for t in self.inputs
+                   if t is not question and inputs.get(t.name) is not None}
+        self.answer(inputs[question.name].data, context)
+
+    def answer(self, text: str, context: Mapping[str, str] | None = None) -> str:
+        """Answer ``text``: query the model (running tools), publish, update history; returns the answer."""
+        messages = self.build_messages(text, context)
+        turn = [messages[-1]]
+        self._stream_count += 1
+        stream_id = f"{self.name}-{uuid.uuid4().hex[:8]}-{self._stream_count}"
+        streams = [t for t in self.outputs if t.msg_type is StreamingString]
+        try:
+            answer = self._converse(messages, turn, streams if self.config.stream else [], stream_id)
+            if not self.config.stream:
+                for t in streams:
+                    self.publish(t, StreamingString(data=answer, done=False, stream_id=stream_id))
+        finally:
+            # Close the stream even on failure, so listeners never wait forever.
+            for t in streams:
+                self.publish(t, StreamingString(data="", done=True, stream_id=stream_id))
+        for t in self.outputs:
+            if t.msg_type is String:
+                self.publish(t, String(data=answer))
+        if self.config.chat_history:
+            self._history += turn + [{"role": "assistant", "content": answer}]
+            self._trim_history()
+        return answer
+
+    def _converse(self, messages: list[dict[str, Any]], turn: list[dict[str, Any]],
+                  streams: list[Topic], stream_id: str) -> str:
+        cfg = self.config
+        specs = self.tool_specs() or None
+        rounds = 0
+        while True:
+            tools = specs if rounds < cfg.max_tool_rounds else None
+            parts: list[str] = []
+            tool_calls = None
+            for chunk in self.chat_stream(messages, max_tokens=cfg.max_new_tokens, temperature=cfg.temperature,
+                                          stop=cfg.stop or None, tools=tools):
+                delta = chunk.get("delta")
+                if delta:
+                    parts.append(delta)
+                    for t in streams:
+                        self.publish(t, StreamingString(data=delta, done=False, stream_id=stream_id))
+                if chunk.get("done"):
+                    tool_calls = chunk.get("tool_calls")
+            text = "".join(parts)
+            if not tool_calls or tools is None:
+                return text
+            calls = [self._normalize_call(c, i) for i, c in enumerate(tool_calls)]
+            new = [{"role": "assistant", "content": text, "tool_calls": calls}]
+            new += [{"role": "tool", "tool_call_id": c["id"], "name": c["function"]["name"],
+                     "content": self._run_tool(c)} for c in calls]
+            messages += new
+            turn += new
+            rounds += 1
+
+    @staticmethod
+    def _normalize_call(call: Mapping[str, Any], index: int) -> dict[str, Any]:
+        # Accept OpenAI's {"id", "function": {"name", "arguments"}} and a flat {"name", "arguments"}.
+        fn = call.get("function") if isinstance(call.get("function"), Mapping) else call
+        args = fn.get("arguments", {})
+        if not isinstance(args, str):
+            args = json.dumps(args)
+        return {"id": str(call.get("id") or f"call_{index}"), "type": "function",
+                "function": {"name": str(fn.get("name", "")), "arguments": args}}
+
+    def _run_tool(self, call: Mapping[str, Any]) -> str:
+        """Run one tool call; errors become the tool's answer so the model can recover."""
+        name = call["function"]["name"]
+        fn = self.config.tools.get(name)
+        if fn is None:
+            return f"error: unknown tool {name!r}; available tools: {', '.join(self.config.tools) or 'none'}"
+        try:
+            args = json.loads(call["function"]["arguments"] or "{}")
+            if not isinstance(args, dict):
+                raise TypeError(f"arguments must be a JSON object, got {args!r}")
+            result = fn(**args)
+        except Exception as exc:
+            self.logger.warning("%s: tool %s failed: %s", self._label(), name, exc)
+            return f"error: {type(exc).__name__}: {exc}"
+        return result if isinstance(result, str) else json.dumps(result, default=str)

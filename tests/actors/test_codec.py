@@ -1,0 +1,72 @@
+from __future__ import annotations
+
+import attrs
+import msgpack
+import numpy as np
+import pytest
+
+from actors.codec import Codec, message
+from actors.errors import CorruptFrame, MessageTooLarge, UnregisteredType
+
+
+@message("test/Point")
+@attrs.define
+class Point:
+    x: float
+    tags: list[str] = attrs.field(factory=list)
+    arr: np.ndarray | None = None
+
+
+class NotRegistered:
+    pass
+
+
+def test_round_trip_of_native_values_messages_and_arrays() -> None:
+    c = Codec()
+    a = np.arange(12, dtype=np.float32).reshape(3, 4)
+    data, segs = c.encode({"p": Point(1.5, ["a"], a), "b": b"\x00\x01", "n": [1, None, True]})
+    out = c.decode(data)
+    assert segs == []
+    assert out["p"].x == 1.5 and out["p"].tags == ["a"]
+    assert out["p"].arr.dtype == np.float32 and (out["p"].arr == a).all()
+    assert out["b"] == b"\x00\x01" and out["n"] == [1, None, True]
+
+
+def test_unregistered_type_names_the_class_and_the_fix() -> None:
+    with pytest.raises(UnregisteredType, match=r"NotRegistered.*@actors.message"):
+        Codec().encode(NotRegistered())
+
+
+def test_object_arrays_are_refused() -> None:
+    with pytest.raises(UnregisteredType, match="dtype object"):
+        Codec().encode(np.array([object()], dtype=object))
+
+
+def test_oversize_frame_is_refused_with_sizes() -> None:
+    c = Codec(max_frame_bytes=1000)
+    with pytest.raises(MessageTooLarge, match="exceeds the limit of 1000 bytes"):
+        c.encode(b"x" * 2000)
+
+
+@pytest.mark.parametrize(
+    "garbage",
+    [b"\xc1", b"\x92\x01", msgpack.packb(msgpack.ExtType(99, b"zz")), msgpack.packb(msgpack.ExtType(2, b"\x01"))],
+)
+def test_garbage_is_a_corrupt_frame(garbage: bytes) -> None:
+    with pytest.raises(CorruptFrame):
+        Codec().decode(garbage)
+
+
+def test_unknown_message_name_says_what_to_import() -> None:
+    frame = msgpack.packb(msgpack.ExtType(2, msgpack.packb(["nobody/Knows", {}])))
+    with pytest.raises(UnregisteredType, match="nobody/Knows"):
+        Codec().decode(frame)
+
+
+def test_a_frame_cannot_run_code() -> None:
+    # A pickle payload is just bytes to us: it is never unpickled.
+    import pickle  # noqa: S403 - building a hostile frame on purpose
+
+    evil = pickle.dumps(print)
+    with pytest.raises(CorruptFrame):
+        Codec().decode(evil)

@@ -1,0 +1,67 @@
+from __future__ import annotations
+
+import gc
+import os
+
+import numpy as np
+import pytest
+
+from actors.errors import StaleFrame
+from actors.shm import ShmPool, ShmReader, sweep
+
+
+@pytest.fixture
+def pool() -> ShmPool:
+    p = ShmPool(f"eatest{os.getpid()}_1_")
+    yield p
+    p.close()
+    assert sweep(f"eatest{os.getpid()}_") == 0
+
+
+def test_view_is_zero_copy_and_read_only(pool: ShmPool) -> None:
+    a = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    v = ShmReader().view(pool.put(a), None)
+    assert (v == a).all() and not v.flags.writeable
+    with pytest.raises(ValueError):
+        v[0, 0, 0] = 1
+
+
+def test_segment_is_reused_only_after_ack_and_release(pool: ShmPool) -> None:
+    reader, released = ShmReader(), []
+    h = pool.put(np.ones(100_000, np.uint8))
+    pool.sent([h[0]], "link")
+    v = reader.view(h, lambda n, g: released.append(n))
+    pool.acked([h[0]])
+    h2 = pool.put(np.ones(100_000, np.uint8))
+    assert h2[0] != h[0], "a segment still viewed must not be reused"
+    del v
+    gc.collect()
+    assert released == [h[0]]
+    pool.released(h[0], "link")
+    pool.acked([h2[0]])
+    h3 = pool.put(np.full(100_000, 7, np.uint8))
+    assert h3[0] in (h[0], h2[0]) and pool.segment_count == 2
+
+
+def test_lost_link_frees_its_views(pool: ShmPool) -> None:
+    h = pool.put(np.ones(100_000, np.uint8))
+    pool.sent([h[0]], "link")
+    pool.acked([h[0]])
+    pool.link_lost("link")
+    assert pool.put(np.ones(100_000, np.uint8))[0] == h[0]
+
+
+def test_ring_reuse_makes_old_handles_stale(pool: ShmPool) -> None:
+    reader = ShmReader()
+    first = pool.put_ring("cam", np.zeros(70_000, np.uint8), ring=2, min_age=0.0)
+    for i in range(3):
+        pool.put_ring("cam", np.full(70_000, i, np.uint8), ring=2, min_age=0.0)
+    with pytest.raises(StaleFrame):
+        reader.view(first, None)
+
+
+def test_sweep_removes_a_prefix() -> None:
+    p = ShmPool(f"easweep{os.getpid()}_9_")
+    p.put(np.ones(70_000, np.uint8))
+    assert sweep(f"easweep{os.getpid()}_") == 1
+    p.close()

