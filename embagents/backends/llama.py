@@ -44,7 +44,7 @@ __all__ = [
     "ToolCallAccumulator",
 ]
 
-_INSTALL_HINT = "pip install llama-cpp-python  (or: pip install 'embagents[local]')"
+_INSTALL_HINT = "pip install llama-cpp-python, or pip install 'embagents[local]'"
 
 
 class LlamaBackend:

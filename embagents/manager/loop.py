@@ -67,7 +67,11 @@ class Manager:
         on_handler_error: ErrorPolicy = "log",
         name: str = "manager",
     ) -> None:
-        if not (isinstance(rate_hz, int | float) and math.isfinite(rate_hz) and rate_hz > 0):
+        try:
+            rate = float(rate_hz)
+        except (TypeError, ValueError):
+            rate = math.nan
+        if not (math.isfinite(rate) and rate > 0):
             raise ValueError(f"rate_hz must be a positive number (ticks per second), got {rate_hz!r}")
         for label, value in [
             ("handshake_timeout", handshake_timeout),
@@ -83,7 +87,7 @@ class Manager:
             if not isinstance(rule, HandshakeRule):
                 raise TypeError(f"handshake rules must be HandshakeRule instances, got {rule!r}")
         self.name = name
-        self.rate_hz = float(rate_hz)
+        self.rate_hz = rate
         self.period = 1.0 / self.rate_hz
         self.handshake = tuple(handshake)
         self.handshake_timeout = handshake_timeout
@@ -105,7 +109,7 @@ class Manager:
         self._stop_requested = False
         self._sleeping = False
         self._loop_ident: int | None = None
-        self._state_lock = threading.Lock()
+        self._lifecycle_lock = threading.Lock()
         self._running = False
         self._closed = False
         self._finished = threading.Event()
@@ -120,7 +124,7 @@ class Manager:
         Takes a :class:`Handler` or a plain ``fn(state, tick)``; returns it
         unchanged, so it also works as a decorator.
         """
-        with self._state_lock:
+        with self._lifecycle_lock:
             if self._running or self._closed:
                 raise RuntimeError(f"manager {self.name!r}: add handlers before run()")
             self._handlers.append(as_handler(handler))
@@ -128,6 +132,7 @@ class Manager:
 
     @property
     def handlers(self) -> tuple[Handler, ...]:
+        """The handlers, in the order they run each tick."""
         return tuple(self._handlers)
 
     def attach(self, resource: R, *, name: str | None = None) -> R:
@@ -193,7 +198,7 @@ class Manager:
     def _claim(self, max_ticks: int | None) -> None:
         if max_ticks is not None and max_ticks < 0:
             raise ValueError(f"max_ticks must be >= 0 or None, got {max_ticks!r}")
-        with self._state_lock:
+        with self._lifecycle_lock:
             if self._running:
                 raise RuntimeError(f"manager {self.name!r} is already running")
             if self._closed:
@@ -260,7 +265,7 @@ class Manager:
         self._close()
 
     def _close(self) -> None:
-        with self._state_lock:
+        with self._lifecycle_lock:
             if self._closed:
                 return
             self._closed = True

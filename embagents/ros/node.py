@@ -22,8 +22,12 @@ Example::
 
 from __future__ import annotations
 
+import fcntl
 import logging
+import os
+import re
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -40,7 +44,7 @@ from embagents.msgs import StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, ros_type_for
 
-__all__ = ["RosBridgeCore", "qos_profile"]
+__all__ = ["RosBridgeCore", "clean_zombie_fastdds_segments", "qos_profile"]
 
 log = logging.getLogger("embagents.ros")
 
@@ -112,8 +116,14 @@ class RosBridgeCore:
         *,
         domain_id: int | None = None,
         namespace: str | None = None,
+        clean_shm: bool = True,
     ) -> None:
         """Init a Context (``domain_id`` default: $ROS_DOMAIN_ID), create the node and spin it.
+
+        With ``clean_shm`` (and Fast DDS, the default RMW), shared-memory
+        segments left in /dev/shm by killed ROS processes (a bridge the
+        supervisor restarted, say) are removed first; see
+        :func:`clean_zombie_fastdds_segments`.
 
         Raises RuntimeError if already started; on any failure everything
         created so far is torn down before the error propagates.
@@ -121,6 +131,10 @@ class RosBridgeCore:
         with self._lock:
             if self._run is not None:
                 raise RuntimeError("RosBridgeCore is already started; stop() it first")
+            if clean_shm and os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps"):
+                removed = clean_zombie_fastdds_segments()
+                if removed:
+                    log.info("removed %d stale Fast DDS shared-memory segments", len(removed))
             context = Context()
             # No signal handlers: the supervisor owns this process's signals.
             rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
@@ -264,3 +278,38 @@ def _teardown(context: Context, node: Node | None, executor: SingleThreadedExecu
             step()
         except Exception:
             log.debug("ROS teardown step failed", exc_info=True)
+
+
+_SEGMENT = re.compile(r"^fastdds_[0-9a-z]{16}$")
+
+
+def clean_zombie_fastdds_segments(shm_dir: str = "/dev/shm", min_age: float = 10.0) -> list[str]:
+    """Remove Fast DDS segments whose owner process is gone; return their paths.
+
+    Each DDS participant maps a ~0.5 MB ``fastdds_<16 hex>`` segment and
+    holds an flock on its ``_el`` file while alive. A SIGKILLed process
+    cannot unlink them, so every supervisor restart of the bridge would leak
+    one. Same rule as ``fastdds shm clean``, plus ``min_age`` so a segment
+    being created right now (lock not yet taken) is never touched.
+    """
+    removed: list[str] = []
+    try:
+        names = os.listdir(shm_dir)
+    except OSError:
+        return removed
+    now = time.time()
+    for name in names:
+        if not _SEGMENT.match(name):
+            continue
+        seg, lock = os.path.join(shm_dir, name), os.path.join(shm_dir, name + "_el")
+        try:
+            if now - os.stat(lock).st_mtime < min_age:
+                continue
+            with open(lock, "ab") as fd:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # fails while the owner lives
+                os.unlink(seg)
+                os.unlink(lock)
+        except OSError:
+            continue
+        removed.append(seg)
+    return removed

@@ -48,7 +48,8 @@ def test_tiny_gguf_is_small_loads_fast_and_tokenizes(tiny_gguf: str) -> None:
         assert "<|im_start|>" in llm.metadata["tokenizer.chat_template"]
         text = "hello robot, open the door!\n"
         tokens = llm.tokenize(text.encode(), add_bos=False)
-        assert llm.detokenize(tokens).decode() == text
+        # SentencePiece adds a leading space (the "dummy prefix") when detokenizing.
+        assert llm.detokenize(tokens).decode().removeprefix(" ") == text
         # Control tokens in a prompt are single tokens, not spelled out in bytes.
         assert len(llm.tokenize(b"<|im_start|>", add_bos=False, special=True)) == 1
     finally:

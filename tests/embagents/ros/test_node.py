@@ -23,7 +23,7 @@ pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embag
 
 from embagents.msgs import Image, StreamingString, String, Twist  # noqa: E402
 from embagents.ros import QoS, RosInput, RosOutput  # noqa: E402
-from embagents.ros.node import RosBridgeCore  # noqa: E402
+from embagents.ros.node import RosBridgeCore, clean_zombie_fastdds_segments  # noqa: E402
 
 DOMAIN_ID = 1 + os.getpid() % 100
 DEADLINE = 15.0  # seconds for any one exchange; discovery takes ~0.1-1 s here
@@ -304,7 +304,7 @@ def test_bad_messages_and_failing_consumers_do_not_stop_the_bridge(core_factory)
     assert rx.counts["loop_in"].errors >= 1
 
 
-def test_stop_is_idempotent_leaves_no_threads_and_restarts(core_factory):
+def test_stop_is_idempotent_leaves_no_threads_and_restarts():
     def native_threads() -> int:
         return len(os.listdir("/proc/self/task"))
 
@@ -314,7 +314,7 @@ def test_stop_is_idempotent_leaves_no_threads_and_restarts(core_factory):
         got: queue.Queue = queue.Queue()
         rx = RosBridgeCore(inputs=[RosInput("/restart_in", "std_msgs/String")])
         tx = RosBridgeCore(outputs=[RosOutput("r", ros_topic="/restart_in", ros_type="std_msgs/String")])
-        rx.start("bridge_restart_rx", lambda t, m: got.put(m.data), domain_id=DOMAIN_ID)
+        rx.start("bridge_restart_rx", lambda t, m, q=got: q.put(m.data), domain_id=DOMAIN_ID)
         tx.start("bridge_restart_tx", lambda t, m: None, domain_id=DOMAIN_ID)
         try:
             end = time.monotonic() + DEADLINE
@@ -335,13 +335,23 @@ def test_stop_is_idempotent_leaves_no_threads_and_restarts(core_factory):
     assert counts[2] == counts[1] == counts[0]
 
 
+def _segments() -> set[str]:
+    return {f for f in os.listdir("/dev/shm") if f.startswith("fastdds_") and len(f) == 24}
+
+
 def test_killed_bridge_process_is_replaced_by_a_fresh_one(spawn):
     pub = spawn(EXTERNAL_PUBLISHER)
+    assert wait_line(line_reader(pub), pub) == "READY"
     for name in ("bridge_first", "bridge_second"):
+        before = _segments()
         bridge = spawn(BRIDGE_PROCESS, name)
         lines = line_reader(bridge)
         assert wait_line(lines, bridge) == "READY"
         assert wait_line(lines, bridge) == "text_in hello from ROS"
+        mine = _segments() - before
         os.killpg(bridge.pid, signal.SIGKILL)  # as the supervisor does
         bridge.wait(timeout=5)
         assert pub.poll() is None
+        # The killed bridge could not unlink its DDS segment; the next start cleans it.
+        removed = {os.path.basename(p) for p in clean_zombie_fastdds_segments(min_age=0)}
+        assert mine & removed, f"killed bridge's segments {mine} not cleaned ({removed})"

@@ -1,0 +1,1 @@
+from embagents.bench import cases_actors  # noqa: F401

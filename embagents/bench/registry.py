@@ -1,0 +1,266 @@
+"""The registry of benchmark cases and the helpers every case uses.
+
+A case is a function ``fn(opts) -> dict`` registered under a unique name
+with its transport and payload size. It returns the measured numbers
+(``p50_us``, ``p99_us``, ``msgs_per_s`` and any extra keys, e.g. ``note``);
+:func:`run_case` adds the identifying keys and turns an exception into a
+row with an ``error`` note, so one broken transport never hides the others.
+
+Adding a case is one decorator::
+
+    >>> from embagents.bench.registry import BenchOptions, case, run_case
+    >>> @case("demo_noop", transport="embagents", payload_bytes=0, kind="demo")
+    ... def demo(opts: BenchOptions) -> dict:
+    ...     return {"p50_us": 1.0, "p99_us": 2.0, "msgs_per_s": None}
+    >>> run_case(CASES["demo_noop"], BenchOptions(quick=True))["p50_us"]
+    1.0
+    >>> del CASES["demo_noop"]
+
+Cases that need the same code at several sizes register one partial per
+size (see :func:`sized`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import importlib.util
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "CASES",
+    "FRAME_1080P",
+    "MIB",
+    "SIZES",
+    "TRANSPORTS",
+    "BenchOptions",
+    "Case",
+    "case",
+    "iterations",
+    "label",
+    "payload",
+    "percentiles",
+    "run_case",
+    "select",
+    "shm_entries",
+    "sized",
+]
+
+TRANSPORTS = ("embagents", "pyzmq", "mp_queue", "rclpy")
+MIB = 1 << 20
+#: A 1080p RGB uint8 frame.
+FRAME_1080P = 1920 * 1080 * 3
+#: The payload sizes every transport is measured at.
+SIZES = (64, MIB, FRAME_1080P)
+
+_LABELS = {64: "64B", MIB: "1MiB", FRAME_1080P: "6.2MB"}
+
+
+def label(size: int) -> str:
+    """Short size label used in case names.
+
+    >>> label(64), label(1 << 20), label(6_220_800)
+    ('64B', '1MiB', '6.2MB')
+    """
+    return _LABELS.get(size, f"{size}B")
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """How hard to measure. ``quick`` runs few iterations (tests, smoke runs).
+
+    >>> BenchOptions(quick=True).idle_seconds
+    2.0
+    """
+
+    quick: bool = False
+    #: A tag unique to this run (socket paths, ROS topic names).
+    tag: str = field(default_factory=lambda: f"{os.getpid()}{time.monotonic_ns() % 100000}")
+
+    @property
+    def idle_seconds(self) -> float:
+        return 2.0 if self.quick else 10.0
+
+
+# Round trips measured (after warm-up) per payload size, full / quick.
+_ITERS: dict[str, dict[int, tuple[int, int]]] = {
+    "default": {64: (2000, 200), MIB: (300, 30), FRAME_1080P: (100, 15)},
+    "rclpy": {64: (1000, 100), MIB: (100, 10), FRAME_1080P: (40, 5)},
+    "topic": {64: (2000, 200), MIB: (300, 30), FRAME_1080P: (100, 15)},
+}
+
+
+def iterations(size: int, opts: BenchOptions, family: str = "default") -> tuple[int, int]:
+    """``(warmup, measured)`` iteration counts for ``size``.
+
+    >>> iterations(64, BenchOptions())
+    (200, 2000)
+    """
+    full, quick = _ITERS[family].get(size, (100, 10))
+    n = quick if opts.quick else full
+    return max(5, n // 10), n
+
+
+def payload(size: int) -> bytes | np.ndarray:
+    """The payload of ``size`` bytes: ``bytes`` below 64 KB, else a uint8 array.
+
+    >>> type(payload(64)).__name__, payload(1 << 20).dtype.name
+    ('bytes', 'uint8')
+    """
+    if size < 64 * 1024:
+        return bytes(range(256)) * (size // 256) + bytes(size % 256)
+    if size == FRAME_1080P:
+        arr = np.empty((1080, 1920, 3), dtype=np.uint8)
+    else:
+        arr = np.empty(size, dtype=np.uint8)
+    arr.reshape(-1)[:] = np.arange(size, dtype=np.uint8)
+    return arr
+
+
+def percentiles(samples_ns: Any) -> dict[str, float]:
+    """p50 / p99 in microseconds of latencies given in nanoseconds.
+
+    >>> percentiles([1000, 2000, 3000])["p50_us"]
+    2.0
+    """
+    arr = np.asarray(samples_ns, dtype=np.float64)
+    if arr.size == 0:
+        raise RuntimeError("no samples were measured")
+    p50, p99 = np.percentile(arr, [50, 99]) / 1000.0
+    return {"p50_us": round(float(p50), 2), "p99_us": round(float(p99), 2)}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One row of the benchmark: ``fn(opts)`` measures it."""
+
+    name: str
+    transport: str
+    payload_bytes: int
+    kind: str
+    fn: Callable[[BenchOptions], dict[str, Any]]
+    needs: str | None = None  # module that must be importable, else the case is skipped
+
+
+#: Every registered case by name, in registration order (that is the run order).
+CASES: dict[str, Case] = {}
+
+
+def case(
+    name: str, *, transport: str, payload_bytes: int = 0, kind: str, needs: str | None = None
+) -> Callable[[Callable[[BenchOptions], dict[str, Any]]], Callable[[BenchOptions], dict[str, Any]]]:
+    """Decorator: register ``fn`` as case ``name``."""
+
+    def deco(fn: Callable[[BenchOptions], dict[str, Any]]) -> Callable[[BenchOptions], dict[str, Any]]:
+        add(Case(name, transport, payload_bytes, kind, fn, needs))
+        return fn
+
+    return deco
+
+
+def add(c: Case) -> None:
+    """Register ``c``; names are unique."""
+    if c.transport not in TRANSPORTS:
+        raise ValueError(f"case {c.name!r}: transport must be one of {TRANSPORTS}, not {c.transport!r}")
+    if c.name in CASES:
+        raise ValueError(f"a benchmark case named {c.name!r} is already registered")
+    CASES[c.name] = c
+
+
+def sized(
+    kind: str, transport: str, fn: Callable[[int, BenchOptions], dict[str, Any]], *,
+    sizes: tuple[int, ...] = SIZES, needs: str | None = None,
+) -> None:
+    """Register ``fn(size, opts)`` once per size as ``<transport>_<kind>_<label>``.
+
+    >>> sized("demo", "pyzmq", lambda size, opts: {"p50_us": 0.0, "p99_us": 0.0, "msgs_per_s": None}, sizes=(64,))
+    >>> sorted(n for n in CASES if n.startswith("pyzmq_demo"))
+    ['pyzmq_demo_64B']
+    >>> del CASES["pyzmq_demo_64B"]
+    """
+    for size in sizes:
+        def run(opts: BenchOptions, size: int = size) -> dict[str, Any]:
+            return fn(size, opts)
+
+        add(Case(f"{transport}_{kind}_{label(size)}", transport, size, kind, run, needs))
+
+
+def select(only: list[str] | None) -> list[Case]:
+    """The cases to run: all, or those matching any of ``only``.
+
+    A pattern matches a case name exactly, as a glob (``"*ask*"``), as a
+    substring of the name, or names a transport or kind.
+    """
+    if not only:
+        return list(CASES.values())
+    out = []
+    for c in CASES.values():
+        for pat in only:
+            if (
+                fnmatch.fnmatchcase(c.name, pat)
+                or pat in c.name
+                or pat in (c.transport, c.kind)
+            ):
+                out.append(c)
+                break
+    if not out:
+        raise ValueError(f"no benchmark case matches {only}; cases: {', '.join(CASES)}")
+    return out
+
+
+def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
+    """Run one case and return its row.
+
+    ``row["status"]`` is ``"ok"``, ``"skipped"`` (``needs`` is not installed;
+    ``note`` says so) or ``"error"`` (``error`` holds the exception).
+    """
+    row: dict[str, Any] = {
+        "name": c.name,
+        "transport": c.transport,
+        "kind": c.kind,
+        "payload_bytes": int(c.payload_bytes),
+    }
+    if c.needs is not None and importlib.util.find_spec(c.needs) is None:
+        row.update(status="skipped", note=f"skipped: {c.needs} is not installed")
+        return row
+    t0 = time.monotonic()
+    try:
+        res = c.fn(opts)
+    except Exception as exc:
+        row.update(status="error", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc())
+        return row
+    row.update(res)
+    row.setdefault("msgs_per_s", None)
+    row["status"] = "ok"
+    row["seconds"] = round(time.monotonic() - t0, 2)
+    return row
+
+
+def shm_entries() -> set[str]:
+    """Names in ``/dev/shm`` now (to check that a run leaves nothing behind)."""
+    with contextlib.suppress(FileNotFoundError):
+        return set(os.listdir("/dev/shm"))
+    return set()
+
+
+@contextlib.contextmanager
+def deadline(seconds: float, what: str) -> Iterator[Callable[[], None]]:
+    """``check()`` raises TimeoutError once ``seconds`` have passed.
+
+    >>> with deadline(5, "demo") as check:
+    ...     check()
+    """
+    end = time.monotonic() + seconds
+
+    def check() -> None:
+        if time.monotonic() > end:
+            raise TimeoutError(f"{what} did not finish within {seconds} s")
+
+    yield check

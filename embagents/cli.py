@@ -1,0 +1,115 @@
+"""The ``embagents`` command line.
+
+Each subcommand is a :class:`Command` in :data:`COMMANDS`: a function adding
+its arguments to an argparse subparser and a function running it (returning
+the exit code). Adding one is a dict entry::
+
+    COMMANDS["status"] = Command(_status_arguments, _status, "show a live table of actors")
+
+Example::
+
+    >>> main(["check", "/no/such/system.py"])
+    error: [load-error] /no/such/system.py: no such file
+    1
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+__all__ = ["COMMANDS", "Command", "build_parser", "main"]
+
+
+class Command(NamedTuple):
+    """A subcommand: ``add_arguments(parser)``, ``run(args) -> exit code``, one-line help."""
+
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    help: str = ""
+
+
+def _system_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("system", metavar="SYSTEM_PY", help="the system.py file declaring `system = System(...)`")
+
+
+def _check_arguments(parser: argparse.ArgumentParser) -> None:
+    _system_argument(parser)
+
+
+def _check(args: argparse.Namespace) -> int:
+    from embagents.check import check_file, errors
+
+    system, problems = check_file(args.system)
+    for p in problems:
+        print(p)
+    bad = errors(problems)
+    if bad:
+        warned = len(problems) - len(bad)
+        print(f"{len(bad)} error(s)" + (f", {warned} warning(s)" if warned else ""), file=sys.stderr)
+        return 1
+    assert system is not None  # no errors means it loaded
+    summary = f"OK: {len(system.components)} components, {len(system.topics)} topics"
+    print(summary + (f" ({len(problems)} warning(s))" if problems else ""))
+    return 0
+
+
+def _graph_arguments(parser: argparse.ArgumentParser) -> None:
+    _system_argument(parser)
+    parser.add_argument("-o", "--output", required=True, metavar="FILE", help="where to draw: .svg or .png")
+
+
+def _graph(args: argparse.Namespace) -> int:
+    from embagents.graph import render_graph
+    from embagents.system import SystemFileError, load_system
+
+    try:
+        system = load_system(args.system, lenient=True)  # draw broken systems too: it helps fix them
+        render_graph(system, args.output)
+    except (SystemFileError, ValueError, OSError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.output}")
+    return 0
+
+
+#: Subcommand name -> Command. Other modules may add entries before main() runs.
+COMMANDS: dict[str, Command] = {
+    "check": Command(_check_arguments, _check, "validate a system's wiring without starting anything"),
+    "graph": Command(_graph_arguments, _graph, "draw a system as SVG or PNG"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with one subparser per entry of :data:`COMMANDS`."""
+    parser = argparse.ArgumentParser(prog="embagents", description="Run and inspect embagents systems.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, command in COMMANDS.items():
+        command.add_arguments(sub.add_parser(name, help=command.help, description=command.help))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (2 for usage errors)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse exits on --help and usage errors
+        return int(exc.code or 0)
+    return COMMANDS[args.command].run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+def _register_runtime_commands() -> None:
+    # Imported lazily so `embagents check` stays light.
+    from embagents import launch
+
+    COMMANDS["supervise"] = Command(launch.add_arguments, launch.run, "run a system.py under supervision")
+
+
+_register_runtime_commands()

@@ -1,0 +1,140 @@
+"""OpenAIHTTPClient against llama-cpp-python's own OpenAI-compatible server (a real subprocess)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+
+import msgpack
+import pytest
+
+from embagents.clients.openai_http import OpenAIHTTPClient, OpenAIHTTPError
+
+SERVER_MODULES = (
+    "llama_cpp",
+    "fastapi",
+    "uvicorn",
+    "sse_starlette",
+    "starlette_context",
+    "pydantic_settings",
+)
+_missing = [m for m in SERVER_MODULES if importlib.util.find_spec(m) is None]
+pytestmark = pytest.mark.skipif(
+    bool(_missing),
+    reason=f"llama-cpp-python server extras not installed (missing: {', '.join(_missing)}); "
+    "pip install fastapi uvicorn sse-starlette starlette-context pydantic-settings",
+)
+
+HELLO = [{"role": "user", "content": "hello"}]
+# llama_cpp.server defaults repeat_penalty to 1.1, in-process llama-cpp-python to 1.0.
+SAME_AS_INPROCESS = {"repeat_penalty": 1.0}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """Base URL of a running ``python -m llama_cpp.server`` on the tiny model."""
+    port = _free_port()
+    log_path = tmp_path_factory.mktemp("server") / "server.log"
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "llama_cpp.server", "--model", tiny_gguf,
+             "--host", "127.0.0.1", "--port", str(port), "--n_ctx", "512"],
+            stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+    base_url = f"http://127.0.0.1:{port}"
+    try:
+        client = OpenAIHTTPClient(base_url, timeout=5.0)
+        deadline = time.monotonic() + 60.0
+        while True:
+            if proc.poll() is not None:
+                pytest.fail(
+                    f"llama_cpp.server exited with {proc.returncode}:\n{log_path.read_text()[-3000:]}"
+                )
+            try:
+                client.list_models()
+                break
+            except ConnectionError:
+                if time.monotonic() > deadline:
+                    pytest.fail(
+                        f"llama_cpp.server not answering after 60 s:\n{log_path.read_text()[-3000:]}"
+                    )
+                time.sleep(0.1)
+        yield base_url
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
+def test_chat_matches_inprocess_backend(server: str, tiny_gguf: str) -> None:
+    from embagents.backends.llama import LlamaBackend
+
+    reply = OpenAIHTTPClient(server).chat(HELLO, max_tokens=20, extra=SAME_AS_INPROCESS)
+    assert reply["finish_reason"] == "length"
+    assert reply["tool_calls"] is None
+    backend = LlamaBackend(tiny_gguf, n_ctx=512)
+    try:
+        expected = backend.chat(HELLO, max_tokens=20)["content"]
+    finally:
+        backend.close()
+    assert reply["content"] == expected and len(expected) > 10
+
+
+def test_chat_stream_yields_deltas_then_done(server: str) -> None:
+    chunks = list(OpenAIHTTPClient(server + "/v1/").chat_stream(HELLO, max_tokens=16))
+    deltas, final = chunks[:-1], chunks[-1]
+    assert len(deltas) >= 5
+    assert all(set(c) == {"delta"} and c["delta"] for c in deltas)
+    assert final["done"] is True and final["finish_reason"] == "length"
+    assert final["usage"]["completion_tokens"] >= 5
+    assert final["timing"]["first_token_s"] <= final["timing"]["total_s"]
+    assert msgpack.unpackb(msgpack.packb(chunks)) == chunks
+
+
+def test_stop_string_over_http(server: str) -> None:
+    client = OpenAIHTTPClient(server)
+    full = client.chat(HELLO, max_tokens=24)["content"]
+    stop = full[-6:-3]
+    cut = full.find(stop)
+    assert cut > 0, f"pick another stop string for {full!r}"
+    reply = client.chat(HELLO, max_tokens=24, stop=[stop])
+    assert reply["content"] == full[:cut] and reply["finish_reason"] == "stop"
+
+
+def test_connection_refused_names_the_url() -> None:
+    url = f"http://127.0.0.1:{_free_port()}"
+    with pytest.raises(ConnectionError, match="connection refused") as info:
+        OpenAIHTTPClient(url, timeout=5.0).chat(HELLO)
+    assert f"{url}/v1/chat/completions" in str(info.value)
+
+
+def test_http_errors_carry_status_and_body(server: str) -> None:
+    with pytest.raises(OpenAIHTTPError) as info:
+        OpenAIHTTPClient(server + "/no/such/prefix").chat(HELLO)
+    assert info.value.status == 404 and "HTTP 404" in str(info.value)
+    assert "/no/such/prefix/v1/chat/completions" in str(info.value)
+    with pytest.raises(OpenAIHTTPError) as info:
+        OpenAIHTTPClient(server).chat(HELLO, extra={"max_tokens": "many"})
+    assert info.value.status is not None and info.value.status >= 400
+    assert "max_tokens" in info.value.body  # the server's validation message, excerpted
+
+
+def test_bad_base_url_and_messages_fail_before_any_request() -> None:
+    with pytest.raises(ValueError, match="http://"):
+        OpenAIHTTPClient("127.0.0.1:8000")
+    with pytest.raises(ValueError, match="non-empty list"):
+        OpenAIHTTPClient("http://127.0.0.1:9").chat([])
