@@ -101,10 +101,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     return COMMANDS[args.command].run(args)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 def _register_runtime_commands() -> None:
     # Imported lazily so `embagents check` stays light.
     from embagents import launch
@@ -113,3 +109,7 @@ def _register_runtime_commands() -> None:
 
 
 _register_runtime_commands()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -43,7 +43,7 @@ __all__ = [
 KEEP_POLICIES = ("latest", "all")
 
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
-_NAME = re.compile(rf"^/?{_TOKEN}(/{_TOKEN})*$")
+_NAME = re.compile(rf"^{_TOKEN}(/{_TOKEN})*$")  # after the leading "/" is dropped
 
 # Message classes registered outside embagents.msgs (Health, user types) that
 # may be named by their class name too.

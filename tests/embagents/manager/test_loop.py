@@ -60,7 +60,6 @@ def test_rate_is_held_when_handlers_take_part_of_the_period() -> None:
     manager.run(max_ticks=41)
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     assert 35 < rate < 65
-    assert manager.overruns <= 5
 
 
 def test_a_slow_tick_counts_as_an_overrun() -> None:

@@ -1,0 +1,129 @@
+"""Components run as actors: topic triggers, rate triggers in Hz, model actors."""
+
+from __future__ import annotations
+
+import os
+import textwrap
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from actors import ActorSystem
+from embagents.runtime.component_actor import ComponentActor, remember_system
+from embagents.system import load_system
+
+SYSTEM = '''
+import time
+from embagents.components import Component
+from embagents.msgs import String
+from embagents.system import System
+from embagents.topic import Topic
+
+ping = Topic("ping", String)
+pong = Topic("pong", String)
+
+
+class Upper(Component):
+    allowed_inputs = {"Required": [String]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        self.publish(pong, String(data=inputs["ping"].data.upper()))
+
+
+class Ticker(Component):
+    allowed_outputs = {"Optional": [String]}
+
+    def on_activate(self):
+        self.ticks = []
+
+    def _execution_step(self, **inputs):
+        self.ticks.append(time.monotonic())
+
+    def tick_times(self):
+        return list(self.ticks)
+
+
+class Recorder(Component):
+    allowed_inputs = {"Required": [String]}
+
+    def on_activate(self):
+        self.got = []
+
+    def _execution_step(self, **inputs):
+        self.got.append(inputs["pong"].data)
+
+    def received(self):
+        return list(self.got)
+
+
+system = System(
+    [
+        Recorder(name="recorder", inputs=[pong], trigger=pong),
+        Upper(name="upper", inputs=[ping], outputs=[pong], trigger=ping),
+        Ticker(name="ticker", trigger=20.0),
+    ],
+    external=[ping],
+)
+'''
+
+
+@pytest.fixture
+def running(tmp_path: Path) -> Any:
+    path = str(tmp_path / "system.py")
+    Path(path).write_text(textwrap.dedent(SYSTEM))
+    system = load_system(path)
+    remember_system(path, system)
+    asys = ActorSystem()
+    try:
+        for c in system.components:
+            asys.spawn(ComponentActor, c.name, path, c.name)
+        yield asys
+    finally:
+        asys.shutdown()
+
+
+def _until(fn: Any, timeout: float = 10.0) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        out = fn()
+        if out:
+            return out
+        time.sleep(0.05)
+    return fn()
+
+
+def test_topic_trigger_runs_the_step_and_publishes(running: ActorSystem) -> None:
+    from actors.topics import Publisher
+    from embagents.msgs import String
+
+    pub = running.rt.on_client(lambda: Publisher(running.rt, "ping"))
+    recorder = running.ref("recorder")
+
+    def got() -> list[str]:
+        running.rt.on_client(lambda: pub.publish(String(data="hello")))
+        return recorder.ask({"op": "call", "method": "received"}, timeout=5).get()
+
+    assert "HELLO" in _until(got)
+
+
+def test_rate_trigger_holds_its_rate_in_hz(running: ActorSystem) -> None:
+    ticker = running.ref("ticker")
+    time.sleep(1.5)
+    ticks = ticker.ask({"op": "call", "method": "tick_times"}, timeout=5).get()
+    assert len(ticks) >= 10
+    span = ticks[-1] - ticks[0]
+    rate = (len(ticks) - 1) / span
+    # 20 Hz asked; a loose band because CI machines are noisy.
+    assert 14 <= rate <= 26, f"measured {rate:.1f} Hz"
+
+
+def test_unknown_request_names_the_component_and_the_options(running: ActorSystem) -> None:
+    from actors import RemoteError
+
+    with pytest.raises(RemoteError, match="component 'upper': unknown request"):
+        running.ref("upper").ask("dance", timeout=5).get()
+    assert running.ref("upper").ask("health", timeout=5).get()["status"] == 0
+    assert os.path.isdir(running.run_dir)

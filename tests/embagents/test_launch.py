@@ -1,0 +1,131 @@
+"""`embagents supervise system.py` end to end, in a subprocess, with a tiny real GGUF model."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+CHAT = '''
+import os, sys
+from embagents.components import LLM, Component, LLMConfig
+from embagents.launch import SYSTEM_STOP
+from embagents.models import LlamaModel, LocalModelClient
+from embagents.msgs import StreamingString, String
+from embagents.system import System
+from embagents.topic import Topic
+
+text_in, text_out, stop = Topic("text_in", String), Topic("text_out", StreamingString), Topic(SYSTEM_STOP, String)
+
+
+class Asker(Component):
+    allowed_outputs = {"Required": [String]}
+
+    def on_activate(self):
+        self.publish(text_in, String(data="Say something"))
+
+
+class Printer(Component):
+    allowed_inputs = {"Required": [StreamingString]}
+    allowed_outputs = {"Optional": [String]}
+
+    def _execution_step(self, **inputs):
+        chunk = inputs["text_out"]
+        print(f"CHUNK {chunk.data!r} {chunk.done}", flush=True)
+        if chunk.done and not os.environ.get("KEEP"):
+            self.publish(stop, String(data="done"))
+
+
+model = LlamaModel(name="tiny", local_model_path=MODEL, warmup=False)
+system = System(
+    [
+        Printer(name="printer", inputs=[text_out], outputs=[stop], trigger=text_out),
+        LLM(name="llm", inputs=[text_in], outputs=[text_out], model_client=LocalModelClient(model),
+            config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=8)),
+        Asker(name="asker", outputs=[text_in], trigger=None),
+    ],
+    models=[model],
+)
+'''
+
+
+def _write(tmp_path: Path, model: str) -> str:
+    path = tmp_path / "chat_system.py"
+    path.write_text(textwrap.dedent(CHAT).replace("MODEL", repr(model)))
+    return str(path)
+
+
+def _supervise(path: str, **env: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "embagents.cli", "supervise", path],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, **env},
+    )
+
+
+def test_supervise_streams_an_answer_and_stops_cleanly(tmp_path: Path, tiny_gguf: str) -> None:
+    proc = _supervise(_write(tmp_path, tiny_gguf))
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0, out
+    chunks = [line for line in out.splitlines() if line.startswith("CHUNK")]
+    assert len(chunks) >= 2 and chunks[-1].endswith("True"), out
+    assert "[llm]" not in out or "Traceback" not in out
+
+
+def test_sigterm_stops_everything_with_exit_code_0(tmp_path: Path, tiny_gguf: str) -> None:
+    proc = _supervise(_write(tmp_path, tiny_gguf), KEEP="1")
+    assert proc.stdout is not None
+    deadline = time.monotonic() + 60
+    for line in proc.stdout:
+        if "running" in line or time.monotonic() > deadline:
+            break
+    children = psutil.Process(proc.pid).children(recursive=True)
+    assert len(children) >= 5  # fork server, model actor, three components
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=30) == 0
+    gone, alive = psutil.wait_procs(children, timeout=5)
+    assert alive == []
+
+
+def test_a_system_with_problems_is_not_started(tmp_path: Path) -> None:
+    path = tmp_path / "bad.py"
+    path.write_text(textwrap.dedent('''
+        from embagents.components import LLM
+        from embagents.models import LlamaModel, LocalModelClient
+        from embagents.msgs import Image, StreamingString
+        from embagents.system import System
+        from embagents.topic import Topic
+        m = LlamaModel(name="m", local_model_path="/nonexistent/model.gguf")
+        system = System([LLM(name="llm", inputs=[Topic("cam", Image)], outputs=[Topic("o", StreamingString)],
+                             model_client=LocalModelClient(m))], models=[m])
+    '''))
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.cli", "supervise", str(path)], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 1
+    assert "component 'llm'" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_missing_model_file_is_named_with_the_fix(tmp_path: Path) -> None:
+    path = _write(tmp_path, "/nonexistent/model.gguf")
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.cli", "supervise", path], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 1
+    assert "/nonexistent/model.gguf" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("content, needle", [("x = = 1", "SyntaxError"), ("x = 1", "System(")])
+def test_a_malformed_system_file_gets_a_clear_error(tmp_path: Path, content: str, needle: str) -> None:
+    path = tmp_path / "broken.py"
+    path.write_text(content)
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.cli", "supervise", str(path)], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 1 and needle in proc.stderr and "Traceback" not in proc.stderr
