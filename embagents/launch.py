@@ -27,6 +27,7 @@ from actors.child import configure_logging
 from actors.topics import Subscription
 from embagents.models import LlamaModel, LocalModelClient
 from embagents.runtime.component_actor import ComponentActor, remember_system
+from embagents.runtime.events_actor import LIFECYCLE_TOPIC, EventsActor
 from embagents.runtime.model_actor import LlamaModelActor
 
 __all__ = ["SYSTEM_STOP", "add_arguments", "run", "run_system"]
@@ -83,9 +84,13 @@ def run_system(path: str, *, stop_event: threading.Event | None = None, heartbea
         for c in system.components:
             log.info("starting component %s", c.name)
             asys.spawn(ComponentActor, str(c.name), path, str(c.name), wait=120, heartbeat=heartbeat)
-        asys.rt.on_client(
-            lambda: Subscription(asys.rt, asys.loop, SYSTEM_STOP, lambda _m: stop.set(), queue_size=1)
-        )
+        if system.events or any(getattr(c, "fallback", None) for c in system.components):
+            asys.spawn(EventsActor, "_events", path, wait=60, heartbeat=heartbeat)
+        lifecycle = _Lifecycle(asys)
+        asys.rt.on_client(lambda: (
+            Subscription(asys.rt, asys.loop, SYSTEM_STOP, lambda _m: stop.set(), queue_size=1),
+            Subscription(asys.rt, asys.loop, LIFECYCLE_TOPIC, lifecycle.on_request, queue_size=100, keep="all"),
+        ))
         print(f"embagents: system {system.name!r} running ({len(system.components)} components, "
               f"{len(models)} models); Ctrl-C stops it", file=sys.stderr, flush=True)
         _wait(stop)
@@ -95,6 +100,31 @@ def run_system(path: str, *, stop_event: threading.Event | None = None, heartbea
         asys.shutdown()
         log.info("stopped in %.2f s", time.monotonic() - t0)
     return 0
+
+
+class _Lifecycle:
+    """Carries out start / stop / restart / give_up requests from events and fallbacks."""
+
+    def __init__(self, asys: ActorSystem) -> None:
+        self.asys = asys
+        self.specs: dict[str, dict[str, Any]] = {}
+
+    def on_request(self, req: dict[str, Any]) -> None:
+        # Runs on the root IO thread: do the blocking work on a helper thread.
+        threading.Thread(target=self._do, args=(req,), daemon=True).start()
+
+    def _do(self, req: dict[str, Any]) -> None:
+        kind, name = req.get("kind"), req.get("component")
+        asys = self.asys
+        info = asys.procs.get(name)
+        if info is not None:
+            self.specs[name] = info.spec
+        spec = self.specs.get(name)
+        log.info("%s %s (%s)", kind, name, req.get("because", ""))
+        if kind in ("stop", "give_up", "restart") and info is not None:
+            asys.stop(name, unregister=False)
+        if kind in ("start", "restart") and spec is not None:
+            asys.wait_ready(asys.start_process(spec), 120)
 
 
 def _wait(stop: threading.Event) -> None:

@@ -29,10 +29,6 @@ VEL = Topic("cmd_vel", Twist)
 DETS = Topic("detections", Detections)
 
 
-def latest(**msgs):
-    return {k.replace("__", "/"): v for k, v in msgs.items()}
-
-
 @pytest.mark.parametrize(
     ("cond", "msg", "expected"),
     [

@@ -1,0 +1,90 @@
+"""Evaluates a System's events and fallbacks, and carries out their actions.
+
+One actor per system (``_events``) subscribes to every topic an event
+condition reads and to ``_health`` (each component's health reports). When
+an event fires, or a component's fallback decides on a failure report, the
+action runs:
+
+- ``publish``: publish the message on the topic;
+- ``call`` / ``reconfigure`` / ``switch_model_client``: a tell to the
+  component's actor (its next incarnation gets it if it is restarting);
+- ``start`` / ``stop`` / ``restart`` / ``give_up``: a request on the
+  ``_lifecycle`` topic, carried out by the root's supervisor.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from typing import Any
+
+from actors import Actor, ActorNotFound
+from embagents.runtime.component_actor import loaded_system
+
+__all__ = ["LIFECYCLE_TOPIC", "EventsActor"]
+
+log = logging.getLogger("embagents.events")
+LIFECYCLE_TOPIC = "_lifecycle"
+HEALTH_TOPIC = "_health"
+
+
+class EventsActor(Actor):
+    """Runs the events and fallbacks of the system loaded from ``system_path``."""
+
+    def __init__(self, system_path: str) -> None:
+        self.system_path = system_path
+
+    def on_start(self) -> None:
+        system = loaded_system(self.system_path)
+        self.events = system.events
+        self.fallbacks = {c.name: c.fallback for c in system.components if getattr(c, "fallback", None)}
+        self.fired: list[dict[str, Any]] = []
+        by_topic: dict[str, list[tuple[Any, Any]]] = defaultdict(list)
+        for event, actions in self.events:
+            for t in event.topics:
+                by_topic[t.name].append((event, actions))
+        for name, pairs in by_topic.items():
+            self.context.subscribe(name, lambda msg, n=name, p=pairs: self._on_message(n, p, msg), queue_size=100, keep="all")
+        self.context.subscribe(HEALTH_TOPIC, self._on_health, queue_size=100, keep="all")
+
+    def _on_message(self, topic: str, pairs: list[tuple[Any, Any]], msg: Any) -> None:
+        for event, actions in pairs:
+            if event.check(topic, msg):
+                log.info("event %r fired on %s", event.name, topic)
+                for action in actions:
+                    self.run_action(action, because=f"event {event.name!r}")
+
+    def _on_health(self, health: Any) -> None:
+        fallback = self.fallbacks.get(health.component)
+        if fallback is None:
+            return
+        action = fallback.decide(health.status, health.component)
+        if action is not None:
+            self.run_action(action, because=f"{health.component} reported {health.status.name}: {health.text}")
+
+    def run_action(self, action: Any, *, because: str) -> None:
+        d = action.to_dict()
+        kind, comp, args = d["kind"], d["component"], d["args"]
+        self.fired.append({"kind": kind, "component": comp, "because": because})
+        log.info("action %s on %s (%s)", kind, comp, because)
+        try:
+            if kind == "publish":
+                topic = args["topic"]
+                self.context.publish(getattr(topic, "name", topic), args["msg"])
+            elif kind == "call":
+                self.context.ref(comp).tell(
+                    {"op": "call", "method": args["method"], "args": list(args.get("args") or ())}
+                )
+            elif kind == "reconfigure":
+                self.context.ref(comp).tell({"op": "reconfigure", "overrides": dict(args["overrides"])})
+            elif kind == "switch_model_client":
+                self.context.ref(comp).tell({"op": "change_model_client", "client": args["client"]})
+            else:  # start / stop / restart / give_up: the supervisor's business
+                self.context.publish(LIFECYCLE_TOPIC, {"kind": kind, "component": comp, "because": because})
+        except ActorNotFound as exc:
+            log.error("action %s failed: %s", kind, exc)
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "fired":
+            return list(self.fired)
+        raise ValueError(f"unknown request {message!r}: the events actor answers 'fired'")
