@@ -1,0 +1,57 @@
+"""embagents: embodied-AI components as supervised actors, over ZeroMQ.
+
+Importing the package registers every message type (so any process can
+decode them) and re-exports what a ``system.py`` uses::
+
+    >>> from embagents import LLM, LlamaModel, LocalModelClient, String, System, Topic
+    >>> Topic("text_in", String).name
+    'text_in'
+"""
+
+from embagents.components import LLM, Component, Health, HealthStatus, LLMConfig, ModelComponent
+from embagents.config import BaseComponentConfig
+from embagents.events import Action, Event, Fallback, on
+from embagents.models import LlamaModel, LocalModelClient
+from embagents.msgs import (
+    Audio,
+    CompressedImage,
+    Detections,
+    Image,
+    JointState,
+    OccupancyGrid,
+    Odometry,
+    StreamingString,
+    String,
+    Twist,
+)
+from embagents.system import System, load_system
+from embagents.topic import Topic
+
+__all__ = [
+    "LLM",
+    "Action",
+    "Audio",
+    "BaseComponentConfig",
+    "Component",
+    "CompressedImage",
+    "Detections",
+    "Event",
+    "Fallback",
+    "Health",
+    "HealthStatus",
+    "Image",
+    "JointState",
+    "LLMConfig",
+    "LlamaModel",
+    "LocalModelClient",
+    "ModelComponent",
+    "OccupancyGrid",
+    "Odometry",
+    "StreamingString",
+    "String",
+    "System",
+    "Topic",
+    "Twist",
+    "load_system",
+    "on",
+]

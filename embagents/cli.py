@@ -16,9 +16,10 @@ Example::
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 __all__ = ["COMMANDS", "Command", "build_parser", "main"]
 
@@ -101,11 +102,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     return COMMANDS[args.command].run(args)
 
 
-def _register_runtime_commands() -> None:
-    # Imported lazily so `embagents check` stays light.
-    from embagents import launch
+def _lazy(module: str, what: str) -> Callable[..., Any]:
+    """A function that imports ``module`` only when called (keeps `embagents check` light)."""
 
-    COMMANDS["supervise"] = Command(launch.add_arguments, launch.run, "run a system.py under supervision")
+    def call(*args: Any) -> Any:
+        return getattr(importlib.import_module(module), what)(*args)
+
+    return call
+
+
+def _register_runtime_commands() -> None:
+    COMMANDS["supervise"] = Command(
+        _lazy("embagents.launch", "add_arguments"), _lazy("embagents.launch", "run"), "run a system.py under supervision"
+    )
 
 
 _register_runtime_commands()

@@ -23,6 +23,7 @@ Example::
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Callable
 from typing import Any
@@ -33,7 +34,7 @@ import attrs
 from embagents.components.component import Component
 from embagents.system import System
 
-__all__ = ["FORMATS", "Layout", "layout_system", "render_graph"]
+__all__ = ["FORMATS", "Layout", "edge_curve", "layout_system", "render_graph", "render_png", "render_svg"]
 
 FORMATS = (".svg", ".png")
 
@@ -44,6 +45,7 @@ _LINE_H = 16
 _PAD_X = 14
 _PAD_Y = 10
 _CHAR_W = 7.3  # 12 px monospace in SVG
+_BACK_ROOM = 40  # below the data nodes, where cycle edges loop
 
 _COLORS = {  # fill, stroke (SVG hex)
     "component": ("#dbe9ff", "#2f5d9e"),
@@ -188,10 +190,16 @@ def _layers(nodes: dict[str, Node], edges: list[Edge]) -> dict[str, int]:
 
 
 def layout_system(system: System, measure: Callable[[str], float] | None = None) -> Layout:
-    """Place the nodes of ``system``; ``measure(text)`` is a text width in pixels."""
+    """Place the nodes of ``system``; ``measure(text)`` is a text width in pixels.
+
+    Data nodes (components, topics, ROS endpoints) are layered left to right;
+    events go in a row below them, each under the nodes it connects, so
+    their edges never hide a data edge.
+    """
     measure = measure or (lambda text: len(text) * _CHAR_W)
     nodes, edges = _graph(system)
-    layer = _layers(nodes, edges)
+    data = {nid: n for nid, n in nodes.items() if n.kind != "event"}
+    layer = _layers(data, [e for e in edges if e.src in data and e.dst in data])
     for n in nodes.values():
         n.w = max(measure(line) for line in n.lines) + 2 * _PAD_X
         n.h = len(n.lines) * _LINE_H + 2 * _PAD_Y
@@ -202,7 +210,7 @@ def layout_system(system: System, measure: Callable[[str], float] | None = None)
             n.w *= 1.4
             n.h *= 1.4
     columns: list[list[Node]] = [[] for _ in range(max(layer.values(), default=0) + 1)]
-    for nid, n in nodes.items():
+    for nid, n in data.items():
         columns[layer[nid]].append(n)
     # Order each column by the mean row of its predecessors (fewer crossings).
     rank: dict[str, float] = {}
@@ -214,23 +222,67 @@ def layout_system(system: System, measure: Callable[[str], float] | None = None)
         for i, n in enumerate(col):
             rank[n.id] = i
     heights = [sum(n.h for n in col) + _ROW_GAP * (len(col) - 1) for col in columns]
-    height = max(heights, default=0) + 2 * _MARGIN + 40  # room for back edges below
+    main_h = max(heights, default=0)
     x = _MARGIN
-    for col, col_h in zip(columns, heights):
+    for col, col_h in zip(columns, heights, strict=True):
         col_w = max((n.w for n in col), default=0)
-        y = _MARGIN + (max(heights, default=0) - col_h) / 2
+        y = _MARGIN + (main_h - col_h) / 2
         for n in col:
             n.x, n.y = x + col_w / 2, y + n.h / 2
             y += n.h + _ROW_GAP
         x += col_w + _COL_GAP
-    return Layout(nodes, edges, max(x - _COL_GAP + _MARGIN, 2 * _MARGIN), height)
+    width = max(x - _COL_GAP + _MARGIN, 2 * _MARGIN)
+    height = _MARGIN + main_h + (_BACK_ROOM if any(e.back for e in edges) else _ROW_GAP)
+    events = [n for n in nodes.values() if n.kind == "event"]
+    if events:
+        for n in events:
+            near = [nodes[e.dst if e.src == n.id else e.src].x for e in edges if n.id in (e.src, e.dst)]
+            n.x = sum(near) / len(near) if near else _MARGIN + n.w / 2
+        row_h = max(n.h for n in events)
+        right = _MARGIN
+        for n in sorted(events, key=lambda n: n.x):
+            n.x = max(n.x, right + n.w / 2)  # no overlaps: push right
+            n.y = height + row_h / 2
+            right = n.x + n.w / 2 + _ROW_GAP
+        width = max(width, right - _ROW_GAP + _MARGIN)
+        height += row_h
+    return Layout(nodes, edges, width, height + _MARGIN)
 
 
-def _edge_points(layout: Layout, e: Edge) -> tuple[float, float, float, float]:
+Point = tuple[float, float]
+
+
+def edge_curve(layout: Layout, e: Edge) -> tuple[Point, Point, Point, Point]:
+    """The cubic Bezier (start, control, control, end) an edge is drawn along."""
     a, b = layout.nodes[e.src], layout.nodes[e.dst]
-    if e.back or b.x <= a.x:
-        return a.x, a.y + a.h / 2, b.x, b.y + b.h / 2
-    return a.x + a.w / 2, a.y, b.x - b.w / 2, b.y
+    if e.back:  # loop below both nodes
+        p1, p2 = (a.x, a.y + a.h / 2), (b.x, b.y + b.h / 2)
+        low = max(p1[1], p2[1]) + _BACK_ROOM * 0.8
+        return p1, (p1[0], low), (p2[0], low), p2
+    vertical = "event" in (a.kind, b.kind)  # events sit in a row below: go straight down/up
+    if not vertical and b.x - b.w / 2 > a.x + a.w / 2:  # b right of a: leave right, enter left
+        p1, p2 = (a.x + a.w / 2, a.y), (b.x - b.w / 2, b.y)
+        dx = max((p2[0] - p1[0]) / 2, 20)
+        return p1, (p1[0] + dx, p1[1]), (p2[0] - dx, p2[1]), p2
+    if not vertical and b.x + b.w / 2 < a.x - a.w / 2:  # b left of a (not a cycle): leave left, enter right
+        p1, p2 = (a.x - a.w / 2, a.y), (b.x + b.w / 2, b.y)
+        dx = max((p1[0] - p2[0]) / 2, 20)
+        return p1, (p1[0] - dx, p1[1]), (p2[0] + dx, p2[1]), p2
+    sign = 1 if b.y >= a.y else -1  # stacked: leave bottom/top, enter top/bottom
+    p1, p2 = (a.x, a.y + sign * a.h / 2), (b.x, b.y - sign * b.h / 2)
+    dy = max(abs(p2[1] - p1[1]) / 2, 20) * sign
+    return p1, (p1[0], p1[1] + dy), (p2[0], p2[1] - dy), p2
+
+
+def _sample(curve: tuple[Point, Point, Point, Point], n: int = 32) -> list[Point]:
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = curve
+    out = []
+    for i in range(n + 1):
+        t = i / n
+        u = 1 - t
+        out.append((u**3 * x0 + 3 * u * u * t * x1 + 3 * u * t * t * x2 + t**3 * x3,
+                    u**3 * y0 + 3 * u * u * t * y1 + 3 * u * t * t * y2 + t**3 * y3))
+    return out
 
 
 # --- SVG ------------------------------------------------------------------------------------
@@ -257,17 +309,13 @@ def _svg_node(n: Node) -> str:
 
 
 def _svg_edge(layout: Layout, e: Edge) -> str:
-    x1, y1, x2, y2 = _edge_points(layout, e)
-    if x2 > x1:
-        dx = max((x2 - x1) / 2, 20)
-        d = f"M{x1:.1f},{y1:.1f} C{x1 + dx:.1f},{y1:.1f} {x2 - dx:.1f},{y2:.1f} {x2:.1f},{y2:.1f}"
-    else:  # a back edge: loop below both nodes
-        low = max(y1, y2) + 35
-        d = f"M{x1:.1f},{y1:.1f} C{x1:.1f},{low:.1f} {x2:.1f},{low:.1f} {x2:.1f},{y2:.1f}"
+    (x1, y1), (cx1, cy1), (cx2, cy2), (x2, y2) = curve = edge_curve(layout, e)
+    d = f"M{x1:.1f},{y1:.1f} C{cx1:.1f},{cy1:.1f} {cx2:.1f},{cy2:.1f} {x2:.1f},{y2:.1f}"
     dash = ' stroke-dasharray="5,4"' if e.style == "dashed" else ""
     out = f'<path d="{d}" fill="none" stroke="#444" stroke-width="1.3"{dash} marker-end="url(#arrow)"/>'
     if e.label:
-        out += f'<text x="{(x1 + x2) / 2:.1f}" y="{(y1 + y2) / 2 - 5:.1f}" text-anchor="middle" fill="#b03030">{escape(e.label)}</text>'
+        mx, my = _sample(curve, 2)[1]
+        out += f'<text x="{mx + 4:.1f}" y="{my - 4:.1f}" fill="#b03030">{escape(e.label)}</text>'
     return out
 
 
@@ -332,21 +380,17 @@ def render_png(system: System, path: str, scale: float = 2.0) -> None:
         return int(x * s), int(y * s)
 
     for e in layout.edges:
-        x1, y1, x2, y2 = _edge_points(layout, e)
-        if x2 > x1:
-            pts = [(x1 + (x2 - x1) * t, y1 + (y2 - y1) * (3 * t * t - 2 * t * t * t)) for t in np.linspace(0, 1, 24)]
-        else:
-            low = max(y1, y2) + 35
-            pts = [((1 - t) ** 3 * x1 + 3 * (1 - t) ** 2 * t * x1 + 3 * (1 - t) * t * t * x2 + t ** 3 * x2,
-                    (1 - t) ** 3 * y1 + 3 * (1 - t) * t * low + t ** 3 * y2) for t in np.linspace(0, 1, 24)]
+        curve = edge_curve(layout, e)
+        pts = _sample(curve)
         ipts = [p(x, y) for x, y in pts]
-        for i, (a, b) in enumerate(zip(ipts, ipts[1:])):
+        for i, (a, b) in enumerate(itertools.pairwise(ipts)):
             if e.style == "dashed" and i % 2:
                 continue
             cv2.line(img, a, b, (68, 68, 68), max(1, int(s)), aa)
         _arrow_head(cv2, img, pts[-3], pts[-1], s)
         if e.label:
-            cv2.putText(img, e.label, p((x1 + x2) / 2, (y1 + y2) / 2 - 5), font, font_scale * s, _bgr("#b03030"), 1, aa)
+            mx, my = _sample(curve, 2)[1]
+            cv2.putText(img, e.label, p(mx + 4, my - 4), font, font_scale * s, _bgr("#b03030"), 1, aa)
     for n in layout.nodes.values():
         fill, stroke = _bgr(_COLORS[n.kind][0]), _bgr(_COLORS[n.kind][1])
         if n.kind == "topic":

@@ -23,7 +23,7 @@ from embagents.topic import Topic
 QUESTION = os.environ.get("EMBAGENTS_QUESTION", "What is the capital of France?")
 
 text_in = Topic("text_in", String)
-text_out = Topic("text_out", StreamingString)
+text_out = Topic("text_out", StreamingString, queue_size=1000, keep="all")  # a stream: drop nothing
 stop = Topic(SYSTEM_STOP, String)
 
 

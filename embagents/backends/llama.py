@@ -50,8 +50,14 @@ _INSTALL_HINT = "pip install llama-cpp-python, or pip install 'embagents[local]'
 class LlamaBackend:
     """A llama.cpp chat model in this process.
 
-    Not thread-safe: one generation at a time (a second concurrent
-    ``chat_stream`` raises ``RuntimeError`` instead of corrupting the context).
+    ``n_threads=None`` uses every core this process may run on (its CPU
+    affinity). ``chat_format=None`` uses the GGUF's own chat template; pass
+    ``"chatml-function-calling"`` for grammar-constrained tool calls.
+    ``use_extra_bufts=None`` decides automatically (see ``default_use_extra_bufts``).
+    Sampling uses llama-cpp-python's defaults (``repeat_penalty`` 1.0; its
+    HTTP server's default is 1.1). Not thread-safe: one generation at a time
+    (a second concurrent stream raises ``RuntimeError`` instead of corrupting
+    the context).
 
     Example::
 
@@ -75,8 +81,9 @@ class LlamaBackend:
         self.model_path = model_path
         self.n_ctx = n_ctx
         # llama-cpp-python's own default is cpu_count // 2 (1 thread on 2 cores).
-        # One thread per core is faster for small models on small machines.
-        self.n_threads = n_threads if n_threads is not None else max(os.cpu_count() or 1, 1)
+        # One thread per usable core is ~1.9x faster on an idle 2-core machine;
+        # the affinity mask follows the supervisor's per-actor CPU pinning.
+        self.n_threads = n_threads if n_threads is not None else _usable_cpus()
         self.seed = seed
         self.chat_format = chat_format
         self.verbose = verbose
@@ -294,6 +301,13 @@ class LlamaBackend:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _usable_cpus() -> int:
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # not on Linux
+        return max(os.cpu_count() or 1, 1)
 
 
 @functools.lru_cache(maxsize=1)

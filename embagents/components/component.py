@@ -54,12 +54,12 @@ __all__ = [
     "ComponentError",
     "Health",
     "HealthStatus",
-    "Problem",
+    "ComponentProblem",
     "lenient_construction",
 ]
 
 #: A component problem: (code, message); the message names the component.
-Problem = tuple[str, str]
+ComponentProblem = tuple[str, str]
 #: ``{"Required": [...], "Optional": [...]}``; an entry is a class or a list of classes (one of).
 AllowedTypes = Mapping[str, Sequence[type | Sequence[type]]]
 Publisher = Callable[[str, Any], None]
@@ -119,7 +119,7 @@ add_message_type(Health)
 class ComponentError(ValueError):
     """A component is declared wrongly; ``problems`` lists every (code, message) found."""
 
-    def __init__(self, component: str, problems: Sequence[Problem]) -> None:
+    def __init__(self, component: str, problems: Sequence[ComponentProblem]) -> None:
         self.component = component
         self.problems = list(problems)
         super().__init__("\n".join(msg for _, msg in self.problems))
@@ -206,7 +206,7 @@ class Component:
         fallback: Fallback | None = None,
         **config_overrides: Any,
     ) -> None:
-        self._init_problems: list[Problem] = []
+        self._init_problems: list[ComponentProblem] = []
         self.name = name
         self.inputs = self._topics(inputs, "inputs")
         self.outputs = self._topics(outputs, "outputs")
@@ -223,10 +223,13 @@ class Component:
         self._fresh: set[str] = set()
         self._health = Health(component=str(name))
         self._health_set_in_step = False
-        self.problems: list[Problem] = self.validate()
+        self.problems: list[ComponentProblem] = self.validate()
         self._required_inputs: list[Topic] = (
             self._match(self.allowed_inputs, self.inputs, "input")[1] if self.allowed_inputs is not None else []
         )
+        # Looked up per message: keep them as sets.
+        self._subscribed = frozenset(t.name for t in self.subscriptions)
+        self._trigger_names = frozenset(t.name for t in self.trigger_topics)
         if self.problems and not _lenient.get():
             raise ComponentError(str(name), self.problems)
 
@@ -315,9 +318,9 @@ class Component:
                 seen.setdefault(t.name, t)
         return tuple(seen.values())
 
-    def _match(self, spec: AllowedTypes, topics: Sequence[Topic], direction: str) -> tuple[list[Problem], list[Topic]]:
+    def _match(self, spec: AllowedTypes, topics: Sequence[Topic], direction: str) -> tuple[list[ComponentProblem], list[Topic]]:
         """Check ``topics`` against ``spec``; returns problems and the topics filling Required entries."""
-        problems: list[Problem] = []
+        problems: list[ComponentProblem] = []
         required, optional = _entries(spec, "Required"), _entries(spec, "Optional")
         allowed = [c for entry in required + optional for c in entry]
         allowed_text = ", ".join(dict.fromkeys(c.__name__ for c in allowed)) or "(none)"
@@ -338,7 +341,7 @@ class Component:
                 used.append(match)
         return problems, used
 
-    def validate(self) -> list[Problem]:
+    def validate(self) -> list[ComponentProblem]:
         """Every declaration problem of this component as (code, message); empty when fine.
 
         Pure: the constructor and ``embagents check`` both call it.
@@ -367,7 +370,7 @@ class Component:
             problems += self._validate_fallback(self.fallback)
         return problems
 
-    def _validate_fallback(self, fallback: Fallback) -> list[Problem]:
+    def _validate_fallback(self, fallback: Fallback) -> list[ComponentProblem]:
         return [
             ("bad-fallback", f"{self._label()}: fallback action {a.kind} needs a ModelComponent")
             for a in fallback.actions
@@ -386,13 +389,13 @@ class Component:
 
         ``now`` is a monotonic time in seconds (for tests of ``input_max_age_s``).
         """
-        if not any(t.name == topic_name for t in self.subscriptions):
+        if topic_name not in self._subscribed:
             return False
         self._latest[topic_name] = msg
         self._received_at[topic_name] = time.monotonic() if now is None else now
         self._fresh.add(topic_name)
         if self.trigger_kind == "topics":
-            return any(t.name == topic_name for t in self.trigger_topics)
+            return topic_name in self._trigger_names
         if self.trigger_event is not None:
             return self.trigger_event.check(topic_name, msg, now)
         return False
@@ -419,9 +422,9 @@ class Component:
             out[t.name] = msg
         return out
 
-    def missing_inputs(self, now: float | None = None) -> list[str]:
+    def missing_inputs(self, now: float | None = None, inputs: Mapping[str, Any] | None = None) -> list[str]:
         """Required input topics without a (recent enough) message; a step waits for them."""
-        inputs = self.current_inputs(now)
+        inputs = self.current_inputs(now) if inputs is None else inputs
         return [t.name for t in self._required_inputs if inputs.get(t.name) is None]
 
     def execute(self, now: float | None = None) -> bool:
@@ -431,9 +434,9 @@ class Component:
         (the process keeps running); a step that does not set a status itself
         leaves the component HEALTHY.
         """
-        if self.missing_inputs(now):
-            return False
         inputs = self.current_inputs(now)
+        if self.missing_inputs(inputs=inputs):
+            return False
         self._health_set_in_step = False
         try:
             self._execution_step(**inputs)

@@ -43,7 +43,7 @@ from typing import Any
 
 from attrs import define, field
 
-from embagents.components.component import Problem
+from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError
 from embagents.msgs import StreamingString, String
@@ -234,7 +234,7 @@ class LLM(ModelComponent):
     def default_trigger(self) -> Topic | None:
         return self.inputs[0] if self.inputs else None
 
-    def validate(self) -> list[Problem]:
+    def validate(self) -> list[ComponentProblem]:
         problems = super().validate()
         cfg = self.config
         if cfg.prompt_template is not None:

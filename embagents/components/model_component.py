@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Protocol
 
-from embagents.components.component import Component, Problem
+from embagents.components.component import Component, ComponentProblem
 from embagents.events import Fallback
 
 __all__ = ["ChatClient", "ModelComponent", "client_name"]
@@ -94,11 +94,11 @@ class ModelComponent(Component):
             self.clients[key] = client
         return key
 
-    def validate(self) -> list[Problem]:
+    def validate(self) -> list[ComponentProblem]:
         problems = super().validate()
         return problems + [(code, f"{self._label()}: {text}") for code, text in self._client_problems]
 
-    def _validate_fallback(self, fallback: Fallback) -> list[Problem]:
+    def _validate_fallback(self, fallback: Fallback) -> list[ComponentProblem]:
         known = ", ".join(self.clients) or "none"
         return [
             ("unknown-client", f"{self._label()}: fallback switches to model client {a.args['client']!r}, "

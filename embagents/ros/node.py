@@ -26,6 +26,7 @@ import fcntl
 import logging
 import os
 import re
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -44,7 +45,7 @@ from embagents.msgs import StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, ros_type_for
 
-__all__ = ["RosBridgeCore", "clean_zombie_fastdds_segments", "qos_profile"]
+__all__ = ["RosBridgeCore", "clean_zombie_fastdds_segments", "configure_fastdds_shm", "qos_profile"]
 
 log = logging.getLogger("embagents.ros")
 
@@ -117,13 +118,16 @@ class RosBridgeCore:
         domain_id: int | None = None,
         namespace: str | None = None,
         clean_shm: bool = True,
+        shm_segment_mb: int | None = None,
     ) -> None:
         """Init a Context (``domain_id`` default: $ROS_DOMAIN_ID), create the node and spin it.
 
         With ``clean_shm`` (and Fast DDS, the default RMW), shared-memory
         segments left in /dev/shm by killed ROS processes (a bridge the
         supervisor restarted, say) are removed first; see
-        :func:`clean_zombie_fastdds_segments`.
+        :func:`clean_zombie_fastdds_segments`. ``shm_segment_mb`` calls
+        :func:`configure_fastdds_shm` first (needed for publishing large
+        images; only effective before this process's first start).
 
         Raises RuntimeError if already started; on any failure everything
         created so far is torn down before the error propagates.
@@ -135,6 +139,8 @@ class RosBridgeCore:
                 removed = clean_zombie_fastdds_segments()
                 if removed:
                     log.info("removed %d stale Fast DDS shared-memory segments", len(removed))
+            if shm_segment_mb is not None:
+                configure_fastdds_shm(shm_segment_mb)
             context = Context()
             # No signal handlers: the supervisor owns this process's signals.
             rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
@@ -313,3 +319,53 @@ def clean_zombie_fastdds_segments(shm_dir: str = "/dev/shm", min_age: float = 10
             continue
         removed.append(seg)
     return removed
+
+
+_SHM_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<dds xmlns="http://www.eprosima.com">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor>
+        <transport_id>embagents_shm</transport_id>
+        <type>SHM</type>
+        <segment_size>{size}</segment_size>
+        <maxMessageSize>{size}</maxMessageSize>
+      </transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="embagents_participant" is_default_profile="true">
+      <rtps>
+        <userTransports><transport_id>embagents_shm</transport_id></userTransports>
+        <useBuiltinTransports>true</useBuiltinTransports>
+      </rtps>
+    </participant>
+  </profiles>
+</dds>
+"""
+
+
+def configure_fastdds_shm(segment_mb: int = 64) -> str | None:
+    """Give this process's DDS participants a ``segment_mb`` shared-memory segment.
+
+    Fast DDS's default segment is 0.5 MB: a writer's larger samples (a
+    6.2 MB 1080p frame) go over fragmented UDP instead, where best-effort
+    readers lose nearly all of them and reliable ones wait ~60 ms (measured;
+    with a 64 MB segment: every frame, ~17-33 ms). The writer's segment is
+    the one that counts, so this helps what the bridge publishes. It sets
+    ``FASTDDS_DEFAULT_PROFILES_FILE``, read once per process when the first
+    participant is created: call it before the first ``start``. Returns the
+    profile's path, or None when the user already set that variable (theirs
+    wins). Segment pages are only backed by memory as they are written.
+    """
+    if os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE"):
+        return None
+    if not isinstance(segment_mb, int) or segment_mb < 1:
+        raise ValueError(f"segment_mb must be a positive int, got {segment_mb!r}")
+    size = segment_mb * 1024 * 1024
+    # One file per size and user, rewritten atomically: restarts reuse it, nothing piles up.
+    path = os.path.join(tempfile.gettempdir(), f"embagents-fastdds-shm-{segment_mb}mb-{os.getuid()}.xml")
+    tmp = f"{path}.{os.getpid()}"
+    with open(tmp, "w") as f:
+        f.write(_SHM_PROFILE.format(size=size))
+    os.replace(tmp, path)
+    os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = path
+    return path

@@ -81,7 +81,7 @@ class ComponentActor(Actor):
         if op == "health":
             return {"status": int(comp.health_status), "text": comp.health.text}
         if op == "call":
-            return getattr(comp, message["method"])(*message.get("args", ()))
+            return getattr(comp, message["method"])(*message.get("args", ()), **message.get("kwargs", {}))
         if op == "reconfigure":
             comp.reconfigure(message["overrides"])
             return None

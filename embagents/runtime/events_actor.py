@@ -72,9 +72,10 @@ class EventsActor(Actor):
                 topic = args["topic"]
                 self.context.publish(getattr(topic, "name", topic), args["msg"])
             elif kind == "call":
-                self.context.ref(comp).tell(
-                    {"op": "call", "method": args["method"], "args": list(args.get("args") or ())}
-                )
+                self.context.ref(comp).tell({
+                    "op": "call", "method": args["method"],
+                    "args": list(args.get("args") or ()), "kwargs": dict(args.get("kwargs") or {}),
+                })
             elif kind == "reconfigure":
                 self.context.ref(comp).tell({"op": "reconfigure", "overrides": dict(args["overrides"])})
             elif kind == "switch_model_client":

@@ -5,7 +5,13 @@ from __future__ import annotations
 import pytest
 from attrs import define, field
 
-from embagents.config import BaseComponentConfig, ConfigError, apply_config, config_fields, load_configs
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    apply_config,
+    config_fields,
+    load_configs,
+)
 
 
 @define(kw_only=True)

@@ -22,7 +22,7 @@ from embagents.msgs import StreamingString, String
 from embagents.system import System
 from embagents.topic import Topic
 
-text_in, text_out, stop = Topic("text_in", String), Topic("text_out", StreamingString), Topic(SYSTEM_STOP, String)
+text_in, text_out, stop = Topic("text_in", String), Topic("text_out", StreamingString, queue_size=1000, keep="all"), Topic(SYSTEM_STOP, String)
 
 
 class Asker(Component):

@@ -24,10 +24,9 @@ SERVER_MODULES = (
     "pydantic_settings",
 )
 _missing = [m for m in SERVER_MODULES if importlib.util.find_spec(m) is None]
-pytestmark = pytest.mark.skipif(
-    bool(_missing),
-    reason=f"llama-cpp-python server extras not installed (missing: {', '.join(_missing)}); "
-    "pip install fastapi uvicorn sse-starlette starlette-context pydantic-settings",
+SKIP_REASON = (
+    f"llama-cpp-python server extras not installed (missing: {', '.join(_missing)}); "
+    "pip install fastapi uvicorn sse-starlette starlette-context pydantic-settings"
 )
 
 HELLO = [{"role": "user", "content": "hello"}]
@@ -44,6 +43,8 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """Base URL of a running ``python -m llama_cpp.server`` on the tiny model."""
+    if _missing:
+        pytest.skip(SKIP_REASON)
     port = _free_port()
     log_path = tmp_path_factory.mktemp("server") / "server.log"
     with open(log_path, "wb") as log:
@@ -138,3 +139,80 @@ def test_bad_base_url_and_messages_fail_before_any_request() -> None:
         OpenAIHTTPClient("127.0.0.1:8000")
     with pytest.raises(ValueError, match="non-empty list"):
         OpenAIHTTPClient("http://127.0.0.1:9").chat([])
+
+
+# --- protocol corners, against a stdlib HTTP server with canned replies -------------
+
+_TOOL_STREAM = [
+    {"choices": [{"delta": {"role": "assistant"}}]},
+    {"choices": [{"delta": {"tool_calls": [{"index": 0, "id": "c9", "function": {"name": "move", "arguments": '{"direc'}}]}}]},
+    {"choices": [{"delta": {"tool_calls": [{"index": 0, "function": {"arguments": 'tion": "left"}'}}]}, "finish_reason": "tool_calls"}]},
+    {"choices": [], "usage": {"prompt_tokens": 7, "completion_tokens": 3, "total_tokens": 10}},
+]  # fmt: skip
+_JSON_REPLY = {
+    "choices": [{"message": {"role": "assistant", "content": "Hi there"}, "finish_reason": "stop"}],
+    "usage": {"prompt_tokens": 2, "completion_tokens": 2, "total_tokens": 4},
+}
+
+
+@pytest.fixture(scope="module")
+def canned() -> Iterator[str]:
+    import json
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    class Handler(BaseHTTPRequestHandler):
+        def log_message(self, *args: object) -> None:
+            pass
+
+        def do_POST(self) -> None:
+            self.rfile.read(int(self.headers["Content-Length"]))
+            kind = self.path.split("/")[1]
+            if kind == "json":  # a server that ignores stream=true
+                body = json.dumps(_JSON_REPLY).encode()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+                return
+            events = (
+                _TOOL_STREAM if kind == "tools" else [{"choices": [{"delta": {"content": "Hel"}}]}]
+            )
+            self.send_response(200)
+            self.send_header("Content-Type", "text/event-stream")
+            self.end_headers()
+            for event in events:
+                self.wfile.write(f"data: {json.dumps(event)}\r\n\r\n".encode())
+            if kind == "tools":
+                self.wfile.write(b": keep-alive comment\n\ndata: [DONE]\n\n")
+            self.close_connection = True  # "partial": the body just ends
+
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+    httpd.server_close()
+
+
+def test_streamed_tool_call_fragments_and_usage(canned: str) -> None:
+    tools = [{"type": "function", "function": {"name": "move", "parameters": {}}}]
+    chunks = list(OpenAIHTTPClient(canned + "/tools").chat_stream(HELLO, tools=tools))
+    (final,) = chunks
+    assert final["finish_reason"] == "tool_calls"
+    assert final["tool_calls"] == [{"id": "c9", "name": "move", "arguments": {"direction": "left"}}]
+    assert final["usage"] == {"prompt_tokens": 7, "completion_tokens": 3, "total_tokens": 10}
+
+
+def test_non_streaming_json_reply_is_accepted(canned: str) -> None:
+    reply = OpenAIHTTPClient(canned + "/json").chat(HELLO)
+    assert reply["content"] == "Hi there" and reply["finish_reason"] == "stop"
+    assert reply["usage"]["total_tokens"] == 4
+
+
+def test_truncated_stream_is_an_error_not_a_short_reply(canned: str) -> None:
+    stream = OpenAIHTTPClient(canned + "/partial").chat_stream(HELLO)
+    assert next(stream) == {"delta": "Hel"}
+    with pytest.raises(ConnectionError, match="ended before the reply was complete"):
+        next(stream)

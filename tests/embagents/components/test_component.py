@@ -16,7 +16,7 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig, ConfigError
 from embagents.events import Event, Fallback, on, restart, switch_model_client
-from embagents.msgs import Audio, Image, StreamingString, String, Twist
+from embagents.msgs import Audio, Image, String, Twist
 from embagents.topic import Topic
 
 TEXT = Topic("text", String)

@@ -106,6 +106,44 @@ print("READY", flush=True)
 sys.stdin.read()  # run until killed
 """
 
+# A bridge process publishing 20 1080p frames best-effort, from a 64 MB DDS segment.
+BRIDGE_BIG_PUBLISHER = r"""
+import time, numpy as np
+from embagents.msgs import Image
+from embagents.ros import QoS, RosOutput
+from embagents.ros.node import RosBridgeCore
+core = RosBridgeCore(outputs=[RosOutput("frames", ros_topic="/big_out", ros_type="sensor_msgs/Image",
+                                        qos=QoS(depth=1, reliability="best_effort"))])
+core.start("big_pub", lambda t, m: None, shm_segment_mb=64)
+end = time.time() + 15
+while core.node.count_subscribers("/big_out") < 1 and time.time() < end:
+    time.sleep(0.05)
+time.sleep(0.5)
+frame = (np.arange(1080 * 1920 * 3) % 253).astype(np.uint8).reshape(1080, 1920, 3)
+for i in range(20):
+    core.publish("frames", Image(data=frame, frame_id=str(i)))
+    time.sleep(0.05)
+time.sleep(1.0)
+core.stop()
+"""
+
+BIG_SUBSCRIBER = r"""
+import json, time, numpy as np, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+rclpy.init()
+node = rclpy.create_node("big_sub")
+got = []
+expect = (np.arange(1080 * 1920 * 3) % 253).astype(np.uint8)
+def cb(m):
+    got.append((m.header.frame_id, bool(np.array_equal(np.frombuffer(m.data, np.uint8), expect))))
+node.create_subscription(Image, "/big_out", cb, QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+end = time.time() + 20
+while time.time() < end and (not got or got[-1][0] != "19"):
+    rclpy.spin_once(node, timeout_sec=0.1)
+print(json.dumps(got), flush=True)
+"""
+
 
 @pytest.fixture(autouse=True)
 def ros_env(monkeypatch):
@@ -355,3 +393,18 @@ def test_killed_bridge_process_is_replaced_by_a_fresh_one(spawn):
         # The killed bridge could not unlink its DDS segment; the next start cleans it.
         removed = {os.path.basename(p) for p in clean_zombie_fastdds_segments(min_age=0)}
         assert mine & removed, f"killed bridge's segments {mine} not cleaned ({removed})"
+
+
+def test_large_frames_best_effort_with_a_big_dds_segment(spawn, monkeypatch):
+    # Fast DDS's default 0.5 MB segment loses nearly every best-effort 6.2 MB
+    # frame over fragmented UDP; the bridge's 64 MB segment delivers them.
+    monkeypatch.delenv("FASTDDS_DEFAULT_PROFILES_FILE", raising=False)
+    sub = spawn(BIG_SUBSCRIBER)
+    time.sleep(0.3)
+    pub = spawn(BRIDGE_BIG_PUBLISHER)
+    out, err = sub.communicate(timeout=30)
+    assert sub.returncode == 0, err[-2000:]
+    got = json.loads(out.strip().splitlines()[-1])
+    assert pub.wait(timeout=15) == 0, pub.stderr.read()[-2000:]
+    assert all(ok for _, ok in got), "a frame arrived with wrong pixels"
+    assert len(got) >= 10, f"only {len(got)} of 20 best-effort 1080p frames arrived"

@@ -1,0 +1,126 @@
+"""``llm_stream_overhead``: tokens per second through the runtime vs llama.cpp in-process.
+
+The runtime path is the real one: a model actor (llama.cpp in its own
+process) streams to an LLM component (in a second process) that publishes
+each token as a StreamingString, received by a subscriber actor in a third
+process. The baseline calls llama-cpp-python in this process on the same
+model, prompt and settings. ``ratio`` = runtime tokens/s ÷ in-process tokens/s.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from typing import Any
+
+import embagents.msgs  # noqa: F401 - registers the message types this case decodes
+from actors import Actor, ActorSystem
+from embagents.bench.registry import BenchOptions, case
+
+__all__ = ["StreamCounter", "StreamingLLM"]
+
+PROMPT = "List the planets of the solar system, one per line."
+MODEL_ACTOR = "bench_llm_model"
+
+
+class StreamingLLM(Actor):
+    """An LLM component (the real class) hosted in an actor, asked to answer one question."""
+
+    def on_start(self) -> None:
+        from embagents.components import LLM, LLMConfig
+        from embagents.models import LocalModelClient
+        from embagents.msgs import StreamingString, String
+        from embagents.topic import Topic
+
+        self.llm = LLM(
+            name="bench_llm",
+            inputs=[Topic("bench_in", String)],
+            outputs=[Topic("bench_stream", StreamingString)],
+            model_client=LocalModelClient(MODEL_ACTOR),
+            config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=self.max_tokens),
+        )
+        self.llm.attach(lambda topic, msg: self.context.publish(topic, msg))
+
+    def __init__(self, max_tokens: int) -> None:
+        self.max_tokens = max_tokens
+
+    def on_receive(self, message: Any) -> Any:
+        t0 = time.monotonic()
+        self.llm.answer(message)
+        return t0
+
+
+class StreamCounter(Actor):
+    """Counts streamed chunks and notes when the last one arrived."""
+
+    def on_start(self) -> None:
+        self.chunks = 0
+        self.last = 0.0
+        self.done = False
+        self.context.subscribe("bench_stream", self._on_chunk, queue_size=10000, keep="all")
+
+    def _on_chunk(self, chunk: Any) -> None:
+        if chunk.data:
+            self.chunks += 1
+            self.last = time.monotonic()
+        if chunk.done:
+            self.done = True
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "reset":
+            self.chunks, self.last, self.done = 0, 0.0, False
+            return None
+        return {"chunks": self.chunks, "last": self.last, "done": self.done}
+
+
+def _inprocess(path: str, max_tokens: int) -> tuple[int, float]:
+    from embagents.backends.llama import LlamaBackend
+
+    backend = LlamaBackend(path)
+    backend.load()
+    backend.warmup()
+    try:
+        t0 = time.monotonic()
+        n = 0
+        for chunk in backend.chat_stream([{"role": "user", "content": PROMPT}], max_tokens=max_tokens, temperature=0.0):
+            if chunk.get("delta"):
+                n += 1
+        return n, time.monotonic() - t0
+    finally:
+        backend.close()
+
+
+@case("llm_stream_overhead", transport="embagents", kind="llm", needs="llama_cpp")
+def llm_stream_overhead(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.modelfiles import default_llm_path
+    from embagents.runtime.model_actor import LlamaModelActor
+
+    path = default_llm_path()
+    max_tokens = 24 if opts.quick else 64
+    rounds = 1 if opts.quick else 3
+    runtime_tps: list[float] = []
+    baseline_tps: list[float] = []
+    with ActorSystem() as asys:
+        asys.spawn(LlamaModelActor, MODEL_ACTOR, path, {}, True, wait=300, heartbeat=None)
+        counter = asys.spawn(StreamCounter, "bench_llm_counter")
+        llm = asys.spawn(StreamingLLM, "bench_llm_component", max_tokens)
+        llm.ask("Hi", timeout=120).get()  # warm the whole path once
+        for _ in range(rounds):
+            counter.ask("reset", timeout=10).get()
+            t0 = llm.ask(PROMPT, timeout=300).get()
+            deadline = time.monotonic() + 10
+            while not (got := counter.ask("stats", timeout=10).get())["done"] and time.monotonic() < deadline:
+                time.sleep(0.01)
+            runtime_tps.append(got["chunks"] / (got["last"] - t0))
+    for _ in range(rounds):
+        n, dt = _inprocess(path, max_tokens)
+        baseline_tps.append(n / dt)
+    ours, base = statistics.median(runtime_tps), statistics.median(baseline_tps)
+    return {
+        "p50_us": 1e6 / ours,
+        "p99_us": 1e6 / min(runtime_tps),
+        "msgs_per_s": ours,
+        "ratio": ours / base,
+        "baseline_tokens_per_s": base,
+        "note": f"{max_tokens} tokens, SmolLM2-135M, median of {rounds}; bar: ratio >= 0.95",
+    }

@@ -1,0 +1,194 @@
+"""Incarnations: one run of a child, from its start to its exit.
+
+A supervisor sees every kind of child (actor process, external command,
+nested supervisor) through the same small interface: ``start()``, a
+``ready`` future (True once it serves, False if it ended first), an
+``exited`` future (its :class:`~supervisor.exits.Exit`), ``stop()`` (the
+polite request: SIGTERM, on which an actor runs ``on_stop``) and ``kill()``
+(SIGKILL). This module has the base class and the actor process; see
+:mod:`supervisor.command` for external commands.
+
+Exits come from the fork server's SIGCHLD path through
+``system.exit_listeners`` (no polling); "ready" comes from the actor's own
+note to the root once ``on_start`` (and the lifecycle replay) is done.
+
+Example::
+
+    >>> inc = ActorProcess(tree, spec, "root")          # doctest: +SKIP
+    >>> inc.start(); inc.ready.add_done_callback(print)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import time
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+from supervisor.aio import Future
+from supervisor.exits import Exit, classify
+from supervisor.rootio import start_process
+
+if TYPE_CHECKING:
+    from actors.journal import Journal
+    from actors.system import ProcessInfo
+    from supervisor.spec import ChildSpec
+    from supervisor.tree import Tree
+
+__all__ = ["ActorProcess", "Incarnation", "Usage"]
+
+
+class Usage:
+    """Last resource sample of a process (filled by the tree's resource monitor)."""
+
+    __slots__ = ("cpu_percent", "rss_mb", "at", "cpu_over_since")
+
+    def __init__(self) -> None:
+        self.cpu_percent = 0.0
+        self.rss_mb = 0.0
+        self.at = 0.0
+        self.cpu_over_since: float | None = None
+
+
+class Incarnation:
+    """One run of a child; used on the root IO thread only."""
+
+    kind = ""
+
+    def __init__(self, tree: Tree, spec: ChildSpec, path: str) -> None:
+        self.tree = tree
+        self.spec = spec
+        self.name = spec.id
+        self.path = path  # the supervising supervisor's path, for events
+        self.ready: Future[bool] = Future(tree.loop)
+        self.exited: Future[Exit] = Future(tree.loop)
+        self.started_at = time.monotonic()
+        self.ready_at: float | None = None
+        self.stopping = False  # its supervisor asked it to stop: not a crash
+        self.cause: Exit | None = None  # why the supervisor killed it (hang, limit)
+        self.usage = Usage()
+        self.ps: Any = None  # psutil.Process, cached by the monitor
+
+    @property
+    def pid(self) -> int | None:
+        raise NotImplementedError
+
+    def start(self) -> None:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        """Ask it to stop cleanly."""
+        raise NotImplementedError
+
+    def kill(self, cause: Exit | None = None) -> None:
+        """Kill it now; ``cause`` replaces the exit reason (hang, limit)."""
+        raise NotImplementedError
+
+    def _set_ready(self) -> None:
+        if not self.ready.done() and not self.exited.done():
+            self.ready_at = time.monotonic()
+            self.ready.set_result(True)
+
+    def _finish(self, code: int | None, failure: str | None = None) -> None:
+        ex = classify(code, failure, requested=self.stopping)
+        if self.cause is not None:
+            ex = replace(self.cause, code=code)
+        self.ready.set_result(False)  # no-op once ready
+        self.exited.set_result(ex)
+
+
+class ActorProcess(Incarnation):
+    """An actor in its own process, forked by the run's fork server."""
+
+    kind = "actor"
+
+    def __init__(self, tree: Tree, spec: ChildSpec, path: str, journal: Journal) -> None:
+        super().__init__(tree, spec, path)
+        self.journal = journal
+        self.info: ProcessInfo | None = None
+        self.expected_incarnation = 0
+        self.failure: str | None = None
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.info is None else self.info.pid
+
+    def process_spec(self) -> dict[str, Any]:
+        s = self.spec
+        st = s.start
+        hooks = list(s.hooks)
+        if callable(getattr(st.cls, "snapshot", None)) and callable(getattr(st.cls, "restore", None)):
+            hooks.append("supervisor.snapshot:install")
+        # failfast last: it wraps the handlers the others installed.
+        hooks += ["supervisor.lifecycle:install", "supervisor.failfast:install"]
+        return self.tree.system.make_spec(
+            st.cls,
+            self.name,
+            st.args,
+            st.kwargs,
+            heartbeat=s.heartbeat or 1.0,
+            poison_limit=s.poison_limit,
+            nice=s.nice,
+            cpu_affinity=list(s.cpu_affinity) if s.cpu_affinity else None,
+            hooks=hooks,
+            extra={
+                "supervisor": {
+                    "path": self.path,
+                    "lifecycle": s.lifecycle,
+                    "snapshot_interval": s.snapshot_interval,
+                }
+            },
+        )
+
+    def start(self) -> None:
+        spec = self.process_spec()
+        # A ready note names the incarnation: a late note from a dead predecessor is ignored.
+        self.expected_incarnation = self.journal.incarnation + 1
+        self.tree.procs[self.name] = self
+        self.started_at = time.monotonic()
+        self.info = start_process(self.tree.system, spec)
+
+    # -- called by the tree's listeners -------------------------------------
+    def on_note(self, kind: str, pid: int, rest: list[Any]) -> None:
+        info = self.info
+        if info is None or self.exited.done():
+            return
+        mine = info.pid == pid or (info.pid is None and rest and rest[0] == self.expected_incarnation)
+        if not mine:
+            return
+        if kind == "ready":
+            self._set_ready()
+        elif kind == "failed" and rest:
+            self.failure = str(rest[0])
+
+    def on_exit(self, info: ProcessInfo) -> None:
+        if info is not self.info:
+            return
+        if self.tree.procs.get(self.name) is self:
+            del self.tree.procs[self.name]
+        self._finish(info.exit_code, self.failure or info.failure)
+
+    # -- signals -------------------------------------------------------------
+    def _signal(self, sig: int, deadline: float | None = None) -> None:
+        if self.exited.done():
+            return
+        pid = self.pid
+        if pid is None:  # forked but the fork server's note is still on its way
+            deadline = deadline or time.monotonic() + 5.0
+            if time.monotonic() < deadline:
+                self.tree.loop.call_later(0.001, lambda: self._signal(sig, deadline))
+            return
+        # The root may signal its grandchildren directly: one syscall, no hop.
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, sig)
+
+    def stop(self) -> None:
+        self.stopping = True
+        self._signal(signal.SIGTERM)
+
+    def kill(self, cause: Exit | None = None) -> None:
+        if cause is not None and self.cause is None:
+            self.cause = cause
+        self._signal(signal.SIGKILL)

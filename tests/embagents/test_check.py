@@ -1,0 +1,227 @@
+"""`embagents check`: every wiring problem of a system.py, each naming its component."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from embagents.check import Problem, check_file, check_system, errors
+from embagents.cli import main
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+HEADER = """\
+from embagents.components import LLM, Component, LLMConfig
+from embagents.events import Event, Fallback, call, on, reconfigure, restart, switch_model_client
+from embagents.msgs import Image, StreamingString, String
+from embagents.system import System
+from embagents.topic import Topic
+
+
+class Client:
+    name = "local"
+
+    def chat_stream(self, messages, **options):
+        yield {"delta": "ok"}
+        yield {"done": True, "finish_reason": "stop", "tool_calls": None}
+
+
+class Camera(Component):
+    allowed_outputs = {"Required": [Image]}
+
+    def _execution_step(self, **inputs):
+        pass
+
+
+class Detector(Component):
+    allowed_inputs = {"Required": [Image]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        pass
+
+
+image = Topic("camera/image", Image)
+labels = Topic("labels", String)
+answer = Topic("answer", String)
+"""
+
+GOOD = """
+camera = Camera(name="camera", outputs=[image], trigger=15.0)
+detector = Detector(name="detector", inputs=[image], outputs=[labels], trigger=image)
+llm = LLM(name="llm", inputs=[labels], outputs=[answer], model_client=Client())
+system = System([camera, detector, llm])
+"""
+
+
+def write(tmp_path, body: str):
+    path = tmp_path / "system.py"
+    path.write_text(HEADER + textwrap.dedent(body))
+    return str(path)
+
+
+def check(tmp_path, body: str) -> list[Problem]:
+    system, problems = check_file(write(tmp_path, body))
+    return problems
+
+
+def only(problems: list[Problem], code: str) -> Problem:
+    found = [p for p in problems if p.code == code]
+    assert len(found) == 1, problems
+    return found[0]
+
+
+def test_clean_system_has_no_problems(tmp_path, capsys):
+    assert check(tmp_path, GOOD) == []
+    assert main(["check", str(tmp_path / "system.py")]) == 0
+    assert capsys.readouterr().out.strip() == "OK: 3 components, 3 topics"
+
+
+def test_wrong_input_type(tmp_path):
+    problems = check(tmp_path, GOOD.replace("inputs=[image], outputs=[labels]", "inputs=[image, labels], outputs=[labels]"))
+    p = only(problems, "wrong-input-type")
+    assert p.component == "detector" and "'detector'" in p.message and "'labels'" in p.message
+    assert "allowed input types: Image" in p.message and p.level == "error"
+
+
+def test_missing_required_input(tmp_path):
+    problems = check(tmp_path, GOOD.replace("LLM(name=\"llm\", inputs=[labels]", "LLM(name=\"llm\", inputs=[]"))
+    p = only(problems, "missing-input")
+    assert p.component == "llm" and "'llm'" in p.message and "String" in p.message
+
+
+def test_duplicate_names_anywhere_in_the_list(tmp_path):
+    body = GOOD.replace('LLM(name="llm"', 'LLM(name="camera"')
+    p = only(check(tmp_path, body), "duplicate-component")
+    assert p.component == "camera" and "'camera' is used by 2 components (#1 Camera, #3 LLM)" in p.message
+
+
+def test_unknown_topic_is_a_warning_and_external_silences_it(tmp_path, capsys):
+    body = GOOD.replace("system = System([camera, detector, llm])", "system = System([detector, llm])")
+    p = only(check(tmp_path, body), "unknown-topic")
+    assert p.level == "warning" and p.component == "detector" and "'camera/image'" in p.message
+    assert main(["check", str(tmp_path / "system.py")]) == 0
+    out = capsys.readouterr().out
+    assert "warning: [unknown-topic] component 'detector'" in out and "(1 warning(s))" in out
+    body = body.replace("System([detector, llm])", "System([detector, llm], external=[image])")
+    assert check(tmp_path, body) == []
+
+
+def test_topic_used_with_two_types(tmp_path):
+    body = GOOD.replace('answer = Topic("answer", String)', "") + '\nother = Topic("labels", Image)\n'
+    body = body.replace("outputs=[answer]", "outputs=[Topic('answer', String)]")
+    body += 'system = System([camera, detector, llm, Detector(name="viewer", inputs=[other], outputs=[Topic("x", String)])])\n'
+    body = body.replace("system = System([camera, detector, llm])\n", "")
+    p = only(check(tmp_path, body), "topic-type-conflict")
+    assert p.component == "detector" and "'labels'" in p.message
+    assert "String as output of component 'detector'" in p.message and "Image as input of component 'viewer'" in p.message
+
+
+def test_trigger_not_among_inputs(tmp_path):
+    body = GOOD.replace("trigger=image)", "trigger=labels)")
+    p = only(check(tmp_path, body), "trigger-not-input")
+    assert p.component == "detector" and "trigger topic 'labels' is not one of its inputs (camera/image)" in p.message
+
+
+def test_event_action_naming_unknown_component(tmp_path):
+    body = GOOD.replace("system = System([camera, detector, llm])", """
+stop_said = Event("stop_said", on(answer).field("data").contains("stop"))
+system = System([camera, detector, llm], events={stop_said: [restart("navigation"), restart(camera)]})
+""")
+    problems = check(tmp_path, body)
+    p = only(problems, "unknown-component")
+    assert p.component == "navigation" and "event 'stop_said'" in p.message
+    assert "components: camera, detector, llm" in p.message
+
+
+def test_event_actions_checked_against_the_component(tmp_path):
+    body = GOOD.replace("system = System([camera, detector, llm])", """
+ev = Event("ev", on(answer).field("data") == "x")
+system = System([camera, detector, llm], events={ev: [reconfigure(llm, {"temprature": 0.1}),
+                                                    call(llm, "forget"), switch_model_client("cloud", llm)]})
+""")
+    problems = check(tmp_path, body)
+    assert "unknown config key 'temprature'" in only(problems, "bad-config").message
+    assert "component 'llm' (LLM) has no method 'forget'" in only(problems, "bad-action").message
+    assert "no model client 'cloud'; known: local" in only(problems, "unknown-client").message
+    assert {p.component for p in problems} == {"llm"}
+
+
+def test_fallback_switching_to_unknown_client(tmp_path):
+    body = GOOD.replace("model_client=Client())", "model_client=Client(), fallback=Fallback(on_algorithm_fail=switch_model_client('cloud')))")
+    p = only(check(tmp_path, body), "unknown-client")
+    assert p.component == "llm" and "known clients: local" in p.message
+
+
+def test_all_problems_of_the_file_are_reported(tmp_path, capsys):
+    body = """
+camera = Camera(name="camera", outputs=[labels], trigger=15.0)
+detector = Detector(name="detector", inputs=[labels], outputs=[labels], trigger=image)
+llm = LLM(name="llm", inputs=[image], outputs=[answer], model_client=Client(), config=LLMConfig(stream=True))
+system = System([camera, detector, llm])
+"""
+    problems = check(tmp_path, body)
+    by_component = {(p.component, p.code) for p in errors(problems)}
+    assert {("camera", "wrong-output-type"), ("camera", "missing-output"), ("detector", "wrong-input-type"),
+            ("detector", "missing-input"), ("detector", "trigger-not-input"), ("llm", "wrong-input-type"),
+            ("llm", "bad-config")} <= by_component
+    assert all(p.component and f"'{p.component}'" in p.message for p in problems)
+    assert main(["check", str(tmp_path / "system.py")]) == 1
+    assert capsys.readouterr().err.startswith(f"{len(errors(problems))} error(s)")
+
+
+def test_ros_declarations_provide_and_consume_topics(tmp_path):
+    body = """
+from embagents.ros import RosInput, RosOutput
+detector = Detector(name="detector", inputs=[image], outputs=[labels], trigger=image)
+system = System([detector], ros=[RosInput("/camera/image", "sensor_msgs/Image"),
+                                 RosOutput("labels", ros_type="geometry_msgs/Twist")])
+"""
+    problems = check(tmp_path, body)
+    assert [p.code for p in problems] == ["ros"]  # camera/image is provided by ROS: no unknown-topic
+    assert "RosOutput 'labels'" in problems[0].message and "cannot carry String" in problems[0].message
+
+
+def test_load_error_is_one_problem_naming_the_line(tmp_path, capsys):
+    path = write(tmp_path, GOOD.replace("system = System", 'sound = Topic("sound", "Audoi")\nsystem = System'))
+    line = open(path).read().splitlines().index('sound = Topic("sound", "Audoi")') + 1
+    _, problems = check_file(path)
+    assert [p.code for p in problems] == ["load-error"]
+    assert f"system.py:{line}: TopicError" in problems[0].message and "'Audoi'" in problems[0].message
+    assert main(["check", path]) == 1
+    assert "load-error" in capsys.readouterr().out
+
+
+def test_check_system_on_objects():
+    from embagents.components import Component
+    from embagents.msgs import String
+    from embagents.system import System
+    from embagents.topic import Topic
+
+    t = Topic("t", String)
+    a, b = Component(name="a", outputs=[t]), Component(name="b", inputs=[t], trigger=t)
+    assert check_system(System([a, b])) == []
+    assert str(Problem("a", "x", "msg", "warning")) == "warning: [x] msg"
+
+
+@pytest.mark.parametrize(("body", "code", "needle"), [(GOOD, 0, "OK: 3 components, 3 topics"),
+                                                      (GOOD.replace("trigger=image)", "trigger=labels)"), 1,
+                                                       "error: [trigger-not-input] component 'detector'")])
+def test_cli_as_a_module(tmp_path, body, code, needle):
+    path = write(tmp_path, body)
+    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.run([sys.executable, "-m", "embagents.cli", "check", path],
+                          capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == code, proc.stderr
+    assert needle in proc.stdout
+
+
+def test_cli_usage_errors(capsys):
+    assert main([]) == 2
+    assert main(["check"]) == 2
+    assert main(["check", "/nonexistent/system.py"]) == 1
+    assert "no such file" in capsys.readouterr().out
