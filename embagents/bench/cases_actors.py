@@ -26,8 +26,8 @@ import numpy as np
 from actors import ActorSystem
 from embagents.bench.registry import (
     BenchOptions,
-    add,
     Case,
+    add,
     iterations,
     percentiles,
     sized,
