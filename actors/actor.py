@@ -60,6 +60,10 @@ class ActorContext:
     def run_dir(self) -> str:
         return self._host.rt.run_dir
 
+    def call_soon_threadsafe(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on this actor's thread, from any thread (e.g. a driver's callback thread)."""
+        self._host.loop.call_soon_threadsafe(fn)
+
     def watch(self, sock: object, handler: Callable[[], None]) -> None:
         """Serve another socket (or fd) on this actor's loop."""
         self._host.loop.add(sock, handler)

@@ -28,6 +28,8 @@ Example::
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from collections import Counter
 from typing import Any, Literal
 
@@ -76,6 +78,16 @@ def _component_problems(system: System) -> list[Problem]:
     return out
 
 
+def _ros_available_elsewhere() -> tuple[bool, str]:
+    """``ros_available()`` run in a child process: only the bridge actor may import rclpy."""
+    code = (
+        "from embagents.ros.spec import ros_available\n"
+        "ok, why = ros_available()\nprint(why)\nraise SystemExit(0 if ok else 1)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    return proc.returncode == 0, (proc.stdout.strip() or proc.stderr.strip()[-500:])
+
+
 def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
     """(topics the bridge provides, RosOutputs, problems)."""
     from embagents.ros.spec import RosInput, RosOutput, check_bridge
@@ -87,6 +99,10 @@ def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any]
         if not isinstance(d, (RosInput, RosOutput)):
             problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput or RosOutput"))
     provided = [(d.topic, d.msg_type) for d in ins]
+    if system.ros:
+        ok, why = _ros_available_elsewhere()
+        if not ok:
+            problems.append(Problem(None, "ros-missing", f"ROS bridge: {why}"))
     try:
         check_bridge(ins, outs)
     except (TypeError, ValueError) as exc:

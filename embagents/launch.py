@@ -84,6 +84,10 @@ def run_system(path: str, *, stop_event: threading.Event | None = None, heartbea
         for c in system.components:
             log.info("starting component %s", c.name)
             asys.spawn(ComponentActor, str(c.name), path, str(c.name), wait=120, heartbeat=heartbeat)
+        if system.ros:
+            from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
+
+            asys.spawn(RosBridgeActor, BRIDGE_NAME, path, wait=60, heartbeat=heartbeat)
         if system.events or any(getattr(c, "fallback", None) for c in system.components):
             asys.spawn(EventsActor, "_events", path, wait=60, heartbeat=heartbeat)
         lifecycle = _Lifecycle(asys)

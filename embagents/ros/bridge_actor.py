@@ -1,0 +1,100 @@
+"""The ROS 2 bridge actor: the one process of a system that imports rclpy.
+
+It serves the ``RosInput`` / ``RosOutput`` declarations of a System:
+incoming ROS messages are converted and published on internal topics (an
+image's pixels are viewed in place on the ROS buffer and written once into
+shared memory); internal topics declared as outputs are converted and
+published to ROS. rclpy's executor runs in its own thread and hands each
+message to the actor's loop thread. Supervised like any actor: if it
+crashes, its next incarnation creates its node, publishers and
+subscriptions again, and the rest of the system never notices rclpy.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from actors import Actor
+
+__all__ = ["BRIDGE_NAME", "RosBridgeActor"]
+
+log = logging.getLogger("embagents.ros.bridge")
+BRIDGE_NAME = "_ros_bridge"
+
+
+class RosBridgeActor(Actor):
+    """Bridges the ROS declarations of the system at ``system_path``.
+
+    ``inputs`` / ``outputs`` may instead be given directly (as plain dicts of
+    RosInput / RosOutput fields) for use outside a System (the benchmark).
+    """
+
+    def __init__(
+        self,
+        system_path: str | None = None,
+        node_name: str = "embagents_bridge",
+        inputs: list[dict[str, Any]] | None = None,
+        outputs: list[dict[str, Any]] | None = None,
+    ) -> None:
+        self.system_path = system_path
+        self.node_name = node_name
+        self.raw_inputs = inputs or []
+        self.raw_outputs = outputs or []
+
+    def _declarations(self) -> tuple[list[Any], list[Any]]:
+        from embagents.ros.spec import QoS, RosInput, RosOutput
+
+        if self.system_path is not None:
+            from embagents.runtime.component_actor import loaded_system
+
+            system = loaded_system(self.system_path)
+            ins = [d for d in system.ros if isinstance(d, RosInput)]
+            outs = [d for d in system.ros if isinstance(d, RosOutput)]
+            topics = system.topics
+            outs = [o.resolved(topics[o.topic].msg_type) if o.ros_type is None and o.topic in topics else o for o in outs]
+            return ins, outs
+
+        def build(cls: type, d: dict[str, Any]) -> Any:
+            d = dict(d)
+            if "qos" in d:
+                d["qos"] = QoS(**d["qos"])
+            return cls(**d)
+
+        return [build(RosInput, d) for d in self.raw_inputs], [build(RosOutput, d) for d in self.raw_outputs]
+
+    def on_start(self) -> None:
+        from embagents.ros.node import RosBridgeCore
+
+        ins, outs = self._declarations()
+        self.forwarded_in = 0
+        self.forwarded_out = 0
+        self.core = RosBridgeCore(ins, outs)
+        ctx = self.context
+
+        def from_ros(topic: str, msg: Any) -> None:
+            # rclpy's executor thread: hand over to our loop thread, which owns the sockets.
+            ctx.call_soon_threadsafe(lambda: self._publish_in(topic, msg))
+
+        self.core.start(self.node_name, from_ros, shm_segment_mb=64)
+        for o in outs:
+            ctx.subscribe(o.topic, lambda msg, t=o.topic: self._to_ros(t, msg), queue_size=o.qos.depth, keep="all")
+
+    def _publish_in(self, topic: str, msg: Any) -> None:
+        self.context.publish(topic, msg)
+        self.forwarded_in += 1
+
+    def _to_ros(self, topic: str, msg: Any) -> None:
+        try:
+            self.core.publish(topic, msg)
+            self.forwarded_out += 1
+        except TypeError as exc:
+            log.error("not sent to ROS: %s", exc)
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "stats":
+            return {"in": self.forwarded_in, "out": self.forwarded_out}
+        raise ValueError(f"unknown request {message!r}: the ROS bridge answers 'stats'")
+
+    def on_stop(self) -> None:
+        self.core.stop()

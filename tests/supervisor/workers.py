@@ -1,0 +1,158 @@
+"""Actor classes for the supervisor tests (top level, imported before systems start)."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import time
+from typing import Any
+
+from actors import Actor
+
+
+def _append(path: str, line: str) -> None:
+    # One write() per line with O_APPEND: survives SIGKILL, never interleaves.
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+    try:
+        os.write(fd, f"{line}\n".encode())
+    finally:
+        os.close(fd)
+
+
+class Echo(Actor):
+    """Answers; on request crashes in every way a real actor can."""
+
+    def __init__(self, log: str | None = None) -> None:
+        self.log = log
+
+    def on_start(self) -> None:
+        if self.log:
+            _append(self.log, f"start {self.name} {os.getpid()}")
+
+    def on_stop(self) -> None:
+        if self.log:
+            _append(self.log, f"stop {self.name} {os.getpid()}")
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "pid":
+            return os.getpid()
+        if message == "crash":
+            raise ValueError("asked to crash")
+        if message == "stop":
+            self.context.stop()
+            return "stopping"
+        if message == "segv":
+            ctypes.string_at(0)  # a real SIGSEGV from native code
+        if message == "hang":
+            sum(range(10**13))  # one C call holding the GIL: no heartbeat, no signal handler
+        if message == "spin":
+            end = time.monotonic() + 60
+            while time.monotonic() < end:
+                pass
+        if message == "alloc":
+            chunks = []
+            for _ in range(150):  # up to 1.5 GB, touched so it counts in RSS
+                chunks.append(b"x" * 10_000_000)
+                time.sleep(0.02)
+        if isinstance(message, list) and message and message[0] == "exit":
+            os._exit(message[1])
+        return message
+
+
+class FailStart(Actor):
+    """Fails in on_start while ``flag`` exists (or always, without a flag)."""
+
+    def __init__(self, flag: str | None = None) -> None:
+        self.flag = flag
+
+    def on_start(self) -> None:
+        if self.flag is None or os.path.exists(self.flag):
+            raise RuntimeError("cannot start")
+
+    def on_receive(self, message: Any) -> Any:
+        return message
+
+
+class SlowStop(Actor):
+    """Takes ``seconds`` to stop cleanly (or ignores SIGTERM with ``ignore_term``)."""
+
+    def __init__(self, seconds: float, log: str | None = None, ignore_term: bool = False) -> None:
+        self.seconds = seconds
+        self.log = log
+        self.ignore_term = ignore_term
+
+    def on_start(self) -> None:
+        if self.ignore_term:
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+    def on_stop(self) -> None:
+        time.sleep(self.seconds)
+        if self.log:
+            _append(self.log, f"stopped {self.name}")
+
+    def on_receive(self, message: Any) -> Any:
+        return os.getpid() if message == "pid" else message
+
+
+class Recorder(Actor):
+    """Writes every message it handles to ``path``; "poison" crashes it every time."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "poison":
+            raise ValueError("poison")
+        if message == "pid":
+            return os.getpid()
+        _append(self.path, str(message))
+        return None
+
+
+class Managed(Actor):
+    """Records its lifecycle hooks; keeps a counter through snapshots."""
+
+    def __init__(self, log: str, fail_activate: bool = False) -> None:
+        self.log = log
+        self.fail_activate = fail_activate
+        self.count = 0
+        self.restored: Any = None
+
+    def on_start(self) -> None:
+        _append(self.log, f"on_start count={self.count}")
+
+    def on_configure(self) -> None:
+        _append(self.log, "on_configure")
+
+    def on_activate(self) -> bool:
+        _append(self.log, "on_activate")
+        return not self.fail_activate
+
+    def on_deactivate(self) -> None:
+        _append(self.log, "on_deactivate")
+
+    def on_cleanup(self) -> None:
+        _append(self.log, "on_cleanup")
+
+    def on_shutdown(self) -> None:
+        _append(self.log, "on_shutdown")
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"count": self.count}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.count = state["count"]
+        self.restored = state
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "pid":
+            return os.getpid()
+        if message == "count":
+            return self.count
+        if message == "restored":
+            return self.restored
+        if message == "die":
+            os.kill(os.getpid(), signal.SIGKILL)
+        self.count += 1
+        return self.count
