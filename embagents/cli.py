@@ -115,6 +115,10 @@ def _register_runtime_commands() -> None:
     COMMANDS["supervise"] = Command(
         _lazy("embagents.launch", "add_arguments"), _lazy("embagents.launch", "run"), "run a system.py under supervision"
     )
+    COMMANDS["bench"] = Command(
+        _lazy("embagents.bench", "add_arguments"), _lazy("embagents.bench", "run"),
+        "measure embagents side by side with raw pyzmq, multiprocessing queues and rclpy",
+    )
 
 
 _register_runtime_commands()

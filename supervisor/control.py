@@ -1,0 +1,213 @@
+"""The root's control endpoint, and the discovery file a CLI finds it by.
+
+A ROUTER socket at ``ipc://{run_dir}/_control`` (the run directory is 0700,
+so only its user can connect) serves msgpack requests, one dict each, and
+answers one dict each (``ok`` true or false, ``error`` text when false):
+
+- ``{"cmd": "status"}`` -> ``{"ok", "system", "run_id", "pid", "uptime", "rows"}``,
+  one row per child: name, supervisor (path), kind, restart, status
+  (starting/running/restarting/stopped), lifecycle, pid, restarts, uptime
+  (s), cpu_percent, rss_mb, mailbox (depth), handled, rate (messages/s since
+  the previous status request, or since the start), last_exit.
+- ``{"cmd": "restart", "name": NAME}`` -> stop the child and start it again
+  now (``Supervisor.bounce``); ``{"ok", "pid"}``.
+- ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
+  reverse order).
+
+While the endpoint is up, ``/tmp/embagents-<uid>/runs/<run_id>.json``
+(``$EMBAGENTS_RUNS_DIR`` overrides the folder) holds ``run_id``,
+``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint`` and
+``started``; it is removed on close.
+
+Example::
+
+    >>> control = ControlServer(system, "demo", on_stop=stop_event.set)   # doctest: +SKIP
+    >>> request(system.run_dir, {"cmd": "status"})["rows"][0]["name"]
+    'camera'
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+import pykka
+import zmq
+
+from actors import ActorRef, ActorSystem, wire
+from supervisor.rootio import on_root
+from supervisor.tree import Tree
+
+__all__ = ["ControlServer", "control_endpoint", "runs_dir"]
+
+log = logging.getLogger("supervisor.control")
+
+
+def runs_dir() -> str:
+    """Where live runs announce themselves (created 0700)."""
+    return os.environ.get("EMBAGENTS_RUNS_DIR") or f"/tmp/embagents-{os.getuid()}/runs"
+
+
+def control_endpoint(run_dir: str) -> str:
+    return f"ipc://{run_dir}/_control"
+
+
+def _ctrl_async(name: str, cmd: str, timeout: float) -> pykka.Future:
+    # ActorSystem.ctrl() blocks per call; one future per actor lets a status
+    # request ask all of them at once (a hung actor costs one timeout, not one each).
+    return ActorRef(name)._ask(wire.CTRL, [cmd, []], timeout)
+
+
+class ControlServer:
+    """Serves control requests on its own thread; writes and removes the discovery file."""
+
+    def __init__(
+        self,
+        system: ActorSystem,
+        name: str,
+        *,
+        on_stop: Callable[[], None] | None = None,
+        stats_timeout: float = 0.5,
+    ) -> None:
+        self.system = system
+        self.name = name
+        self.tree = Tree.of(system)
+        self.on_stop = on_stop
+        self.stats_timeout = stats_timeout
+        self.started = time.time()
+        self._t0 = time.monotonic()
+        self._prev: dict[str, tuple[int, int, float]] = {}  # name -> (incarnation, handled, when)
+        self._closed = threading.Event()
+        self.endpoint = control_endpoint(system.run_dir)
+        self.sock = system.rt.ctx.socket(zmq.ROUTER)
+        self.sock.setsockopt(zmq.LINGER, 200)
+        self.sock.bind(self.endpoint)
+        self._thread = threading.Thread(target=self._serve, name="supervisor-control", daemon=True)
+        self._thread.start()
+        self.discovery = os.path.join(runs_dir(), f"{system.run_id}.json")
+        self._announce()
+
+    def _announce(self) -> None:
+        os.makedirs(runs_dir(), mode=0o700, exist_ok=True)
+        info = {
+            "run_id": self.system.run_id,
+            "run_dir": self.system.run_dir,
+            "pid": os.getpid(),
+            "system": self.name,
+            "endpoint": self.endpoint,
+            "started": self.started,
+        }
+        tmp = f"{self.discovery}.tmp"
+        with open(tmp, "w") as f:
+            json.dump(info, f)
+        os.replace(tmp, self.discovery)
+
+    # -- serving (its own thread: a status request may wait on actors) -------
+    def _serve(self) -> None:
+        poller = zmq.Poller()
+        poller.register(self.sock, zmq.POLLIN)
+        while not self._closed.is_set():
+            if not poller.poll(100):
+                continue
+            try:
+                frames = self.sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.ZMQError:
+                continue
+            if len(frames) < 2:
+                continue
+            ident, body = frames[0], frames[-1]
+            msg: Any = None
+            try:
+                msg = msgpack.unpackb(body)
+                if not isinstance(msg, dict):
+                    raise ValueError("a request is a msgpack map with a 'cmd' key")
+                reply = self.handle(msg)
+            except Exception as exc:
+                reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            with contextlib.suppress(zmq.ZMQError):
+                self.sock.send_multipart([ident, b"", msgpack.packb(reply, default=str)])
+            if reply.get("stopping"):  # answered first: the CLI learns the stop began
+                self._stop_run()
+        self.sock.close()
+
+    def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
+        cmd = msg.get("cmd")
+        if cmd == "status":
+            return {
+                "ok": True,
+                "system": self.name,
+                "run_id": self.system.run_id,
+                "pid": os.getpid(),
+                "uptime": round(time.monotonic() - self._t0, 1),
+                "rows": self.rows(),
+            }
+        if cmd == "restart":
+            name = msg.get("name")
+            if not isinstance(name, str):
+                return {"ok": False, "error": "restart needs 'name'"}
+            found = on_root(self.system, lambda: self._locate(name))
+            if found is None:
+                return {"ok": False, "error": f"no child named {name!r} in this run"}
+            return {"ok": True, "pid": found.bounce(name)}
+        if cmd == "stop":
+            return {"ok": True, "stopping": True}
+        return {"ok": False, "error": f"unknown command {cmd!r}; one of: status, restart, stop"}
+
+    def _locate(self, name: str) -> Any:
+        for root in self.tree.roots:
+            found = root._locate(name)
+            if found is not None:
+                return found[0]
+        return None
+
+    def rows(self) -> list[dict[str, Any]]:
+        rows: list[dict[str, Any]] = on_root(self.system, lambda: [r for s in self.tree.roots for r in s._rows()])
+        asks = {
+            r["name"]: _ctrl_async(r["name"], "stats", self.stats_timeout)
+            for r in rows
+            if r["kind"] == "actor" and r["status"] == "running"
+        }
+        now = time.monotonic()
+        for r in rows:
+            r.update(mailbox=None, handled=None, rate=None)
+            fut = asks.get(r["name"])
+            if fut is None:
+                continue
+            try:
+                st = fut.get(timeout=self.stats_timeout)
+            except Exception:
+                continue  # hung or restarting: the row says so by its missing numbers
+            r["mailbox"], r["handled"] = st["mailbox_depth"], st["handled"]
+            prev = self._prev.get(r["name"])
+            if prev is not None and prev[0] == st["incarnation"] and now > prev[2]:
+                r["rate"] = round((st["handled"] - prev[1]) / (now - prev[2]), 1)
+            elif r["uptime"]:
+                r["rate"] = round(st["handled"] / max(r["uptime"], 1e-3), 1)
+            self._prev[r["name"]] = (st["incarnation"], st["handled"], now)
+        return rows
+
+    def _stop_run(self) -> None:
+        if self.on_stop is not None:
+            self.on_stop()
+            return
+
+        def stop_all() -> None:
+            for root in list(self.tree.roots)[::-1]:
+                root.stop()
+
+        threading.Thread(target=stop_all, name="supervisor-stop", daemon=True).start()
+
+    def close(self) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.discovery)
+        self._closed.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(2)
+
