@@ -66,7 +66,9 @@ system = System(
             outputs=[text_out],
             model_client=LocalModelClient(model),
             trigger=text_in,
-            config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=48),
+            config=LLMConfig(
+                stream=True, temperature=0.0, max_new_tokens=48, system_prompt="You are a helpful assistant."
+            ),
         ),
         Asker(name="asker", outputs=[text_in], trigger=None),
     ],

@@ -1,0 +1,192 @@
+"""Talking to a live run from another terminal: what ``embagents status|restart|stop`` use.
+
+:func:`find_runs` lists the runs announced in ``/tmp/embagents-<uid>/runs``
+(dropping announcements whose process is gone); :func:`request` sends one
+control request (see :mod:`supervisor.control`) and returns the answer;
+:func:`format_status_table` renders status rows. :func:`main` is a small
+command line over them (``python -m supervisor.client status --json``).
+
+Example::
+
+    >>> run = pick_run()                                   # doctest: +SKIP
+    >>> print(format_status_table(request(run["run_dir"], {"cmd": "status"})["rows"]))
+    NAME    SUPERVISOR  KIND   STATUS   LIFECYCLE  PID    RESTARTS  UPTIME  CPU%  RSS MB  MAILBOX  MSG/S
+    camera  root        actor  running  active     41822         0  3m12s    4.0    61.2        0   30.0
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import msgpack
+import zmq
+
+from supervisor.control import control_endpoint, runs_dir
+
+__all__ = ["ControlError", "find_runs", "format_status_table", "main", "pick_run", "request"]
+
+
+class ControlError(RuntimeError):
+    """The run could not be reached, or refused the request."""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def find_runs() -> list[dict[str, Any]]:
+    """The live runs of this user, oldest first (stale announcements are removed)."""
+    folder = runs_dir()
+    try:
+        names = sorted(os.listdir(folder))
+    except FileNotFoundError:
+        return []
+    runs = []
+    for fn in names:
+        if not fn.endswith(".json"):
+            continue
+        path = os.path.join(folder, fn)
+        try:
+            with open(path) as f:
+                info = json.load(f)
+        except (OSError, ValueError):
+            continue
+        if not _alive(int(info.get("pid", 0))) or not os.path.isdir(info.get("run_dir", "")):
+            with contextlib.suppress(OSError):
+                os.unlink(path)  # its root died without cleaning up (SIGKILL)
+            continue
+        runs.append(info)
+    runs.sort(key=lambda r: r.get("started", 0))
+    return runs
+
+
+def pick_run(which: str | None = None) -> dict[str, Any]:
+    """The run named by ``which`` (run id, system name or pid), or the only live run."""
+    runs = find_runs()
+    if which is not None:
+        runs = [r for r in runs if which in (r.get("run_id"), r.get("system"), str(r.get("pid")))]
+    if not runs:
+        raise ControlError(
+            "no live embagents run found" + (f" matching {which!r}" if which else "")
+            + f" (looked in {runs_dir()}); start one with: embagents supervise system.py"
+        )
+    if len(runs) > 1:
+        listing = ", ".join(f"{r['run_id']} ({r.get('system')}, pid {r.get('pid')})" for r in runs)
+        raise ControlError(f"several live runs: {listing}; pick one with --run RUN_ID")
+    return runs[0]
+
+
+def request(run_dir: str, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
+    """Send one control request to the run at ``run_dir``; returns its answer (a dict).
+
+    Raises :class:`ControlError` if there is no answer within ``timeout``
+    seconds or the run answered ``ok: false``.
+    """
+    ctx = zmq.Context.instance()
+    s = ctx.socket(zmq.REQ)
+    s.setsockopt(zmq.LINGER, 0)
+    try:
+        s.connect(control_endpoint(run_dir))
+        s.send(msgpack.packb(msg))
+        if not s.poll(int(timeout * 1000)):
+            raise ControlError(f"no answer from the run at {run_dir} within {timeout} s (is it still running?)")
+        reply = msgpack.unpackb(s.recv())
+    finally:
+        s.close()
+    if not reply.get("ok"):
+        raise ControlError(reply.get("error", "the run refused the request"))
+    return reply
+
+
+def _duration(s: float | None) -> str:
+    if not s:
+        return "-"
+    s = int(s)
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    if s < 86400:
+        return f"{s // 3600}h{s % 3600 // 60:02d}m"
+    return f"{s // 86400}d{s % 86400 // 3600:02d}h"
+
+
+def _num(v: Any, fmt: str = "{:.1f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+_COLUMNS = [
+    # header, row -> text, right-aligned
+    ("NAME", lambda r: r["name"], False),
+    ("SUPERVISOR", lambda r: r["supervisor"], False),
+    ("KIND", lambda r: r["kind"], False),
+    ("STATUS", lambda r: r["status"], False),
+    ("LIFECYCLE", lambda r: r.get("lifecycle") or "-", False),
+    ("PID", lambda r: _num(r.get("pid"), "{}"), True),
+    ("RESTARTS", lambda r: str(r.get("restarts", 0)), True),
+    ("UPTIME", lambda r: _duration(r.get("uptime")), True),
+    ("CPU%", lambda r: _num(r.get("cpu_percent")), True),
+    ("RSS MB", lambda r: _num(r.get("rss_mb")), True),
+    ("MAILBOX", lambda r: _num(r.get("mailbox"), "{}"), True),
+    ("MSG/S", lambda r: _num(r.get("rate")), True),
+]
+
+
+def format_status_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Status rows as an aligned text table (``-`` where a value is unknown)."""
+    cells = [[h for h, _, _ in _COLUMNS]] + [[fn(r) for _, fn, _ in _COLUMNS] for r in rows]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(_COLUMNS))]
+    lines = []
+    for row in cells:
+        parts = [c.rjust(w) if right else c.ljust(w) for c, w, (_, _, right) in zip(row, widths, _COLUMNS)]
+        lines.append("  ".join(parts).rstrip())
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``status [--json] | restart NAME | stop`` against a live run; returns the exit status."""
+    p = argparse.ArgumentParser(prog="embagents", description="Control a live embagents run.")
+    p.add_argument("--run", help="run id, system name or pid (default: the only live run)")
+    p.add_argument("--timeout", type=float, default=5.0)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    st = sub.add_parser("status", help="a table of every supervised child")
+    st.add_argument("--json", action="store_true", help="print the raw status as JSON")
+    rs = sub.add_parser("restart", help="stop a child and start it again")
+    rs.add_argument("name")
+    sub.add_parser("stop", help="stop the run cleanly (children in reverse order)")
+    args = p.parse_args(argv)
+    try:
+        run = pick_run(args.run)
+        if args.cmd == "status":
+            reply = request(run["run_dir"], {"cmd": "status"}, args.timeout)
+            if args.json:
+                print(json.dumps(reply, indent=2))
+            else:
+                print(f"{reply['system']}  run {reply['run_id']}  pid {reply['pid']}  up {_duration(reply['uptime'])}")
+                print(format_status_table(reply["rows"]))
+        elif args.cmd == "restart":
+            reply = request(run["run_dir"], {"cmd": "restart", "name": args.name}, args.timeout)
+            print(f"restarted {args.name} (pid {reply['pid']})")
+        else:
+            request(run["run_dir"], {"cmd": "stop"}, args.timeout)
+            print(f"stopping run {run['run_id']}")
+    except ControlError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
