@@ -111,12 +111,21 @@ def _lazy(module: str, what: str) -> Callable[..., Any]:
     return call
 
 
+def _supervise_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("system", help="path of the system.py file")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+
+def _bench_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    parser.add_argument("--quick", action="store_true", help="few iterations (a smoke run, not a measurement)")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="run only cases matching these names or globs")
+
+
 def _register_runtime_commands() -> None:
-    COMMANDS["supervise"] = Command(
-        _lazy("embagents.launch", "add_arguments"), _lazy("embagents.launch", "run"), "run a system.py under supervision"
-    )
+    COMMANDS["supervise"] = Command(_supervise_arguments, _lazy("embagents.launch", "run"), "run a system.py under supervision")
     COMMANDS["bench"] = Command(
-        _lazy("embagents.bench", "add_arguments"), _lazy("embagents.bench", "run"),
+        _bench_arguments, _lazy("embagents.bench", "run"),
         "measure embagents side by side with raw pyzmq, multiprocessing queues and rclpy",
     )
 

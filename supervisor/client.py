@@ -150,7 +150,7 @@ def format_status_table(rows: Sequence[dict[str, Any]]) -> str:
     widths = [max(len(row[i]) for row in cells) for i in range(len(_COLUMNS))]
     lines = []
     for row in cells:
-        parts = [c.rjust(w) if right else c.ljust(w) for c, w, (_, _, right) in zip(row, widths, _COLUMNS)]
+        parts = [c.rjust(w) if right else c.ljust(w) for c, w, (_, _, right) in zip(row, widths, _COLUMNS, strict=True)]
         lines.append("  ".join(parts).rstrip())
     return "\n".join(lines)
 

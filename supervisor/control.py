@@ -188,8 +188,8 @@ class ControlServer:
             prev = self._prev.get(r["name"])
             if prev is not None and prev[0] == st["incarnation"] and now > prev[2]:
                 r["rate"] = round((st["handled"] - prev[1]) / (now - prev[2]), 1)
-            elif r["uptime"]:
-                r["rate"] = round(st["handled"] / max(r["uptime"], 1e-3), 1)
+            else:
+                r["rate"] = round(st["handled"] / max(r["uptime"], 0.1), 1)
             self._prev[r["name"]] = (st["incarnation"], st["handled"], now)
         return rows
 

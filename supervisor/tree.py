@@ -104,6 +104,9 @@ class Tree:
         if name in self.registered:
             self.registered.discard(name)
             self.system.rt.unregister(name)
+            info = self.system.procs.get(name)
+            if info is not None and info.exited.is_set():
+                del self.system.procs[name]  # our record of its last process: the name is free
         j = self.journals.pop(name, None)
         if j is not None:
             j.close()

@@ -181,14 +181,16 @@ class RosBridgeCore:
                 msg = from_ros(ros_msg, ros_type)
             except Exception:
                 counts.errors += 1
-                log.exception("dropping a %s from %s: cannot convert it", ros_type, inp.ros_topic)
+                if _worth_logging(counts.errors):
+                    log.exception("dropping a %s from %s (error #%d): cannot convert it", ros_type, inp.ros_topic, counts.errors)
                 return
             counts.received += 1
             try:
                 on_message(topic, msg)
             except Exception:
                 counts.errors += 1
-                log.exception("on_message failed for internal topic %r", topic)
+                if _worth_logging(counts.errors):
+                    log.exception("on_message failed for internal topic %r (error #%d)", topic, counts.errors)
 
         return cb
 
@@ -247,13 +249,25 @@ class RosBridgeCore:
             raise TypeError(f"topic {out.topic!r} (ROS {out.ros_topic}): {e}") from None
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Stop spinning, destroy the node and shut the Context down (idempotent)."""
+        """Stop spinning, destroy the node and shut the Context down (idempotent).
+
+        Called from inside ``on_message`` (the spin thread), it returns at
+        once and a short-lived thread finishes the teardown after the
+        callback returns.
+        """
         with self._lock:
             run, self._run = self._run, None
         if run is None:
             return
         run.stopping.set_result(None)
         run.executor.wake()
+        if threading.current_thread() is run.thread:
+            threading.Thread(target=self._finish, args=(run, timeout), name="ros-teardown").start()
+        else:
+            self._finish(run, timeout)
+
+    @staticmethod
+    def _finish(run: _Running, timeout: float) -> None:
         run.thread.join(timeout)
         if run.thread.is_alive():
             # A callback is stuck in on_message; shutting the context down ends
@@ -268,6 +282,11 @@ class RosBridgeCore:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _worth_logging(n: int) -> bool:
+    # A stream of bad frames at 30 Hz must not flood the log: #1-3, then every 1000th.
+    return n <= 3 or n % 1000 == 0
 
 
 def _teardown(context: Context, node: Node | None, executor: SingleThreadedExecutor | None) -> None:

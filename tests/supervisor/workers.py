@@ -42,6 +42,9 @@ class Echo(Actor):
         if message == "stop":
             self.context.stop()
             return "stopping"
+        if message == "sigterm":  # a real death by SIGTERM (the runtime's handler would exit cleanly)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
         if message == "segv":
             ctypes.string_at(0)  # a real SIGSEGV from native code
         if message == "hang":
@@ -98,14 +101,17 @@ class SlowStop(Actor):
 class Recorder(Actor):
     """Writes every message it handles to ``path``; "poison" crashes it every time."""
 
-    def __init__(self, path: str) -> None:
+    def __init__(self, path: str, delay: float = 0.0) -> None:
         self.path = path
+        self.delay = delay
 
     def on_receive(self, message: Any) -> Any:
         if message == "poison":
             raise ValueError("poison")
         if message == "pid":
             return os.getpid()
+        if self.delay:
+            time.sleep(self.delay)
         _append(self.path, str(message))
         return None
 
@@ -156,3 +162,14 @@ class Managed(Actor):
             os.kill(os.getpid(), signal.SIGKILL)
         self.count += 1
         return self.count
+
+
+class EventSink(Actor):
+    """Subscribes to the supervisor's event topic and keeps what it hears."""
+
+    def on_start(self) -> None:
+        self.seen: list[dict[str, Any]] = []
+        self.context.subscribe("_supervisor.events", self.seen.append, keep="all", queue_size=1000)
+
+    def on_receive(self, message: Any) -> Any:
+        return self.seen

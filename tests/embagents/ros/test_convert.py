@@ -282,3 +282,51 @@ def test_public_setter_fallback_gives_the_same_messages(monkeypatch):
     np.testing.assert_array_equal(from_ros(wire(ros), "sensor_msgs/Image").data, data)
     grid = np.array([[-1, 0], [50, 100]], np.int8)
     np.testing.assert_array_equal(from_ros(wire(to_ros(OccupancyGrid(data=grid))), "nav_msgs/OccupancyGrid").data, grid)
+
+
+# --- declarations (embagents.ros.spec) ---------------------------------------
+
+
+def test_declarations_defaults_and_normalization():
+    from embagents.ros import QoS, RosInput, RosOutput
+
+    i = RosInput("/camera/image_raw", "sensor_msgs/Image")
+    assert (i.topic, i.ros_type, i.qos) == ("camera/image_raw", "sensor_msgs/msg/Image", QoS())
+    assert i.msg_type is Image
+    o = RosOutput("answer", ros_type="std_msgs/msg/String", qos=QoS(depth=1, reliability="best_effort"))
+    assert o.ros_topic == "/answer" and o.accepts == (String, StreamingString)
+    assert RosOutput("cmd_vel").resolved(Twist).ros_type == "geometry_msgs/msg/Twist"
+    with pytest.raises(TypeError, match="declared as geometry_msgs/msg/Twist.*carries String"):
+        RosOutput("cmd_vel", ros_type="geometry_msgs/Twist").resolved(String)
+
+
+def test_declaration_errors_are_clear():
+    from embagents.ros import QoS, RosInput, RosOutput, check_bridge
+
+    with pytest.raises(ValueError, match="QoS depth must be an int >= 1"):
+        QoS(depth=0)
+    with pytest.raises(ValueError, match="reliability must be one of 'reliable', 'best_effort'; got 'fast'"):
+        QoS(reliability="fast")
+    with pytest.raises(ValueError, match="durability must be one of 'volatile', 'transient_local'"):
+        QoS(durability="persistent")
+    with pytest.raises(ValueError, match="unsupported ROS type 'vision_msgs/Detection2DArray'; supported: .*sensor_msgs/msg/PointCloud"):
+        RosInput("/dets", "vision_msgs/Detection2DArray")
+    with pytest.raises(ValueError, match="malformed ROS type"):
+        RosInput("/dets", "String")
+    with pytest.raises(ValueError, match="invalid ROS topic name for RosInput: '/2cams'"):
+        RosInput("/2cams", "sensor_msgs/Image")
+    with pytest.raises(ValueError, match="not a valid ROS name.*give ros_topic="):
+        RosOutput("llm.answer")
+    with pytest.raises(ValueError, match="has two RosOutputs"):
+        check_bridge([], [RosOutput("a", ros_type="std_msgs/String"), RosOutput("a", ros_topic="/b")])
+    with pytest.raises(ValueError, match="declared both as std_msgs/msg/String and as geometry_msgs/msg/Twist"):
+        check_bridge([RosInput("/x", "std_msgs/String")], [RosOutput("y", ros_topic="/x", ros_type="geometry_msgs/Twist")])
+    with pytest.raises(ValueError, match="echoed back forever"):
+        check_bridge([RosInput("/x", "std_msgs/String")], [RosOutput("x", ros_type="std_msgs/String")])
+
+
+def test_ros_available_here():
+    from embagents.ros import ros_available
+
+    ok, why = ros_available()
+    assert ok, why

@@ -408,3 +408,27 @@ def test_large_frames_best_effort_with_a_big_dds_segment(spawn, monkeypatch):
     assert pub.wait(timeout=15) == 0, pub.stderr.read()[-2000:]
     assert all(ok for _, ok in got), "a frame arrived with wrong pixels"
     assert len(got) >= 10, f"only {len(got)} of 20 best-effort 1080p frames arrived"
+
+
+def test_stop_from_inside_on_message(core_factory):
+    before = set(threading.enumerate())
+    stopped = threading.Event()
+    rx = core_factory(inputs=[RosInput("/stop_in", "std_msgs/String")])
+
+    def on_message(topic, msg):
+        rx.stop()  # e.g. the actor is told to shut down while handling a message
+        stopped.set()
+
+    tx = core_factory(outputs=[RosOutput("s", ros_topic="/stop_in", ros_type="std_msgs/String")])
+    rx.start("bridge_stop_rx", on_message, domain_id=DOMAIN_ID)
+    tx.start("bridge_stop_tx", lambda t, m: None, domain_id=DOMAIN_ID)
+    end = time.monotonic() + DEADLINE
+    while not stopped.is_set() and time.monotonic() < end:
+        tx.publish("s", String(data="stop"))
+        time.sleep(0.02)
+    assert stopped.is_set() and not rx.running
+    tx.stop()
+    end = time.monotonic() + 5
+    while set(threading.enumerate()) != before and time.monotonic() < end:
+        time.sleep(0.01)
+    assert set(threading.enumerate()) == before

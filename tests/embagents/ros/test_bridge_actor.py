@@ -1,0 +1,136 @@
+"""The ROS 2 bridge actor in a supervised system, against real rclpy peers in other processes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
+
+DOMAIN_ID = 101 + os.getpid() % 100
+
+LLM_SYSTEM = '''
+from embagents import LLM, LLMConfig, LlamaModel, LocalModelClient, String, System, Topic
+from embagents.ros import RosInput, RosOutput
+
+text_in, text_out = Topic("text_in", String), Topic("text_out", String)
+model = LlamaModel(name="tiny", local_model_path=MODEL, warmup=False)
+system = System(
+    [LLM(name="llm", inputs=[text_in], outputs=[text_out], model_client=LocalModelClient(model),
+         config=LLMConfig(temperature=0.0, max_new_tokens=6))],
+    models=[model],
+    ros=[RosInput("/text_in", "std_msgs/String"), RosOutput("text_out", ros_type="std_msgs/String")],
+)
+'''
+
+IMAGE_SYSTEM = '''
+from embagents import System
+from embagents.ros import RosInput, RosOutput
+
+system = System(
+    [],
+    ros=[RosInput("/image_in", "sensor_msgs/Image", topic="image"),
+         RosOutput("image", ros_topic="/image_out", ros_type="sensor_msgs/Image")],
+)
+'''
+
+# A plain rclpy node: publishes on IN until something arrives on OUT, then prints it.
+PEER = r"""
+import sys, time, numpy as np, rclpy
+from std_msgs.msg import String
+from sensor_msgs.msg import Image
+kind, deadline = sys.argv[1], time.time() + float(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node("peer")
+got = []
+if kind == "text":
+    pub = node.create_publisher(String, "/text_in", 10)
+    node.create_subscription(String, "/text_out", lambda m: got.append(repr(m.data)), 10)
+    make = lambda i: String(data=f"hello {i}")
+else:
+    pub = node.create_publisher(Image, "/image_in", 10)
+    h, w = 48, 64
+    pixels = (np.arange(h * w * 3) % 251).astype(np.uint8)
+    def on_image(m):
+        ok = m.height == h and m.width == w and m.encoding == "rgb8" and bytes(m.data) == pixels.tobytes()
+        got.append("PIXELS_OK" if ok else f"PIXELS_BAD {m.height}x{m.width} {m.encoding}")
+    node.create_subscription(Image, "/image_out", on_image, 10)
+    def make(i):
+        m = Image(height=h, width=w, encoding="rgb8", step=w * 3)
+        m.data = pixels.tobytes()
+        return m
+i = 0
+while not got and time.time() < deadline:
+    pub.publish(make(i)); i += 1
+    end = time.time() + 0.5
+    while not got and time.time() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+print("GOT", got[0] if got else "nothing", flush=True)
+"""
+
+
+@pytest.fixture
+def ros_env(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(DOMAIN_ID))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return dict(os.environ)
+
+
+def _run(system_text: str, tmp_path: Path, env: dict[str, str], peer: str, timeout: float = 60) -> str:
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(system_text))
+    sup = subprocess.Popen(
+        [sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+    )
+    try:
+        out = subprocess.run(
+            [sys.executable, "-c", PEER, peer, str(timeout)], capture_output=True, text=True, env=env, timeout=timeout + 30
+        )
+    finally:
+        sup.send_signal(signal.SIGTERM)
+        log, _ = sup.communicate(timeout=30)
+    assert sup.returncode == 0, log
+    return out.stdout + out.stderr
+
+
+def test_an_external_ros_node_talks_to_the_llm(tmp_path: Path, tiny_gguf: str, ros_env: dict[str, str]) -> None:
+    out = _run(LLM_SYSTEM.replace("MODEL", repr(tiny_gguf)), tmp_path, ros_env, "text")
+    assert "GOT '" in out, out  # an answer arrived on /text_out
+
+
+def test_an_image_round_trip_keeps_every_pixel(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    out = _run(IMAGE_SYSTEM, tmp_path, ros_env, "image")
+    assert "GOT PIXELS_OK" in out, out
+
+
+def test_check_names_the_ros_extra_when_rclpy_is_missing(tmp_path: Path) -> None:
+    fake = tmp_path / "no_ros"
+    (fake / "rclpy").mkdir(parents=True)
+    (fake / "rclpy" / "__init__.py").write_text("raise ImportError('No module named rclpy')\n")
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(IMAGE_SYSTEM))
+    env = {**os.environ, "PYTHONPATH": f"{fake}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.cli", "check", str(path)], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert proc.returncode == 1
+    assert "pip install 'embagents[ros]'" in proc.stdout + proc.stderr
+
+
+def test_a_system_without_ros_runs_without_importing_rclpy(tmp_path: Path) -> None:
+    code = (
+        "import sys\n"
+        "from embagents.check import check_system\nfrom embagents.system import load_system\n"
+        "import embagents.launch, embagents.runtime\n"
+        f"check_system(load_system({str(Path(__file__).parents[3] / 'examples' / 'chat.py')!r}))\n"
+        "assert 'rclpy' not in sys.modules, 'rclpy was imported'\nprint('OK')\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.stdout.strip().endswith("OK"), proc.stderr

@@ -1,0 +1,90 @@
+"""The control endpoint and the discovery file."""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+
+from actors import ActorSystem
+from supervisor import ChildSpec, Command, SupervisorSpec, start_supervisor
+from supervisor.client import request
+from supervisor.control import ControlServer, runs_dir
+from tests.supervisor.conftest import EventLog, ask, wait_until
+from tests.supervisor.workers import Echo
+
+
+def tree(system: ActorSystem):
+    inner = SupervisorSpec(children=[ChildSpec("deep", Echo)])
+    return start_supervisor(system, SupervisorSpec(children=[
+        ChildSpec("a", Echo, lifecycle="active"), ChildSpec("x", Command(["sleep", "60"])), ChildSpec("in", inner)]))
+
+
+def test_status_lists_every_child_with_its_numbers(system: ActorSystem) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    try:
+        for _ in range(10):
+            system.ref("a").tell("hi")
+        ask(system, "a", "sync")
+        reply = request(system.run_dir, {"cmd": "status"})
+        assert reply["system"] == "demo" and reply["run_id"] == system.run_id and reply["pid"] == os.getpid()
+        rows = {r["name"]: r for r in reply["rows"]}
+        assert list(rows) == ["a", "x", "in", "deep"]
+        a = rows["a"]
+        assert a["status"] == "running" and a["supervisor"] == "root" and a["kind"] == "actor"
+        assert a["lifecycle"] == "active" and a["restarts"] == 0 and a["pid"] > 0
+        assert a["mailbox"] == 0 and a["handled"] >= 11 and a["rate"] is not None
+        assert rows["deep"]["supervisor"] == "root/in"
+        assert rows["x"]["kind"] == "command" and rows["x"]["mailbox"] is None
+        wait_until(lambda: request(system.run_dir, {"cmd": "status"})["rows"][0]["rss_mb"], 5, "an rss sample")
+    finally:
+        control.close()
+
+
+def test_restart_by_name_anywhere_in_the_tree(system: ActorSystem, events: EventLog) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    try:
+        old = ask(system, "deep")
+        reply = request(system.run_dir, {"cmd": "restart", "name": "deep"})
+        assert reply["pid"] != old and ask(system, "deep") == reply["pid"]
+        rows = {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}
+        assert rows["deep"]["restarts"] == 1
+        bad = request_error(system, {"cmd": "restart", "name": "nobody"})
+        assert "no child named 'nobody'" in bad
+        assert "unknown command" in request_error(system, {"cmd": "dance"})
+    finally:
+        control.close()
+
+
+def request_error(system: ActorSystem, msg: dict) -> str:
+    from supervisor.client import ControlError
+
+    try:
+        request(system.run_dir, msg)
+    except ControlError as exc:
+        return str(exc)
+    raise AssertionError("the request should have failed")
+
+
+def test_stop_answers_then_calls_on_stop(system: ActorSystem) -> None:
+    tree(system)
+    stopped = threading.Event()
+    control = ControlServer(system, "demo", on_stop=stopped.set)
+    try:
+        assert request(system.run_dir, {"cmd": "stop"})["stopping"] is True
+        assert stopped.wait(5)
+    finally:
+        control.close()
+
+
+def test_the_discovery_file_lives_as_long_as_the_endpoint(system: ActorSystem) -> None:
+    control = ControlServer(system, "demo")
+    path = os.path.join(runs_dir(), f"{system.run_id}.json")
+    with open(path) as f:
+        info = json.load(f)
+    assert info["run_dir"] == system.run_dir and info["pid"] == os.getpid() and info["system"] == "demo"
+    assert oct(os.stat(runs_dir()).st_mode & 0o777) == "0o700"
+    control.close()
+    assert not os.path.exists(path)

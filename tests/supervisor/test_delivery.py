@@ -1,0 +1,64 @@
+"""Nothing lost: every told message is processed or dead-lettered with a reason."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import msgpack
+
+from actors import ActorSystem
+from supervisor import ChildSpec, SupervisorSpec, start_supervisor
+from tests.supervisor.conftest import EventLog, ask, read_lines, wait_until
+from tests.supervisor.workers import Recorder
+
+
+def dead_letters(system: ActorSystem) -> list[dict]:
+    path = os.path.join(system.run_dir, "deadletters.log")
+    if not os.path.exists(path):
+        return []
+    with open(path, "rb") as f:
+        return list(msgpack.Unpacker(f))
+
+
+def test_a_thousand_messages_through_five_sigkills(system: ActorSystem, events: EventLog, tmp_path) -> None:
+    path = str(tmp_path / "processed")
+    sup = start_supervisor(system, SupervisorSpec(intensity=20, period=60, children=[
+        ChildSpec("rec", (Recorder, (path, 0.0005)), poison_limit=3)]))
+    sent = [f"m{i}" for i in range(999)]
+    sent.insert(500, "poison")  # crashes the actor every time: must end up dead-lettered
+    ref = system.ref("rec")
+    for m in sent:
+        ref.tell(m)
+    for k in range(1, 6):  # SIGKILL it five times while it works through the stream
+        wait_until(lambda k=k: len(read_lines(path)) >= 150 * k, 30, f"{150 * k} lines")
+        pid = wait_until(lambda: isinstance(p := sup.which_children()[0].pid, int) and p, 10, "a running incarnation")
+        os.kill(pid, signal.SIGKILL)
+    assert ref.flush(60), "some messages were never acknowledged"
+    processed = read_lines(path)
+    dead = dead_letters(system)
+    assert [d["message"] for d in dead] == ["'poison'"]
+    assert all(d["reason"] and d["actor"] == "rec" and d["kind"] == "tell" for d in dead)
+    assert set(processed) | {"poison"} == set(sent)  # none vanished
+    kills = [e for e in events.of("crashed", "rec") if e["reason"] == "killed"]
+    assert len(kills) == 5
+    assert len([e for e in events.of("crashed", "rec") if "ValueError: poison" in e["detail"]]) == 3
+    print(f"processed {len(processed)} lines for {len(sent) - 1} messages "
+          f"({len(processed) - len(set(processed))} duplicates: at-least-once)")
+
+
+def test_a_poison_message_is_dead_lettered_and_the_actor_keeps_serving(system: ActorSystem, events: EventLog, tmp_path) -> None:
+    path = str(tmp_path / "processed")
+    start_supervisor(system, SupervisorSpec(intensity=5, period=60, children=[
+        ChildSpec("rec", (Recorder, (path,)), poison_limit=3)]))
+    ref = system.ref("rec")
+    ref.tell("before")
+    ref.tell("poison")
+    ref.tell("after")
+    assert ref.flush(30)
+    assert ask(system, "rec") > 0
+    assert read_lines(path).count("after") >= 1 and "before" in read_lines(path)
+    [dead] = dead_letters(system)
+    assert dead["message"] == "'poison'" and dead["reason"] == "it crashed actor 'rec' 3 times"
+    assert len(events.of("crashed", "rec")) == 3
+    assert all("ValueError: poison" in e["detail"] for e in events.of("crashed", "rec"))
