@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 
 from supervisor import ChildSpec, Command, SupervisorSpec
@@ -39,8 +40,6 @@ def main(mode: str, out: str) -> int:
         info["run_dir"] = sup.system.run_dir
         with open(out + ".tmp", "w") as f:
             json.dump(info, f)
-        import os
-
         os.replace(out + ".tmp", out)
 
     return serve(spec, system_name=f"e2e-{mode}", on_ready=ready)

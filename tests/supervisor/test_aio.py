@@ -5,12 +5,12 @@ from __future__ import annotations
 import pytest
 
 from actors.loop import Loop
-from supervisor.aio import Cancelled, Future, Task, sleep, wait_for
+from supervisor.aio import Cancelled, Future, Task, sleep, stop, wait_for
 
 
 def run(loop: Loop, task: Task, timeout: float = 5.0):
-    task.future.add_done_callback(lambda _: loop.stop())
-    loop.call_later(timeout, loop.stop)
+    task.future.add_done_callback(lambda _: stop(loop))
+    loop.call_later(timeout, lambda: stop(loop))
     loop.run()
     return task.future
 
@@ -70,6 +70,6 @@ def test_callbacks_run_on_a_later_turn() -> None:
     fut.add_done_callback(lambda f: seen.append(f.result()))
     fut.set_result(1)
     assert seen == []  # never inside set_result: no re-entrance
-    loop.call_later(0.01, loop.stop)
+    loop.call_later(0.01, lambda: stop(loop))
     loop.run()
     assert seen == [1]

@@ -52,7 +52,7 @@ def test_children_start_in_order_and_stop_in_reverse(system: ActorSystem, logfil
 
 def test_a_child_that_fails_to_start_stops_the_earlier_ones(system: ActorSystem, events: EventLog) -> None:
     spec = one_for_one(C("ok", Echo), C("bad", FailStart), C("never", Echo))
-    with pytest.raises(StartError, match="failed to start child 'bad'"):
+    with pytest.raises(StartError, match="failed to start child 'bad'.*RuntimeError: cannot start"):
         start_supervisor(system, spec)
     started = events.of("started")
     assert [e["child"] for e in started] == ["ok"]
@@ -304,6 +304,26 @@ def test_an_exception_storm_escalates_to_the_root(system: ActorSystem, events: E
     events.wait("gave_up", supervisor="root/mid")
     events.wait("gave_up", supervisor="root")
     assert sup.wait(10).reason == "shutdown"
+
+
+def test_brutal_kill_of_a_child_supervisor_kills_everything_below_it(system: ActorSystem, events: EventLog, logfile: str) -> None:
+    inner = SupervisorSpec(children=[C(n, (SlowStop, (0.0, logfile))) for n in ("i1", "i2")])
+    sup = start_supervisor(system, one_for_one(C("in", inner, shutdown="brutal_kill")))
+    below = [ask_pid(system, n) for n in ("i1", "i2")]
+    sup.terminate_child("in")
+    assert events.wait("stopped", "in")["reason"] == "killed"
+    assert all(gone(p) for p in below) and read_lines(logfile) == []  # no on_stop below
+
+
+def test_a_child_supervisor_that_does_not_stop_in_time_is_killed(system: ActorSystem, events: EventLog, logfile: str) -> None:
+    inner = SupervisorSpec(children=[C("slow", (SlowStop, (30.0, logfile)), shutdown="infinity")])
+    sup = start_supervisor(system, one_for_one(C("in", inner, shutdown=0.3)))
+    pid = ask_pid(system, "slow")
+    t0 = time.monotonic()
+    sup.terminate_child("in")
+    assert time.monotonic() - t0 < 10
+    assert events.wait("stopped", "in")["reason"] == "killed"
+    assert gone(pid)
 
 
 def test_nested_supervisor_children_stop_in_reverse_order(system: ActorSystem, logfile: str) -> None:
