@@ -7,16 +7,7 @@ import numpy as np
 
 from actors import ActorSystem
 from tests.actors.workers import Publisher, Subscriber
-
-
-def _until(fn: Any, timeout: float = 5.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        out = fn()
-        if out:
-            return out
-        time.sleep(0.05)
-    return fn()
+from tests.helpers import until
 
 
 def test_publish_reaches_a_subscriber_in_another_process(system: ActorSystem) -> None:
@@ -27,7 +18,7 @@ def test_publish_reaches_a_subscriber_in_another_process(system: ActorSystem) ->
         pub.ask(["chatter", {"n": 1}], timeout=5).get()
         return sub.ask("got", timeout=5).get()
 
-    assert {"n": 1} in _until(got)
+    assert {"n": 1} in until(got)
 
 
 def test_large_frames_travel_through_shared_memory(system: ActorSystem) -> None:
@@ -39,14 +30,14 @@ def test_large_frames_travel_through_shared_memory(system: ActorSystem) -> None:
         pub.ask(["camera", frame], timeout=5).get()
         return [g for g in sub.ask("got", timeout=5).get() if isinstance(g, list) and g[0] == "array"]
 
-    out = _until(got)
+    out = until(got)
     assert out[0][1] == [300_000] and out[0][2] == 299_999
 
 
 def test_keep_latest_drops_the_oldest(system: ActorSystem) -> None:
     sub = system.spawn(Subscriber, "sub", "burst", 3, "latest")
     pub = system.spawn(Publisher, "pub")
-    _until(lambda: (pub.ask(["burst", -1], timeout=5).get(), sub.ask("got", timeout=5).get())[1])
+    until(lambda: (pub.ask(["burst", -1], timeout=5).get(), sub.ask("got", timeout=5).get())[1])
     # Block the subscriber, then publish a burst: only the newest 3 survive.
     sub.tell("got")
     for i in range(50):

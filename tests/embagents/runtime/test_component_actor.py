@@ -13,6 +13,7 @@ import pytest
 from actors import ActorSystem
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.system import load_system
+from tests.helpers import until
 
 SYSTEM = '''
 import time
@@ -85,14 +86,6 @@ def running(tmp_path: Path) -> Any:
         asys.shutdown()
 
 
-def _until(fn: Any, timeout: float = 10.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        out = fn()
-        if out:
-            return out
-        time.sleep(0.05)
-    return fn()
 
 
 def test_topic_trigger_runs_the_step_and_publishes(running: ActorSystem) -> None:
@@ -106,7 +99,7 @@ def test_topic_trigger_runs_the_step_and_publishes(running: ActorSystem) -> None
         running.rt.on_client(lambda: pub.publish(String(data="hello")))
         return recorder.ask({"op": "call", "method": "received"}, timeout=5).get()
 
-    assert "HELLO" in _until(got)
+    assert "HELLO" in until(got)
 
 
 def test_rate_trigger_holds_its_rate_in_hz(running: ActorSystem) -> None:

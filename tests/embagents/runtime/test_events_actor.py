@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import textwrap
-import time
 from pathlib import Path
-from typing import Any
 
 from actors import ActorSystem
 from actors.topics import Publisher
@@ -13,6 +11,7 @@ from embagents.msgs import String
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.events_actor import EventsActor
 from embagents.system import load_system
+from tests.helpers import until
 
 SYSTEM = '''
 from embagents import events
@@ -52,14 +51,6 @@ system = System(
 '''
 
 
-def _until(fn: Any, timeout: float = 10.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        out = fn()
-        if out:
-            return out
-        time.sleep(0.05)
-    return fn()
 
 
 def test_an_event_publishes_and_calls_a_component_method(tmp_path: Path) -> None:
@@ -73,7 +64,7 @@ def test_an_event_publishes_and_calls_a_component_method(tmp_path: Path) -> None
         for word in ("go", "halt", "halt"):
             asys.rt.on_client(lambda w=word: pub.publish(String(data=w)))
         sink = asys.ref("sink")
-        notes = _until(lambda: len(sink.ask({"op": "call", "method": "notes"}, timeout=5).get()) >= 2 and
+        notes = until(lambda: len(sink.ask({"op": "call", "method": "notes"}, timeout=5).get()) >= 2 and
                        sink.ask({"op": "call", "method": "notes"}, timeout=5).get())
         assert sorted(notes) == ["alarm:halted", "called"]
         # Rising edge: the second "halt" did not fire again.
