@@ -100,6 +100,8 @@ def child_main(spec: dict[str, Any]) -> None:
             _notify(rt, ["failed", name, os.getpid(), f"{type(exc).__name__}: {exc}"])
         with contextlib.suppress(Exception):
             rt.pool.close()
+        with contextlib.suppress(Exception):
+            rt.ctx.destroy(linger=500)  # lets the note above leave before we exit
         os._exit(1)
     try:
         host.actor.on_stop()

@@ -23,6 +23,7 @@ import shutil
 import signal
 import socket
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -37,12 +38,16 @@ _PR_SET_PDEATHSIG = 1
 _MAX = 1 << 20
 
 
+try:  # resolved once at import: dlopen in a freshly forked child of a threaded parent is unsafe
+    _prctl = ctypes.CDLL(None, use_errno=True).prctl
+except (OSError, AttributeError):  # not Linux: the EOF path still cleans up
+    _prctl = None
+
+
 def set_pdeathsig(sig: int = signal.SIGKILL) -> None:
     """Ask the kernel to send ``sig`` to this process when its parent dies."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-    except (OSError, AttributeError):  # not Linux: the EOF path still cleans up
-        pass
+    if _prctl is not None:
+        _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
 
 
 def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
@@ -166,16 +171,20 @@ class ForkServer:
         self.pid = pid
         self.sock = parent
         self.sock.setblocking(False)
+        self._send_lock = threading.Lock()
 
     def fileno(self) -> int:
         return self.sock.fileno()
 
     def send(self, msg: list[Any]) -> None:
-        self.sock.setblocking(True)
-        try:
-            self.sock.send(msgpack.packb(msg))
-        finally:
-            self.sock.setblocking(False)
+        data = msgpack.packb(msg)
+        with self._send_lock:  # any thread may send; the IO thread reads concurrently
+            while True:
+                try:
+                    self.sock.send(data)
+                    return
+                except BlockingIOError:
+                    select.select([], [self.sock], [], 1.0)
 
     def recv_all(self) -> list[list[Any]]:
         out = []

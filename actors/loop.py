@@ -112,6 +112,8 @@ class Loop:
             if until is not None and until():
                 return True
             wait = self._run_timers() if only is None else None
+            if self._stopping:  # a timer asked us to stop
+                break
             if until is not None and until():
                 return True
             for bound in (self.max_wait, None if deadline is None else deadline - time.monotonic()):

@@ -88,6 +88,8 @@ class Mailbox:
             self._handle(ident, frame)
             if jr is not None:
                 jr.beat()
+            if self.handled % 32 == 0:  # a crash under load re-delivers at most a batch
+                self.flush()
             if not self.queue:
                 self._drain()
         self.flush()
@@ -143,13 +145,14 @@ class Mailbox:
             ok = True
         except Exception as exc:
             if kind == wire.TELL:
-                raise  # the actor crashes; the runtime reports it
+                # The actor crashes; the journal keeps this message's id, so the
+                # next incarnation counts it towards the poison limit.
+                raise
             ok = False
             result = [type(exc).__name__, str(exc), traceback.format_exc()]
-        finally:
-            self.busy_since = 0.0
-            if jr is not None:
-                jr.end()
+        self.busy_since = 0.0
+        if jr is not None:
+            jr.end()
         self.handled += 1
         if kind == wire.TELL:
             self.to_ack[ident] = seq

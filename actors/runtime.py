@@ -121,6 +121,8 @@ class Runtime:
     def on_client(self, fn: Callable[[], Any]) -> Any:
         """Run ``fn`` on the client IO thread and return its result."""
         loop = self.client_loop()
+        if threading.get_ident() == loop.thread_id:
+            return fn()  # already on the IO thread: waiting for ourselves would deadlock
         done = threading.Event()
         box: list[Any] = []
 

@@ -96,6 +96,8 @@ class ActorSystem:
         self._tokens = itertools.count(1)
         self._spawning: dict[int, ProcessInfo] = {}
         self.exit_listeners: list[Callable[[ProcessInfo], None]] = []
+        #: Run first by :meth:`shutdown` (a supervision tree stops itself here).
+        self.before_shutdown: list[Callable[[], None]] = []
         self.event_listeners: list[Callable[[list[Any]], None]] = []
         self.closed = False
         self.rt.on_client(self._setup_loop)
@@ -124,6 +126,8 @@ class ActorSystem:
                 log.warning("dropped a corrupt control frame")
                 continue
             info = self.procs.get(name)
+            if info is not None and info.pid is None:
+                info.pid = pid  # the ready note overtook the fork server's "spawned"
             if info is not None and info.pid == pid:
                 if kind == "ready":
                     info.ready.set()
@@ -315,6 +319,9 @@ class ActorSystem:
         if self.closed:
             return
         self.closed = True
+        for hook in self.before_shutdown:
+            with contextlib.suppress(Exception):
+                hook()
         for name in reversed(list(self.order)):
             with contextlib.suppress(Exception):
                 self.stop(name, timeout)

@@ -2,13 +2,13 @@
 
 Example::
 
-    >>> from actors import ActorSystem
-    >>> from supervisor import ChildSpec, SupervisorSpec, start_supervisor
-    >>> system = ActorSystem()                                     # doctest: +SKIP
-    >>> sup = start_supervisor(system, SupervisorSpec(strategy="one_for_one", children=[
-    ...     ChildSpec("echo", Echo, heartbeat=2.0, max_rss_mb=500)]))
-    >>> sup.which_children()
-    [ChildInfo(id='echo', pid=4242, type='worker', module='demo:Echo')]
+    from actors import ActorSystem
+    from supervisor import ChildSpec, SupervisorSpec, start_supervisor
+    system = ActorSystem()
+    sup = start_supervisor(system, SupervisorSpec(strategy="one_for_one", children=[
+        ChildSpec("echo", Echo, heartbeat=2.0, max_rss_mb=500)]))
+    sup.which_children()
+    # [ChildInfo(id='echo', pid=4242, type='worker', module='demo:Echo')]
 """
 
 from supervisor.backoff import Backoff, backoff_delay

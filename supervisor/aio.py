@@ -18,21 +18,23 @@ Example::
     ...     await sleep(loop, 0.01)
     ...     return "done"
     >>> task = Task(loop, job())
-    >>> task.future.add_done_callback(lambda f: loop.stop())
+    >>> task.future.add_done_callback(lambda f: stop(loop))
     >>> loop.run()
+    False
     >>> task.future.result()
     'done'
 """
 
 from __future__ import annotations
 
+import weakref
 from collections import deque
 from collections.abc import Callable, Coroutine, Generator
 from typing import Any, Generic, TypeVar
 
 from actors.loop import Loop
 
-__all__ = ["Cancelled", "Future", "Task", "sleep", "soon", "wait_for"]
+__all__ = ["Cancelled", "Future", "Task", "sleep", "soon", "stop", "wait_for"]
 
 T = TypeVar("T")
 
@@ -45,34 +47,37 @@ class _Soon:
     """A FIFO of calls for the loop's next turn (one timer per batch, not per call)."""
 
     def __init__(self, loop: Loop) -> None:
-        self.loop = loop
+        self.loop = weakref.ref(loop)
         self.calls: deque[Callable[[], None]] = deque()
         self.armed = False
 
     def add(self, fn: Callable[[], None]) -> None:
         self.calls.append(fn)
-        if not self.armed:
+        self._arm()
+
+    def _arm(self) -> None:
+        loop = self.loop()
+        if not self.armed and loop is not None:
             self.armed = True
-            self.loop.call_later(0, self.run)
+            loop.call_later(0, self.run)
 
     def run(self) -> None:
         self.armed = False
         # Only what is queued now: calls added meanwhile wait a turn, so IO is never starved.
         for _ in range(len(self.calls)):
             self.calls.popleft()()
-        if self.calls and not self.armed:
-            self.armed = True
-            self.loop.call_later(0, self.run)
+        if self.calls:
+            self._arm()
 
 
-_queues: dict[int, _Soon] = {}
+_queues: weakref.WeakKeyDictionary[Loop, _Soon] = weakref.WeakKeyDictionary()
 
 
 def soon(loop: Loop, fn: Callable[[], None]) -> None:
     """Call ``fn`` on ``loop``'s next turn (must be called on the loop's thread)."""
-    q = _queues.get(id(loop))
-    if q is None or q.loop is not loop:
-        q = _queues[id(loop)] = _Soon(loop)
+    q = _queues.get(loop)
+    if q is None:
+        q = _queues[loop] = _Soon(loop)
     q.add(fn)
 
 
@@ -170,6 +175,16 @@ class Task:
         if not self._running:
             self._coro.close()
         self.future.set_exception(Cancelled())
+
+
+def stop(loop: Loop) -> None:
+    """Stop ``loop.run()`` from a callback on that loop.
+
+    ``Loop.stop()`` alone is only seen after the next poll returns, so a
+    stop from a timer with nothing else pending would wait forever: wake it.
+    """
+    loop.stop()
+    loop.call_soon_threadsafe(lambda: None)
 
 
 def sleep(loop: Loop, delay: float) -> Future[None]:

@@ -8,8 +8,11 @@ command line over them (``python -m supervisor.client status --json``).
 
 Example::
 
-    >>> run = pick_run()                                   # doctest: +SKIP
-    >>> print(format_status_table(request(run["run_dir"], {"cmd": "status"})["rows"]))
+    run = pick_run()
+    print(format_status_table(request(run["run_dir"], {"cmd": "status"})["rows"]))
+
+prints::
+
     NAME    SUPERVISOR  KIND   STATUS   LIFECYCLE  PID    RESTARTS  UPTIME  CPU%  RSS MB  MAILBOX  MSG/S
     camera  root        actor  running  active     41822         0  3m12s    4.0    61.2        0   30.0
 """

@@ -21,9 +21,9 @@ While the endpoint is up, ``/tmp/embagents-<uid>/runs/<run_id>.json``
 
 Example::
 
-    >>> control = ControlServer(system, "demo", on_stop=stop_event.set)   # doctest: +SKIP
-    >>> request(system.run_dir, {"cmd": "status"})["rows"][0]["name"]
-    'camera'
+    control = ControlServer(system, "demo", on_stop=stop_event.set)
+    from supervisor.client import request
+    request(system.run_dir, {"cmd": "status"})["rows"][0]["name"]    # 'camera'
 """
 
 from __future__ import annotations
@@ -175,13 +175,14 @@ class ControlServer:
             if r["kind"] == "actor" and r["status"] == "running"
         }
         now = time.monotonic()
+        deadline = now + self.stats_timeout  # one wait for all: the asks run side by side
         for r in rows:
             r.update(mailbox=None, handled=None, rate=None)
             fut = asks.get(r["name"])
             if fut is None:
                 continue
             try:
-                st = fut.get(timeout=self.stats_timeout)
+                st = fut.get(timeout=max(0.0, deadline - time.monotonic()))
             except Exception:
                 continue  # hung or restarting: the row says so by its missing numbers
             r["mailbox"], r["handled"] = st["mailbox_depth"], st["handled"]

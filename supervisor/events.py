@@ -23,9 +23,9 @@ Subscribe from any actor with ``self.context.subscribe("_supervisor.events", fn)
 
 Example::
 
-    >>> events = Events(system)                         # doctest: +SKIP
-    >>> events.listeners.append(print)
-    >>> events.emit("crashed", supervisor="root", child="llm", reason="killed")
+    events = Events(system)
+    events.listeners.append(print)
+    events.emit("crashed", supervisor="root", child="llm", reason="killed")
 """
 
 from __future__ import annotations

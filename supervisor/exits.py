@@ -1,13 +1,13 @@
 """Why a child ended: OTP's exit reasons, read from a process's exit status.
 
-============  =====================================================  =========
-reason        when                                                   "normal"?
-============  =====================================================  =========
-normal        exit code 0 (the actor stopped itself, a program ended)   yes
-shutdown      its supervisor stopped it, or it died of SIGTERM          yes
-killed        SIGKILL that its supervisor did not send                  no
-error         any other exit code or signal, a hang, a limit            no
-============  =====================================================  =========
+============  ==========================================================  =======
+reason        when                                                        normal?
+============  ==========================================================  =======
+normal        exit code 0 (the actor stopped itself, a program ended)     yes
+shutdown      it died of SIGTERM, or ended after its supervisor's stop    yes
+killed        SIGKILL (brutal_kill, a shutdown timeout, or anyone else)   no
+error         any other exit code or signal, a hang, a resource limit     no
+============  ==========================================================  =======
 
 Only the "normal" reasons spare a transient child its restart.
 

@@ -10,7 +10,8 @@ would stop the loop. This spec hook (installed by the supervisor in every
 actor it starts) makes an exception in a told message end the process
 *inside* the handler: the mark stays, the poison count works for
 exceptions as for segfaults. It also tells the root why, and waits until
-that note is out, so the "crashed" event carries the exception.
+that note is out, so the "crashed" event carries the exception (for a
+failed ``on_start`` too).
 
 Remove once ``actors.mailbox.Mailbox._handle`` keeps the journal mark when
 a tell raises (see the supervisor README notes).
@@ -54,8 +55,17 @@ def crash(host: Any, exc: BaseException) -> NoReturn:
 
 
 def install(host: Any, spec: dict[str, Any]) -> None:
-    """Spec hook: wrap the mailbox handler (outermost, after the other hooks)."""
+    """Spec hook: wrap the mailbox handler and the start (outermost, after the other hooks)."""
     inner = host.mailbox.handler
+    started = host.start
+
+    def start() -> None:
+        try:
+            started()
+        except Exception as exc:  # on_start or the lifecycle replay: say why before exiting
+            crash(host, exc)
+
+    host.start = start
 
     def handler(kind: int, body: Any) -> Any:
         try:

@@ -14,8 +14,9 @@ note to the root once ``on_start`` (and the lifecycle replay) is done.
 
 Example::
 
-    >>> inc = ActorProcess(tree, spec, "root")          # doctest: +SKIP
-    >>> inc.start(); inc.ready.add_done_callback(print)
+    inc = ActorProcess(tree, spec, "root", tree.journal(spec.id))   # on the root IO thread
+    inc.start()
+    inc.ready.add_done_callback(lambda f: print("serving" if f.result() else "failed"))
 """
 
 from __future__ import annotations
@@ -159,9 +160,19 @@ class ActorProcess(Incarnation):
         if not mine:
             return
         if kind == "ready":
-            self._set_ready()
+            self._ready_once_pid_known()
         elif kind == "failed" and rest:
             self.failure = str(rest[0])
+
+    def _ready_once_pid_known(self) -> None:
+        # The ready note can overtake the fork server's "spawned" note (another socket):
+        # report ready with its pid, a moment later.
+        if self.exited.done() or self.info is None:
+            return
+        if self.info.pid is None:
+            self.tree.loop.call_later(0.0005, self._ready_once_pid_known)
+            return
+        self._set_ready()
 
     def on_exit(self, info: ProcessInfo) -> None:
         if info is not self.info:

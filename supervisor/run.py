@@ -10,9 +10,9 @@ gave up.
 
 Example::
 
-    >>> import sys
-    >>> spec = SupervisorSpec(children=[ChildSpec("echo", Echo)])   # doctest: +SKIP
-    >>> sys.exit(serve(spec, system_name="demo"))
+    import sys
+    spec = SupervisorSpec(children=[ChildSpec("echo", Echo)])
+    sys.exit(serve(spec, system_name="demo"))
 """
 
 from __future__ import annotations

@@ -167,6 +167,14 @@ class ChildSpec:
         return "command" if isinstance(self.start, Command) else "supervisor"
 
     @property
+    def managed(self) -> bool:
+        """An actor that uses the managed lifecycle (a target state or any lifecycle hook)."""
+        if not isinstance(self.start, ActorStart):
+            return False
+        hooks = ("on_configure", "on_activate", "on_deactivate", "on_cleanup", "on_shutdown")
+        return self.lifecycle is not None or any(hasattr(self.start.cls, h) for h in hooks)
+
+    @property
     def module(self) -> str:
         """What runs, for listings: ``module:Class``, the program, or "supervisor"."""
         if isinstance(self.start, ActorStart):

@@ -70,14 +70,13 @@ thread, a control thread, a test).
 
 Example::
 
-    >>> from actors import ActorSystem
-    >>> system = ActorSystem()                                      # doctest: +SKIP
-    >>> sup = start_supervisor(system, SupervisorSpec(
-    ...     strategy="one_for_one", intensity=3, period=10,
-    ...     children=[ChildSpec("echo", Echo), ChildSpec("cam", Command(["camera-sdk"]))]))
-    >>> [c.id for c in sup.which_children()]
-    ['echo', 'cam']
-    >>> sup.stop()                   # cam then echo
+    from actors import ActorSystem
+    system = ActorSystem()
+    sup = start_supervisor(system, SupervisorSpec(
+        strategy="one_for_one", intensity=3, period=10,
+        children=[ChildSpec("echo", Echo), ChildSpec("cam", Command(["camera-sdk"]))]))
+    [c.id for c in sup.which_children()]     # ['echo', 'cam']
+    sup.stop()                               # stops cam, then echo
 """
 
 from __future__ import annotations
@@ -165,6 +164,7 @@ class Supervisor:
         self.started_at = time.monotonic()
         self._jobs: deque[tuple[Job, Future[Any], bool]] = deque()
         self._task: Task | None = None
+        self._stopper: Task | None = None  # the shutdown in progress, if any
         self._seq = itertools.count(1)
 
     def __repr__(self) -> str:
@@ -518,7 +518,7 @@ class Supervisor:
             return self.exited
         self.state = "stopping"
         self._drop_jobs()
-        Task(self.loop, self._shutdown_job())
+        self._stopper = Task(self.loop, self._shutdown_job())
         return self.exited
 
     async def _shutdown_job(self) -> None:
@@ -531,6 +531,9 @@ class Supervisor:
             return
         self.state = "stopping"
         self._drop_jobs()
+        if self._stopper is not None:  # a clean shutdown that took too long: overtaken
+            self._stopper.cancel()
+            self._stopper = None
         incs = [c.inc for c in self.children if c.inc is not None]
         for c in self.children:
             self._cancel_timer(c)
@@ -712,7 +715,7 @@ class Supervisor:
                 "lifecycle": None,
                 "last_exit": str(c.last_exit) if c.last_exit is not None else None,
             }
-            if c.spec.kind == "actor" and c.id in self.tree.journals:
+            if c.spec.managed and c.id in self.tree.journals:
                 row["lifecycle"] = lifecycle.state_name(self.tree.journals[c.id].state())
             rows.append(row)
             if isinstance(inc, SupervisorProcess) and inc.sup is not None:

@@ -9,8 +9,8 @@ IO thread.
 
 Example::
 
-    >>> tree = Tree.of(system)                          # doctest: +SKIP
-    >>> tree.events.listeners.append(print)
+    tree = Tree.of(system)
+    tree.events.listeners.append(print)
 """
 
 from __future__ import annotations

@@ -1,1 +1,148 @@
-from embagents.bench import cases_actors  # noqa: F401
+"""``embagents bench``: our runtime side by side with raw pyzmq, multiprocessing queues and rclpy.
+
+Cases (each a row of the report and of the JSON file):
+
+* ``<transport>_ask_<size>``: round trips between two processes at 64 B,
+  1 MiB and 6,220,800 B (a 1080p RGB frame) over our actors (an actor
+  process asks another from inside its handler), raw pyzmq DEALER/ROUTER,
+  ``multiprocessing.Queue`` and rclpy ping-pong (if rclpy is installed).
+* ``<transport>_topic_<size>``: one-way publish -> subscriber latency
+  (our topics and raw PUB/SUB), from a CLOCK_MONOTONIC stamp in the message.
+* ``<transport>_tell_64B``: pipelined 64-byte tells, messages per second.
+* ``idle_10_actors``: ten idle actors' CPU, % of one core.
+
+The printed report ends with the side-by-side ratios and a PASS/FAIL
+table for the project's bars. A run takes about a minute (under 3 on 2
+cores); ``quick`` takes a few seconds per case family.
+
+New cases register themselves with :func:`embagents.bench.registry.case`
+(import the module below so it is part of every run).
+
+Example::
+
+    >>> from embagents.bench import run_bench
+    >>> doc = run_bench("bench.json", quick=True, only=["ask_64B"])   # doctest: +SKIP
+    >>> [c["name"] for c in doc["cases"]]                             # doctest: +SKIP
+    ['embagents_ask_64B', 'pyzmq_ask_64B', 'mp_queue_ask_64B', 'rclpy_ask_64B']
+
+From the shell: ``python -m embagents.bench --json bench.json`` (or
+``embagents bench --json bench.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from typing import Any
+
+# Importing a case module registers its cases. Cases run grouped by
+# transport, ours first: while this process has no sockets or threads of
+# its own yet (each ActorSystem forks its fork server from here).
+from embagents.bench import cases_actors, cases_mpqueue, cases_pyzmq, cases_rclpy, idle  # noqa: F401
+from embagents.bench.registry import CASES, BenchOptions, case, run_case, select, shm_entries
+from embagents.bench.report import annotate, evaluate, format_report
+
+__all__ = ["CASES", "add_arguments", "case", "run", "run_bench"]
+
+#: /dev/shm names the bench's own processes may create (our runtime, Fast DDS).
+_SHM_PREFIXES = ("ea", "fastdds_", "sem.fastdds_")
+_ROW_DROP = ("status", "traceback")
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[str] | None = None) -> dict:
+    """Run the selected cases, print the report, optionally write ``json_path``; return the document.
+
+    ``only`` selects cases by name, glob, substring, transport or kind
+    (``["ask"]``, ``["rclpy"]``, ``["embagents_ask_64B", "idle*"]``).
+    The document is ``{"cases": [{"name", "transport", "payload_bytes",
+    "p50_us", "p99_us", "msgs_per_s", ...}], "bars": [...], "skipped": [...],
+    "errors": [...], ...}``; skipped and failed cases are not in ``cases``.
+    """
+    opts = BenchOptions(quick=quick)
+    chosen = select(only)
+    before = shm_entries()
+    load0 = [round(x, 2) for x in os.getloadavg()]
+    t0 = time.monotonic()
+    rows, skipped, errors = [], [], []
+    for c in chosen:
+        _log(f"bench: {c.name} ...")
+        row = run_case(c, opts)
+        status = row.get("status")
+        if status == "ok":
+            rows.append({k: v for k, v in row.items() if k not in _ROW_DROP})
+            _log(f"bench: {c.name}: p50 {row['p50_us']} us, p99 {row['p99_us']} us ({row['seconds']} s)")
+        elif status == "skipped":
+            skipped.append({"name": c.name, "transport": c.transport, "note": row["note"]})
+            _log(f"bench: {c.name}: {row['note']}")
+        else:
+            errors.append({"name": c.name, "transport": c.transport, "error": row["error"]})
+            _log(f"bench: {c.name} FAILED: {row['error']}\n{row.get('traceback', '')}")
+    wall = time.monotonic() - t0
+    time.sleep(0.2)  # let exiting peers finish their own clean-up
+    leftovers = sorted(n for n in shm_entries() - before if n.startswith(_SHM_PREFIXES))
+    annotate(rows)
+    doc: dict[str, Any] = {
+        "cases": rows,
+        "bars": evaluate(rows),
+        "skipped": skipped,
+        "errors": errors,
+        "shm_leftovers": leftovers,
+        "quick": quick,
+        "wall_s": round(wall, 1),
+        "host": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+            "loadavg_start": load0,
+            "loadavg_end": [round(x, 2) for x in os.getloadavg()],
+        },
+    }
+    print(format_report(doc), flush=True)
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump(doc, f, indent=1)
+            f.write("\n")
+    return doc
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``bench`` options to ``parser``.
+
+    >>> p = argparse.ArgumentParser(); add_arguments(p)
+    >>> p.parse_args(["--quick", "--only", "ask", "idle"]).only
+    ['ask', 'idle']
+    """
+    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON to FILE")
+    parser.add_argument("--quick", action="store_true", help="few iterations, 2 s idle window (a smoke run)")
+    parser.add_argument(
+        "--only", nargs="+", metavar="NAME",
+        help="run only cases matching NAME (a case name, glob, substring, transport or kind)",
+    )
+    parser.add_argument("--list", action="store_true", help="list the cases and exit")
+    parser.add_argument("--strict", action="store_true", help="exit with status 2 if a bar fails")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``embagents bench`` with parsed ``args``; 0 = ran, 1 = a case failed, 2 = a bar failed (--strict)."""
+    if getattr(args, "list", False):
+        for c in select(None):
+            print(f"{c.name:28s} {c.transport:10s} {c.kind:6s} {c.payload_bytes:>9,} B")
+        return 0
+    try:
+        doc = run_bench(args.json, quick=args.quick, only=args.only)
+    except ValueError as exc:  # --only matched nothing
+        print(f"embagents bench: {exc}", file=sys.stderr)
+        return 1
+    if doc["errors"]:
+        return 1
+    if getattr(args, "strict", False) and any(b["pass"] is False for b in doc["bars"]):
+        return 2
+    return 0

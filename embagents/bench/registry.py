@@ -26,6 +26,7 @@ import contextlib
 import fnmatch
 import importlib.util
 import os
+import subprocess
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -51,6 +52,7 @@ __all__ = [
     "select",
     "shm_entries",
     "sized",
+    "stop_process",
 ]
 
 TRANSPORTS = ("embagents", "pyzmq", "mp_queue", "rclpy")
@@ -193,13 +195,15 @@ def sized(
 
 
 def select(only: list[str] | None) -> list[Case]:
-    """The cases to run: all, or those matching any of ``only``.
+    """The cases to run, in run order: all, or those matching any of ``only``.
 
     A pattern matches a case name exactly, as a glob (``"*ask*"``), as a
-    substring of the name, or names a transport or kind.
+    substring of the name, or names a transport or kind. Cases run grouped
+    by transport in :data:`TRANSPORTS` order (ours first), each group in
+    registration order.
     """
     if not only:
-        return list(CASES.values())
+        return sorted(CASES.values(), key=lambda c: TRANSPORTS.index(c.transport))
     out = []
     for c in CASES.values():
         for pat in only:
@@ -212,7 +216,7 @@ def select(only: list[str] | None) -> list[Case]:
                 break
     if not out:
         raise ValueError(f"no benchmark case matches {only}; cases: {', '.join(CASES)}")
-    return out
+    return sorted(out, key=lambda c: TRANSPORTS.index(c.transport))
 
 
 def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
@@ -241,6 +245,23 @@ def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
     row["status"] = "ok"
     row["seconds"] = round(time.monotonic() - t0, 2)
     return row
+
+
+def stop_process(proc: subprocess.Popen, grace: float = 3.0) -> int | None:
+    """Wait ``grace`` seconds for ``proc`` to exit, then SIGTERM, then SIGKILL; return its code.
+
+    >>> stop_process(subprocess.Popen(["true"]))
+    0
+    """
+    for step in (None, proc.terminate, proc.kill):
+        if step is not None:
+            with contextlib.suppress(ProcessLookupError):
+                step()
+        try:
+            return proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            continue
+    return proc.wait()
 
 
 def shm_entries() -> set[str]:

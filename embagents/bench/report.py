@@ -1,0 +1,183 @@
+"""Turn case rows into the printed tables, the ratios and the PASS/FAIL bars.
+
+Example::
+
+    >>> rows = [
+    ...     {"name": "embagents_ask_64B", "transport": "embagents", "kind": "ask",
+    ...      "payload_bytes": 64, "p50_us": 90.0, "p99_us": 150.0, "msgs_per_s": None},
+    ...     {"name": "pyzmq_ask_64B", "transport": "pyzmq", "kind": "ask",
+    ...      "payload_bytes": 64, "p50_us": 60.0, "p99_us": 80.0, "msgs_per_s": None},
+    ... ]
+    >>> bars = evaluate(rows)
+    >>> [(b["name"], b["value"], b["pass"]) for b in bars][0]
+    ('ask 64B p50: ours / raw pyzmq', 1.5, True)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from embagents.bench.registry import FRAME_1080P, SIZES, TRANSPORTS, label
+
+__all__ = ["annotate", "evaluate", "format_report", "table"]
+
+Row = dict[str, Any]
+
+
+def _find(rows: Iterable[Row], transport: str, kind: str, size: int | None = None) -> Row | None:
+    for r in rows:
+        if r["transport"] == transport and r.get("kind") == kind and (size is None or r["payload_bytes"] == size):
+            return r
+    return None
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    if a is None or b is None or b == 0:
+        return None
+    return round(a / b, 2)
+
+
+def annotate(rows: list[Row]) -> None:
+    """Add side-by-side ratios to our rows (in place).
+
+    ``ratio_vs_pyzmq`` = our p50 / raw pyzmq p50 (lower is better);
+    ``speedup_vs_rclpy`` and ``speedup_vs_mp_queue`` = their p50 / ours.
+    """
+    for r in rows:
+        if r["transport"] != "embagents" or r.get("kind") not in ("ask", "topic", "tell"):
+            continue
+        kind, size = r["kind"], r["payload_bytes"]
+        raw = _find(rows, "pyzmq", kind, size)
+        if raw is not None:
+            if kind == "tell":
+                r["ratio_vs_pyzmq"] = _ratio(r["msgs_per_s"], raw["msgs_per_s"])
+            else:
+                r["ratio_vs_pyzmq"] = _ratio(r["p50_us"], raw["p50_us"])
+        if kind == "ask":
+            for other in ("rclpy", "mp_queue"):
+                o = _find(rows, other, "ask", size)
+                if o is not None:
+                    r[f"speedup_vs_{other}"] = _ratio(o["p50_us"], r["p50_us"])
+
+
+def _bar(name: str, value: float | None, op: str, target: float, unit: str) -> dict[str, Any]:
+    ok = None if value is None else (value <= target if op == "<=" else value >= target if op == ">=" else value < target)
+    return {"name": name, "value": value, "op": op, "target": target, "unit": unit, "pass": ok}
+
+
+def evaluate(rows: list[Row]) -> list[dict[str, Any]]:
+    """The issue's bars, each with its measured value and ``pass`` (None if not measured)."""
+    bars = []
+    for size in SIZES:
+        ours, raw = _find(rows, "embagents", "ask", size), _find(rows, "pyzmq", "ask", size)
+        if ours is not None or raw is not None:
+            bars.append(_bar(
+                f"ask {label(size)} p50: ours / raw pyzmq",
+                _ratio(ours and ours["p50_us"], raw and raw["p50_us"]), "<=", 1.5, "x",
+            ))
+    for size, target in ((64, 3.0), (FRAME_1080P, 30.0)):
+        ours, ros = _find(rows, "embagents", "ask", size), _find(rows, "rclpy", "ask", size)
+        if ours is not None or ros is not None:
+            bars.append(_bar(
+                f"ask {label(size)} p50: rclpy / ours",
+                _ratio(ros and ros["p50_us"], ours and ours["p50_us"]), ">=", target, "x",
+            ))
+    tell = _find(rows, "embagents", "tell", 64)
+    if tell is not None:
+        bars.append(_bar("tell 64B throughput", tell["msgs_per_s"], ">=", 50_000, "msgs/s"))
+    big = _find(rows, "embagents", "ask", FRAME_1080P)
+    if big is not None:
+        bars.append(_bar("ask 6.2MB p50", round(big["p50_us"] / 1000, 3), "<=", 2.0, "ms"))
+    idle = _find(rows, "embagents", "idle")
+    if idle is not None:
+        bars.append(_bar("idle 10 actors CPU", idle.get("cpu_percent"), "<", 2.0, "% of a core"))
+    return bars
+
+
+def _num(v: Any, digits: int = 1) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if isinstance(v, float) and abs(v) >= 1000:
+        return f"{v:,.0f}"
+    return f"{v:,.{digits}f}" if isinstance(v, float) else f"{v:,}"
+
+
+def table(headers: list[str], rows: list[list[str]], align: str | None = None) -> str:
+    """A plain-text table; ``align`` is one of ``l``/``r`` per column.
+
+    >>> print(table(["a", "b"], [["x", "1"]]))
+    a  b
+    -  -
+    x  1
+    """
+    align = align or "l" + "r" * (len(headers) - 1)
+    widths = [max(len(str(c)) for c in col) for col in zip(headers, *rows, strict=False)]
+
+    def line(cells: list[str]) -> str:
+        out = [c.ljust(w) if a == "l" else c.rjust(w) for c, w, a in zip(cells, widths, align, strict=True)]
+        return "  ".join(out).rstrip()
+
+    return "\n".join([line(headers), line(["-" * w for w in widths]), *(line(r) for r in rows)])
+
+
+def _side_by_side(rows: list[Row], kind: str, title: str, value: Callable[[Row], float | None]) -> str | None:
+    present = [t for t in TRANSPORTS if _find(rows, t, kind) is not None]
+    if not present:
+        return None
+    body = []
+    for size in sorted({r["payload_bytes"] for r in rows if r.get("kind") == kind}):
+        vals = {t: (_find(rows, t, kind, size) or {}) for t in present}
+        cells = [label(size)] + [_num(value(vals[t])) if vals[t] else "-" for t in present]
+        ours = vals.get("embagents") or {}
+        for t in present:
+            if t == "embagents":
+                continue
+            other = vals[t]
+            a, b = (value(ours) if ours else None), (value(other) if other else None)
+            cells.append("-" if a is None or not b else f"{a / b:.2f}x")
+        body.append(cells)
+    headers = [title, *present] + [f"ours/{t}" for t in present if t != "embagents"]
+    return table(headers, body)
+
+
+def format_report(doc: dict[str, Any]) -> str:
+    """The full printed report of a run document (see :func:`embagents.bench.run_bench`)."""
+    rows: list[Row] = doc["cases"]
+    out = []
+    body = []
+    for r in rows:
+        extra = f"cpu {r['cpu_percent']:.2f} % of a core; " if "cpu_percent" in r else ""
+        body.append([
+            r["name"], r["transport"], _num(r["payload_bytes"]), _num(r["p50_us"]), _num(r["p99_us"]),
+            _num(r["msgs_per_s"], 0), extra + r.get("note", ""),
+        ])
+    out.append(table(["case", "transport", "bytes", "p50 us", "p99 us", "msgs/s", "note"], body, "llrrrrl"))
+    for kind, title, val in (
+        ("ask", "ask round trip p50 us", lambda r: r.get("p50_us")),
+        ("topic", "topic one-way p50 us", lambda r: r.get("p50_us")),
+        ("tell", "tell msgs/s", lambda r: r.get("msgs_per_s")),
+    ):
+        t = _side_by_side(rows, kind, title, val)
+        if t:
+            out.append(t)
+    if doc.get("bars"):
+        bar_rows = []
+        for b in doc["bars"]:
+            target = f"{b['op']} {_num(float(b['target']), 1)} {b['unit']}"
+            verdict = "n/a" if b["pass"] is None else ("PASS" if b["pass"] else "FAIL")
+            bar_rows.append([b["name"], _num(b["value"], 2), target, verdict])
+        out.append(table(["bar", "measured", "target", "result"], bar_rows, "lrrl"))
+    for s in doc.get("skipped", []):
+        out.append(f"note: {s['name']}: {s['note']}")
+    for e in doc.get("errors", []):
+        out.append(f"ERROR: {e['name']}: {e['error']}")
+    left = doc.get("shm_leftovers")
+    if left:
+        out.append(f"WARNING: new entries in /dev/shm after the run: {', '.join(sorted(left))}")
+    out.append(
+        f"wall {doc['wall_s']:.1f} s, quick={doc['quick']}, load average {doc['host']['loadavg_start']} -> "
+        f"{doc['host']['loadavg_end']} on {doc['host']['cpus']} cpus"
+    )
+    return "\n\n".join(out)
