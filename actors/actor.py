@@ -60,6 +60,10 @@ class ActorContext:
     def run_dir(self) -> str:
         return self._host.rt.run_dir
 
+    def cancel(self, timer: int) -> None:
+        """Cancel a timer from :meth:`call_later`."""
+        self._host.loop.cancel(timer)
+
     def call_soon_threadsafe(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` on this actor's thread, from any thread (e.g. a driver's callback thread)."""
         self._host.loop.call_soon_threadsafe(fn)
@@ -67,6 +71,15 @@ class ActorContext:
     def watch(self, sock: object, handler: Callable[[], None]) -> None:
         """Serve another socket (or fd) on this actor's loop."""
         self._host.loop.add(sock, handler)
+
+    def extension(self, name: str) -> Any:
+        """What a spec hook attached to this actor's host under ``name`` (None if nothing)."""
+        return getattr(self._host, name, None)
+
+    def changed(self) -> None:
+        """Say that state worth keeping changed outside a mailbox message (a topic step)."""
+        for fn in self._host.change_listeners:
+            fn()
 
     def beat(self) -> None:
         """Tell the supervisor we are alive during long work (see heartbeat)."""

@@ -64,6 +64,7 @@ class ActorHost:
         self.actor = actor
         self.journal = Journal(os.path.join(rt.run_dir, f"{name}.journal"))
         self.journal.on_restart()
+        rt.beat = self.journal.beat
         self.incarnation = self.journal.incarnation
         self.mailbox = Mailbox(
             rt, name, rt.endpoint(name), self._dispatch, self.journal,
@@ -77,6 +78,7 @@ class ActorHost:
             "stop": self._ctrl_stop,
             "stats": self.stats,
         }
+        self.change_listeners: list[Callable[[], None]] = []  # e.g. the supervisor's snapshotter
         self.stop_requested = False
         self.exit_reason = "normal"
         actor.context = ActorContext(name, self)

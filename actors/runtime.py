@@ -57,6 +57,8 @@ class Runtime:
         self._client_thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self.closed = False
+        #: Set by an actor host: lets library code waiting on something say "alive, working".
+        self.beat: Callable[[], None] = lambda: None
 
     # -- names --------------------------------------------------------------
     def endpoint(self, name: str) -> str:

@@ -122,7 +122,40 @@ def _bench_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--only", nargs="+", metavar="NAME", help="run only cases matching these names or globs")
 
 
+def _run_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
+    parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+
+
+def _control(cmd: str) -> Command:
+    """`embagents status|restart|stop`: requests to a live run's control endpoint."""
+
+    def add(parser: argparse.ArgumentParser) -> None:
+        _run_arguments(parser)
+        if cmd == "status":
+            parser.add_argument("--json", action="store_true", help="print the status as JSON")
+        if cmd == "restart":
+            parser.add_argument("name", help="the actor to restart")
+
+    def run(args: argparse.Namespace) -> int:
+        from supervisor.client import main as control_main
+
+        argv = [*(["--run", args.run] if args.run else []), "--timeout", str(args.timeout), cmd]
+        argv += ["--json"] if getattr(args, "json", False) else []
+        argv += [args.name] if cmd == "restart" else []
+        return control_main(argv)
+
+    helps = {
+        "status": "a table of the running system: name, pid, state, restarts, uptime, CPU, memory, mailbox",
+        "restart": "restart one actor of the running system",
+        "stop": "stop the running system cleanly (reverse start order)",
+    }
+    return Command(add, run, helps[cmd])
+
+
 def _register_runtime_commands() -> None:
+    for cmd in ("status", "restart", "stop"):
+        COMMANDS[cmd] = _control(cmd)
     COMMANDS["supervise"] = Command(_supervise_arguments, _lazy("embagents.launch", "run"), "run a system.py under supervision")
     COMMANDS["bench"] = Command(
         _bench_arguments, _lazy("embagents.bench", "run"),

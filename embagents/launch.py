@@ -16,13 +16,10 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import signal
 import sys
 import threading
-import time
 from typing import Any
 
-from actors import ActorSystem
 from actors.child import configure_logging
 from actors.topics import Subscription
 from embagents.models import LlamaModel, LocalModelClient
@@ -36,6 +33,10 @@ log = logging.getLogger("embagents.supervise")
 
 #: Publish anything on this topic to stop the whole system cleanly.
 SYSTEM_STOP = "system_stop"
+EVENTS_NAME = "_events"
+#: Hang deadlines: a component's loop must beat this often; a model's, per token.
+HEARTBEAT_S = 30.0
+MODEL_HEARTBEAT_S = 120.0
 
 
 def _models_of(system: Any) -> list[LlamaModel]:
@@ -57,10 +58,34 @@ def _models_of(system: Any) -> list[LlamaModel]:
     return list(found.values())
 
 
-def run_system(path: str, *, stop_event: threading.Event | None = None, heartbeat: float | None = 5.0) -> int:
-    """Run the system in ``path`` until a stop; return the exit code."""
+def build_spec(system: Any, path: str, resolved: dict[str, str]) -> Any:
+    """The supervision tree of a System: model actors, the ROS bridge, components, events."""
+    from supervisor import ChildSpec, SupervisorSpec
+
+    children = []
+    for m in _models_of(system):
+        opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
+        # A model beats per token; a long prompt evaluation is work, not a hang.
+        children.append(ChildSpec(m.name, (LlamaModelActor, (resolved[m.name], opts, m.warmup)),
+                                  heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
+    if system.ros:
+        from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
+
+        children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
+    for c in system.components:
+        children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=HEARTBEAT_S,
+                                  lifecycle="active", snapshot_interval=0.5, start_timeout=120))
+    if system.events or any(getattr(c, "fallback", None) for c in system.components):
+        children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
+    sup = system.supervision
+    return SupervisorSpec(strategy=sup["strategy"], intensity=sup["intensity"], period=sup["period"], children=children)
+
+
+def run_system(path: str) -> int:
+    """Run the system in ``path`` under supervision until a stop; return the exit code."""
     from embagents.check import check_system
     from embagents.system import load_system
+    from supervisor.run import serve
 
     path = os.path.abspath(path)
     system = load_system(path)
@@ -71,77 +96,51 @@ def run_system(path: str, *, stop_event: threading.Event | None = None, heartbea
     if errors:
         print(f"{path}: {len(errors)} problem(s); not starting (run `embagents check {path}`)", file=sys.stderr)
         return 1
-    remember_system(path, system)
-    models = _models_of(system)
-    resolved = {m.name: m.resolve() for m in models}  # downloads (with progress) happen here, once
-    stop = stop_event or threading.Event()
-    asys = ActorSystem()
-    try:
-        for m in models:
-            opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
-            log.info("starting model actor %s (%s)", m.name, resolved[m.name])
-            asys.spawn(LlamaModelActor, m.name, resolved[m.name], opts, m.warmup, wait=600, heartbeat=None)
-        for c in system.components:
-            log.info("starting component %s", c.name)
-            asys.spawn(ComponentActor, str(c.name), path, str(c.name), wait=120, heartbeat=heartbeat)
-        if system.ros:
-            from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
+    remember_system(path, system)  # forked actor processes find it in memory
+    resolved = {m.name: m.resolve() for m in _models_of(system)}  # downloads (with progress) happen here, once
+    spec = build_spec(system, path, resolved)
 
-            asys.spawn(RosBridgeActor, BRIDGE_NAME, path, wait=60, heartbeat=heartbeat)
-        if system.events or any(getattr(c, "fallback", None) for c in system.components):
-            asys.spawn(EventsActor, "_events", path, wait=60, heartbeat=heartbeat)
-        lifecycle = _Lifecycle(asys)
+    def on_ready(sup: Any, control: Any) -> None:
+        asys = sup.system
+        lifecycle = _Lifecycle(sup)
+
+        def stop_requested(_msg: Any) -> None:
+            from supervisor.client import request
+
+            threading.Thread(target=request, args=(asys.run_dir, {"cmd": "stop"}, 10.0), daemon=True).start()
+
         asys.rt.on_client(lambda: (
-            Subscription(asys.rt, asys.loop, SYSTEM_STOP, lambda _m: stop.set(), queue_size=1),
+            Subscription(asys.rt, asys.loop, SYSTEM_STOP, stop_requested, queue_size=1),
             Subscription(asys.rt, asys.loop, LIFECYCLE_TOPIC, lifecycle.on_request, queue_size=100, keep="all"),
         ))
         print(f"embagents: system {system.name!r} running ({len(system.components)} components, "
-              f"{len(models)} models); Ctrl-C stops it", file=sys.stderr, flush=True)
-        _wait(stop)
-    finally:
-        log.info("stopping")
-        t0 = time.monotonic()
-        asys.shutdown()
-        log.info("stopped in %.2f s", time.monotonic() - t0)
-    return 0
+              f"{len(resolved)} models); Ctrl-C or `embagents stop` stops it", file=sys.stderr, flush=True)
+
+    return serve(spec, system_name=system.name, on_ready=on_ready)
 
 
 class _Lifecycle:
     """Carries out start / stop / restart / give_up requests from events and fallbacks."""
 
-    def __init__(self, asys: ActorSystem) -> None:
-        self.asys = asys
-        self.specs: dict[str, dict[str, Any]] = {}
+    def __init__(self, sup: Any) -> None:
+        self.sup = sup
 
     def on_request(self, req: dict[str, Any]) -> None:
-        # Runs on the root IO thread: do the blocking work on a helper thread.
+        # Supervisor calls block and refuse the root IO thread: use a helper thread.
         threading.Thread(target=self._do, args=(req,), daemon=True).start()
 
     def _do(self, req: dict[str, Any]) -> None:
         kind, name = req.get("kind"), req.get("component")
-        asys = self.asys
-        info = asys.procs.get(name)
-        if info is not None:
-            self.specs[name] = info.spec
-        spec = self.specs.get(name)
         log.info("%s %s (%s)", kind, name, req.get("because", ""))
-        if kind in ("stop", "give_up", "restart") and info is not None:
-            asys.stop(name, unregister=False)
-        if kind in ("start", "restart") and spec is not None:
-            asys.wait_ready(asys.start_process(spec), 120)
-
-
-def _wait(stop: threading.Event) -> None:
-    if threading.current_thread() is threading.main_thread():
-        prev = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            while not stop.wait(3600):
-                pass
-        finally:
-            for s, h in prev.items():
-                signal.signal(s, h)
-    else:
-        stop.wait()
+            if kind in ("stop", "give_up"):
+                self.sup.terminate_child(name)
+            elif kind == "start":
+                self.sup.restart_child(name)
+            elif kind == "restart":
+                self.sup.bounce(name)
+        except Exception as exc:  # an action on a child that is not there: say so, go on
+            log.error("%s %s failed: %s", kind, name, exc)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -88,11 +88,18 @@ class LocalModelClient:
         return self._sock
 
     def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
+        from actors.runtime import current
+
         sock = self._socket()
         rid = next(_req_ids)
         sock.send(msgpack.packb([rid, "chat_stream", messages, options]))
+        beat = current().beat  # waiting on the model is work, not a hang
         while True:
-            if not sock.poll(int(self.timeout * 1000)):
+            waited = 0.0
+            while not sock.poll(1000) and waited < self.timeout:
+                waited += 1.0
+                beat()
+            if waited >= self.timeout:
                 # The request may still be queued there: a fresh socket drops its answer.
                 sock.close(0)
                 self._sock = None
@@ -105,6 +112,7 @@ class LocalModelClient:
                 continue  # an answer to an abandoned request
             if "error" in chunk:
                 raise ModelUnavailable(f"model {self.name!r} failed: {chunk['error']}")
+            beat()
             yield chunk
             if chunk.get("done"):
                 return

@@ -109,6 +109,7 @@ def install(host: Any, spec: dict[str, Any]) -> None:
     cfg = spec.get("extra", {}).get("supervisor", {})
     snap = Snapshotter(host, float(cfg.get("snapshot_interval") or 0.0))
     host.snapshotter = snap
+    host.change_listeners.append(snap.changed)  # state changed outside a mailbox message
     snap.restore()
     inner = host.mailbox.handler
 

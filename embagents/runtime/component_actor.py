@@ -45,6 +45,10 @@ class ComponentActor(Actor):
     def on_start(self) -> None:
         comp = loaded_system(self.system_path).component(self.component_name)
         self.component = comp
+        if getattr(self, "_restored", None) is not None:
+            comp.restore(self._restored)
+        self.active = False
+        self._timer: int | None = None
         ctx = self.context
         comp.attach(lambda topic, msg: ctx.publish(topic, msg), lambda h: ctx.publish("_health", h))
         for t in comp.subscriptions:
@@ -55,25 +59,51 @@ class ComponentActor(Actor):
                 keep=getattr(t, "keep", "latest"),
                 msg_type=t.msg_type if isinstance(t.msg_type, type) else None,
             )
-        comp.on_configure()
-        comp.on_activate()
-        rate = comp.rate_hz
+        if ctx.extension("lifecycle") is None:
+            # Not managed by a supervisor: bring it up ourselves.
+            self.on_configure()
+            self.on_activate()
+
+    # -- lifecycle (ROS 2 managed-node transitions, driven by the supervisor) --
+    def on_configure(self) -> None:
+        self.component.on_configure()
+
+    def on_activate(self) -> None:
+        self.component.on_activate()
+        self.active = True
+        rate = self.component.rate_hz
         if rate:
             self._period = 1.0 / rate
             self._next = time.monotonic() + self._period
-            ctx.call_later(self._period, self._tick)
+            self._timer = self.context.call_later(self._period, self._tick)
+
+    def on_deactivate(self) -> None:
+        self.active = False
+        if self._timer is not None:
+            self.context.cancel(self._timer)
+            self._timer = None
+        self.component.on_deactivate()
+
+    def on_cleanup(self) -> None:
+        self.component.on_cleanup()
+
+    def on_shutdown(self) -> None:
+        self.component.on_shutdown()
 
     def _on_message(self, topic: str, msg: Any) -> None:
-        if self.component.on_message(topic, msg):
-            self.component.execute()
+        if self.component.on_message(topic, msg) and self.active and self.component.execute():
+            self.context.changed()
 
     def _tick(self) -> None:
-        self.component.execute()
+        if not self.active:
+            return
+        if self.component.execute():
+            self.context.changed()
         now = time.monotonic()
         self._next += self._period
         if self._next < now:  # overran: skip missed ticks, keep the phase
             self._next += ((now - self._next) // self._period + 1) * self._period
-        self.context.call_later(self._next - now, self._tick)
+        self._timer = self.context.call_later(self._next - now, self._tick)
 
     def on_receive(self, message: Any) -> Any:
         comp = self.component
@@ -96,8 +126,10 @@ class ComponentActor(Actor):
         return self.component.snapshot()
 
     def restore(self, state: Any) -> None:
-        self.component.restore(state)
+        # Called before on_start (by the supervisor's snapshot hook): keep it until the component is found.
+        self._restored = state
 
     def on_stop(self) -> None:
-        self.component.on_deactivate()
+        if self.active:
+            self.on_deactivate()
         self.component.on_shutdown()
