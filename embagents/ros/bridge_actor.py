@@ -76,18 +76,24 @@ class RosBridgeActor(Actor):
             # rclpy's executor thread: hand over to our loop thread, which owns the sockets.
             ctx.call_soon_threadsafe(lambda: self._publish_in(topic, msg))
 
-        self.core.start(self.node_name, from_ros, shm_segment_mb=64)
+        # A fresh DDS participant id per incarnation (see configure_fastdds_shm): rediscovery at once.
+        pid = 60 + self.context.incarnation % 50
+        self.core.start(self.node_name, from_ros, shm_segment_mb=64, participant_id=pid)
         for o in outs:
             ctx.subscribe(o.topic, lambda msg, t=o.topic: self._to_ros(t, msg), queue_size=o.qos.depth, keep="all")
 
     def _publish_in(self, topic: str, msg: Any) -> None:
         self.context.publish(topic, msg)
         self.forwarded_in += 1
+        if self.forwarded_in == 1:
+            log.info("first message from ROS on %s", topic)
 
     def _to_ros(self, topic: str, msg: Any) -> None:
         try:
             self.core.publish(topic, msg)
             self.forwarded_out += 1
+            if self.forwarded_out == 1:
+                log.info("first message to ROS from %s", topic)
         except TypeError as exc:
             log.error("not sent to ROS: %s", exc)
 

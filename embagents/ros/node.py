@@ -119,6 +119,7 @@ class RosBridgeCore:
         namespace: str | None = None,
         clean_shm: bool = True,
         shm_segment_mb: int | None = None,
+        participant_id: int | None = None,
     ) -> None:
         """Init a Context (``domain_id`` default: $ROS_DOMAIN_ID), create the node and spin it.
 
@@ -140,7 +141,7 @@ class RosBridgeCore:
                 if removed:
                     log.info("removed %d stale Fast DDS shared-memory segments", len(removed))
             if shm_segment_mb is not None:
-                configure_fastdds_shm(shm_segment_mb)
+                configure_fastdds_shm(shm_segment_mb, participant_id)
             context = Context()
             # No signal handlers: the supervisor owns this process's signals.
             rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
@@ -353,6 +354,17 @@ _SHM_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
     </transport_descriptors>
     <participant profile_name="embagents_participant" is_default_profile="true">
       <rtps>
+        <builtin>
+          <discovery_config>
+            <!-- A restarted bridge must be found again at once: announce itself often at first. -->
+            <leaseDuration><sec>10</sec></leaseDuration>
+            <leaseAnnouncement><sec>1</sec></leaseAnnouncement>
+            <initialAnnouncements>
+              <count>30</count>
+              <period><nanosec>50000000</nanosec></period>
+            </initialAnnouncements>
+          </discovery_config>
+        </builtin>{participant_id}
         <userTransports><transport_id>embagents_shm</transport_id></userTransports>
         <useBuiltinTransports>true</useBuiltinTransports>
       </rtps>
@@ -362,7 +374,7 @@ _SHM_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
 """
 
 
-def configure_fastdds_shm(segment_mb: int = 64) -> str | None:
+def configure_fastdds_shm(segment_mb: int = 64, participant_id: int | None = None) -> str | None:
     """Give this process's DDS participants a ``segment_mb`` shared-memory segment.
 
     Fast DDS's default segment is 0.5 MB: a writer's larger samples (a
@@ -374,6 +386,11 @@ def configure_fastdds_shm(segment_mb: int = 64) -> str | None:
     participant is created: call it before the first ``start``. Returns the
     profile's path, or None when the user already set that variable (theirs
     wins). Segment pages are only backed by memory as they are written.
+
+    ``participant_id`` pins the DDS participant id (0-119). A restarted
+    bridge must not reuse its killed predecessor's id: that id's shared-memory
+    port is still held by the dead process, and Fast DDS only recovers it
+    after its port watchdog times out (measured: ~3 s without data).
     """
     if os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE"):
         return None
@@ -381,10 +398,12 @@ def configure_fastdds_shm(segment_mb: int = 64) -> str | None:
         raise ValueError(f"segment_mb must be a positive int, got {segment_mb!r}")
     size = segment_mb * 1024 * 1024
     # One file per size and user, rewritten atomically: restarts reuse it, nothing piles up.
-    path = os.path.join(tempfile.gettempdir(), f"embagents-fastdds-shm-{segment_mb}mb-{os.getuid()}.xml")
+    pid_tag = "" if participant_id is None else f"-p{participant_id}"
+    path = os.path.join(tempfile.gettempdir(), f"embagents-fastdds-v3-{segment_mb}mb{pid_tag}-{os.getuid()}.xml")
     tmp = f"{path}.{os.getpid()}"
     with open(tmp, "w") as f:
-        f.write(_SHM_PROFILE.format(size=size))
+        pid_xml = "" if participant_id is None else f"\n        <participantID>{int(participant_id)}</participantID>"
+        f.write(_SHM_PROFILE.format(size=size, participant_id=pid_xml))
     os.replace(tmp, path)
     os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = path
     return path
