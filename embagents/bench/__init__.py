@@ -43,13 +43,21 @@ from typing import Any
 # transport, ours first: while this process has no sockets or threads of
 # its own yet (each ActorSystem forks its fork server from here).
 from embagents.bench import cases_actors, cases_mpqueue, cases_pyzmq, cases_rclpy, idle  # noqa: F401
-from embagents.bench.registry import CASES, BenchOptions, case, run_case, select, shm_entries
+from embagents.bench.registry import (
+    CASES,
+    OWNED_SHM_NAMES,
+    OWNED_SHM_PREFIXES,
+    BenchOptions,
+    case,
+    run_case,
+    select,
+    shm_entries,
+    shm_leftovers,
+)
 from embagents.bench.report import annotate, evaluate, format_report
 
 __all__ = ["CASES", "add_arguments", "case", "run", "run_bench"]
 
-#: /dev/shm names the bench's own processes may create (our runtime, Fast DDS).
-_SHM_PREFIXES = ("ea", "fastdds_", "sem.fastdds_")
 _ROW_DROP = ("status", "traceback")
 
 
@@ -68,6 +76,8 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
     """
     opts = BenchOptions(quick=quick)
     chosen = select(only)
+    OWNED_SHM_PREFIXES.clear()
+    OWNED_SHM_NAMES.clear()
     before = shm_entries()
     load0 = [round(x, 2) for x in os.getloadavg()]
     t0 = time.monotonic()
@@ -87,7 +97,7 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
             _log(f"bench: {c.name} FAILED: {row['error']}\n{row.get('traceback', '')}")
     wall = time.monotonic() - t0
     time.sleep(0.2)  # let exiting peers finish their own clean-up
-    leftovers = sorted(n for n in shm_entries() - before if n.startswith(_SHM_PREFIXES))
+    leftovers = shm_leftovers(before)
     annotate(rows)
     doc: dict[str, Any] = {
         "cases": rows,

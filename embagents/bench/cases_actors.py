@@ -24,7 +24,9 @@ from typing import Any
 import numpy as np
 
 from actors import ActorSystem
+from actors.runtime import shm_prefix
 from embagents.bench.registry import (
+    OWNED_SHM_PREFIXES,
     BenchOptions,
     Case,
     add,
@@ -53,6 +55,7 @@ def actor_system() -> Iterator[ActorSystem]:
     ...     system.spawn(Echo, "echo")
     """
     system = ActorSystem(log_level=logging.WARNING)
+    OWNED_SHM_PREFIXES.add(shm_prefix(system.run_id))
     try:
         yield system
     finally:

@@ -4,7 +4,8 @@ Both sides run :mod:`embagents.bench.rclpy_peer` as subprocesses, so the
 bench process never imports rclpy. Messages are ``sensor_msgs/Image``
 (64 B as a 1x64 mono8 image, 1 MiB as 1x1048576 mono8, 6.2 MB as a 1080p
 rgb8 frame), QoS reliable, keep last, depth 2, with the default Fast DDS
-configuration. Every run uses its own ``ROS_DOMAIN_ID`` (215-232, from the
+configuration. The peers report the /dev/shm files they mapped, so the
+bench can check that none outlives them. Every run uses its own ``ROS_DOMAIN_ID`` (215-232, from the
 pid, or ``$EMBAGENTS_BENCH_ROS_DOMAIN_ID``), localhost-only discovery and
 topic names unique to the run.
 
@@ -17,6 +18,7 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -27,6 +29,7 @@ from typing import Any
 
 from embagents.bench.registry import (
     FRAME_1080P,
+    OWNED_SHM_NAMES,
     BenchOptions,
     iterations,
     label,
@@ -67,6 +70,14 @@ def _tail(err: Any) -> str:
     return " | ".join(lines[-3:])
 
 
+def _note_shm(out: str) -> None:
+    """Remember the /dev/shm files a peer reported, for the leak check after the run."""
+    for line in out.splitlines():
+        if line.startswith("{"):
+            with contextlib.suppress(ValueError):
+                OWNED_SHM_NAMES.update(json.loads(line).get("shm", ()))
+
+
 def ask_case(size: int, opts: BenchOptions) -> dict[str, Any]:
     """Publish a ``size``-byte Image, the pong process republishes it, time until it is back."""
     warmup, n = iterations(size, opts, "rclpy")
@@ -89,6 +100,7 @@ def ask_case(size: int, opts: BenchOptions) -> dict[str, Any]:
         if ping.returncode != 0 or not lines:
             raise RuntimeError(f"the rclpy ping process failed (exit {ping.returncode}): {_tail(ping_err)}")
         result = json.loads(lines[-1])
+        _note_shm(lines[-1])
         if "error" in result:
             raise RuntimeError(result["error"])
     finally:
@@ -96,6 +108,7 @@ def ask_case(size: int, opts: BenchOptions) -> dict[str, Any]:
             if proc is not None:
                 stop_process(proc)
                 if proc.stdout is not None:
+                    _note_shm(proc.stdout.read() if proc is pong else "")
                     proc.stdout.close()
         for f in (ping_err, pong_err):
             if f is not None:

@@ -3,7 +3,8 @@
 ``pong`` republishes every ``sensor_msgs/Image`` it gets on ``<prefix>/ping``
 to ``<prefix>/pong`` until a message with ``frame_id == "stop"`` arrives (or
 its parent dies). ``ping`` waits for discovery, warms up, then times ``n``
-round trips and prints one JSON line: ``{"lat_ns": [...], "lost": k}``.
+round trips and prints one JSON line: ``{"lat_ns": [...], "lost": k, "shm": [...]}``
+(``shm``: the /dev/shm files it mapped; pong prints its own on exit).
 QoS: reliable, keep last, depth 2. The bench process itself never imports
 rclpy (see :mod:`embagents.bench.cases_rclpy`).
 
@@ -22,6 +23,12 @@ import sys
 import time
 
 __all__ = ["main"]
+
+
+def _shm_mapped() -> list[str]:
+    """What this process maps from /dev/shm (the bench checks none of it is left behind)."""
+    with open("/proc/self/maps") as f:
+        return sorted({line.split("/dev/shm/", 1)[1].strip() for line in f if "/dev/shm/" in line})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
             print("READY", flush=True)
             while not done and os.getppid() == parent:
                 executor.spin_once(timeout_sec=0.2)
+            print(json.dumps({"shm": _shm_mapped()}), flush=True)
             return 0
 
         pub = node.create_publisher(Image, f"{args.prefix}/ping", qos)
@@ -111,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(3):
             pub.publish(stop)
             executor.spin_once(timeout_sec=0.05)
-        print(json.dumps({"lat_ns": lat, "lost": lost}), flush=True)
+        print(json.dumps({"lat_ns": lat, "lost": lost, "shm": _shm_mapped()}), flush=True)
         return 0
     finally:
         executor.shutdown()

@@ -29,7 +29,7 @@ import os
 import subprocess
 import time
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,6 +51,8 @@ __all__ = [
     "run_case",
     "select",
     "shm_entries",
+    "shm_leftovers",
+    "shm_mapped",
     "sized",
     "stop_process",
 ]
@@ -264,24 +266,41 @@ def stop_process(proc: subprocess.Popen, grace: float = 3.0) -> int | None:
     return proc.wait()
 
 
+#: What this run's processes put in /dev/shm: name prefixes (one per ActorSystem)
+#: and exact names (segments the rclpy peers mapped). Checked after the run.
+OWNED_SHM_PREFIXES: set[str] = set()
+OWNED_SHM_NAMES: set[str] = set()
+
+
 def shm_entries() -> set[str]:
-    """Names in ``/dev/shm`` now (to check that a run leaves nothing behind)."""
+    """Names in ``/dev/shm`` now."""
     with contextlib.suppress(FileNotFoundError):
         return set(os.listdir("/dev/shm"))
     return set()
 
 
-@contextlib.contextmanager
-def deadline(seconds: float, what: str) -> Iterator[Callable[[], None]]:
-    """``check()`` raises TimeoutError once ``seconds`` have passed.
+def shm_mapped(pid: int | str = "self") -> set[str]:
+    """Names of the ``/dev/shm`` files process ``pid`` has mapped (empty if it is gone).
 
-    >>> with deadline(5, "demo") as check:
-    ...     check()
+    >>> isinstance(shm_mapped(), set)
+    True
     """
-    end = time.monotonic() + seconds
+    try:
+        with open(f"/proc/{pid}/maps") as f:
+            return {line.split("/dev/shm/", 1)[1].strip() for line in f if "/dev/shm/" in line}
+    except OSError:
+        return set()
 
-    def check() -> None:
-        if time.monotonic() > end:
-            raise TimeoutError(f"{what} did not finish within {seconds} s")
 
-    yield check
+def shm_leftovers(before: set[str] | frozenset[str] = frozenset()) -> list[str]:
+    """Entries this run created (absent from ``before``), still in /dev/shm, that no live process maps."""
+    now = shm_entries() - before
+    suspects = {n for n in now if n.startswith(tuple(OWNED_SHM_PREFIXES))} if OWNED_SHM_PREFIXES else set()
+    suspects |= OWNED_SHM_NAMES & now
+    if not suspects:
+        return []
+    in_use: set[str] = set()
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            in_use |= shm_mapped(pid) & suspects
+    return sorted(suspects - in_use)

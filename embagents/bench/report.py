@@ -92,7 +92,9 @@ def evaluate(rows: list[Row]) -> list[dict[str, Any]]:
         bars.append(_bar("ask 6.2MB p50", round(big["p50_us"] / 1000, 3), "<=", 2.0, "ms"))
     idle = _find(rows, "embagents", "idle")
     if idle is not None:
-        bars.append(_bar("idle 10 actors CPU", idle.get("cpu_percent"), "<", 2.0, "% of a core"))
+        # psutil counts 10 ms ticks; the scheduler's ns counters are finer: judge by the larger.
+        cpu = [v for v in (idle.get("cpu_percent"), idle.get("cpu_percent_schedstat")) if v is not None]
+        bars.append(_bar("idle 10 actors CPU", max(cpu) if cpu else None, "<", 2.0, "% of a core"))
     return bars
 
 
@@ -148,7 +150,12 @@ def format_report(doc: dict[str, Any]) -> str:
     out = []
     body = []
     for r in rows:
-        extra = f"cpu {r['cpu_percent']:.2f} % of a core; " if "cpu_percent" in r else ""
+        extra = ""
+        if "cpu_percent" in r:
+            extra = f"cpu {r['cpu_percent']:.2f} % of a core"
+            if "cpu_percent_schedstat" in r:
+                extra += f" (schedstat {r['cpu_percent_schedstat']:.2f} %)"
+            extra += "; "
         body.append([
             r["name"], r["transport"], _num(r["payload_bytes"]), _num(r["p50_us"]), _num(r["p99_us"]),
             _num(r["msgs_per_s"], 0), extra + r.get("note", ""),
@@ -175,7 +182,7 @@ def format_report(doc: dict[str, Any]) -> str:
         out.append(f"ERROR: {e['name']}: {e['error']}")
     left = doc.get("shm_leftovers")
     if left:
-        out.append(f"WARNING: new entries in /dev/shm after the run: {', '.join(sorted(left))}")
+        out.append(f"WARNING: left in /dev/shm by this run: {', '.join(left)}")
     out.append(
         f"wall {doc['wall_s']:.1f} s, quick={doc['quick']}, load average {doc['host']['loadavg_start']} -> "
         f"{doc['host']['loadavg_end']} on {doc['host']['cpus']} cpus"

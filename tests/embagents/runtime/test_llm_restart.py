@@ -1,9 +1,18 @@
-"""A supervised LLM component keeps its chat history across a SIGKILL (snapshot/restore)."""
+"""A supervised LLM component keeps its chat history across a SIGKILL (snapshot/restore).
+
+The scenario runs in a fresh interpreter: the fork server is forked from the
+process that creates the ActorSystem, and llama.cpp's OpenMP threads do not
+survive a fork, so a test process that already ran llama.cpp in-process
+(other tests do) must not be the one that forks model actors. `embagents
+supervise` never runs a model in the root, so it is not exposed to this.
+"""
 
 from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -30,6 +39,12 @@ system = System(
 
 
 def test_chat_history_survives_a_sigkill(tmp_path: Path, tiny_gguf: str) -> None:
+    out = subprocess.run([sys.executable, "-m", "tests.embagents.runtime.test_llm_restart", tiny_gguf, str(tmp_path)],
+                         capture_output=True, text=True, timeout=180, cwd=Path(__file__).parents[3])
+    assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stdout + out.stderr[-3000:]
+
+
+def scenario(tiny_gguf: str, tmp_path: Path) -> None:
     path = str(tmp_path / "system.py")
     Path(path).write_text(textwrap.dedent(SYSTEM).replace("MODEL", repr(tiny_gguf)))
     remember_system(path, load_system(path))
@@ -54,3 +69,8 @@ def test_chat_history_survives_a_sigkill(tmp_path: Path, tiny_gguf: str) -> None
             assert history() == before
         finally:
             sup.stop()
+
+
+if __name__ == "__main__":
+    scenario(sys.argv[1], Path(sys.argv[2]))
+    print("OK")

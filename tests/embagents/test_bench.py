@@ -1,0 +1,156 @@
+"""``embagents bench``: a quick real run end to end, and the case registry.
+
+The quick run starts real actor processes, pyzmq and multiprocessing peers
+and (when rclpy is installed) ROS 2 processes; it checks the JSON schema,
+that every transport is there, and that nothing is left behind. It asserts
+no timings: the machine running the tests is not a benchmark machine.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import uuid
+from importlib.util import find_spec
+
+import pytest
+
+from embagents.bench.registry import (
+    CASES,
+    FRAME_1080P,
+    BenchOptions,
+    Case,
+    add,
+    run_case,
+    select,
+)
+
+SIZES = {64, 1 << 20, FRAME_1080P}
+TRANSPORTS = {"embagents", "pyzmq", "mp_queue", "rclpy"}
+REQUIRED = {"name": str, "transport": str, "payload_bytes": int, "p50_us": float, "p99_us": float}
+HAVE_RCLPY = find_spec("rclpy") is not None
+
+
+def _tagged_pids(tag: str) -> list[int]:
+    """Live processes whose environment carries ``tag`` (the bench and all it started)."""
+    pids = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{pid}/environ", "rb") as f:
+                if tag.encode() in f.read():
+                    pids.append(int(pid))
+        except OSError:
+            continue
+    return pids
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str, str]:
+    out = tmp_path_factory.mktemp("bench") / "bench.json"
+    tag = f"EMBAGENTS_BENCH_TEST_TAG={uuid.uuid4().hex}"
+    key, value = tag.split("=")
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.bench", "--quick", "--json", str(out)],
+        capture_output=True, text=True, timeout=180, env={**os.environ, key: value},
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return json.loads(out.read_text()), proc.stdout, tag
+
+
+def test_quick_run_writes_the_documented_schema(quick_run: tuple[dict, str, str]) -> None:
+    doc, _, _ = quick_run
+    assert isinstance(doc["cases"], list) and doc["cases"]
+    for row in doc["cases"]:
+        for key, typ in REQUIRED.items():
+            assert key in row, (row["name"], key)
+            assert type(row[key]) is typ, (row["name"], key, row[key])
+        assert "msgs_per_s" in row
+        assert row["msgs_per_s"] is None or type(row["msgs_per_s"]) is float, row
+        assert row["transport"] in TRANSPORTS
+        assert row["p50_us"] >= 0 and row["p99_us"] >= row["p50_us"]
+    names = [r["name"] for r in doc["cases"]]
+    assert len(names) == len(set(names))
+    assert doc["errors"] == []
+
+
+def test_quick_run_covers_every_case_family(quick_run: tuple[dict, str, str]) -> None:
+    doc, _, _ = quick_run
+    rows = doc["cases"]
+    expected = {"embagents", "pyzmq", "mp_queue"} | ({"rclpy"} if HAVE_RCLPY else set())
+    assert {r["transport"] for r in rows} == expected
+    for transport in expected:
+        asks = {r["payload_bytes"] for r in rows if r["transport"] == transport and "ask" in r["name"]}
+        assert asks == SIZES, transport
+    topics = {r["payload_bytes"] for r in rows if r["transport"] == "embagents" and "topic" in r["name"]}
+    assert topics == SIZES
+    tell = [r for r in rows if r["transport"] == "embagents" and "tell" in r["name"]]
+    assert len(tell) == 1 and tell[0]["payload_bytes"] == 64 and type(tell[0]["msgs_per_s"]) is float
+    idle = [r for r in rows if r["name"] == "idle_10_actors"]
+    assert len(idle) == 1 and idle[0]["transport"] == "embagents"
+    assert type(idle[0]["cpu_percent"]) is float
+    if not HAVE_RCLPY:
+        assert {s["transport"] for s in doc["skipped"]} == {"rclpy"}
+
+
+def test_quick_run_prints_the_table_ratios_and_bars(quick_run: tuple[dict, str, str]) -> None:
+    doc, stdout, _ = quick_run
+    for row in doc["cases"]:
+        assert row["name"] in stdout
+    assert "ours/pyzmq" in stdout
+    assert "idle_10_actors" in stdout
+    names = {b["name"] for b in doc["bars"]}
+    assert {"ask 64B p50: ours / raw pyzmq", "tell 64B throughput", "ask 6.2MB p50", "idle 10 actors CPU"} <= names
+    if HAVE_RCLPY:
+        assert {"ask 64B p50: rclpy / ours", "ask 6.2MB p50: rclpy / ours"} <= names
+    for bar in doc["bars"]:
+        assert bar["pass"] in (True, False)
+        verdict = "PASS" if bar["pass"] else "FAIL"
+        assert any(bar["name"] in line and verdict in line for line in stdout.splitlines())
+    ours = next(r for r in doc["cases"] if r["name"] == "embagents_ask_64B")
+    assert type(ours["ratio_vs_pyzmq"]) is float
+
+
+def test_quick_run_leaves_nothing_behind(quick_run: tuple[dict, str, str]) -> None:
+    doc, _, tag = quick_run
+    assert doc["shm_leftovers"] == []
+    assert _tagged_pids(tag) == []
+
+
+def test_only_selects_by_name_glob_transport_and_kind() -> None:
+    assert [c.name for c in select(["embagents_ask_64B"])] == ["embagents_ask_64B"]
+    assert {c.transport for c in select(["ask"])} == {c.transport for c in CASES.values()}
+    assert all(c.transport == "pyzmq" for c in select(["pyzmq"]))
+    assert {c.name for c in select(["*tell*"])} == {"embagents_tell_64B", "pyzmq_tell_64B"}
+    order = [c.transport for c in select(None)]
+    assert order[0] == "embagents" and order.index("pyzmq") < order.index("rclpy")
+    with pytest.raises(ValueError, match="no benchmark case matches"):
+        select(["no_such_case"])
+
+
+def test_a_new_case_is_one_registration_and_failures_become_error_rows() -> None:
+    def broken(opts: BenchOptions) -> dict:
+        raise RuntimeError("boom")
+
+    add(Case("test_broken_case", "pyzmq", 64, "demo", broken))
+    try:
+        with pytest.raises(ValueError, match="already registered"):
+            add(Case("test_broken_case", "pyzmq", 64, "demo", broken))
+        row = run_case(CASES["test_broken_case"], BenchOptions(quick=True))
+        assert row["status"] == "error" and "boom" in row["error"]
+        skipped = run_case(Case("x", "rclpy", 64, "ask", broken, needs="no_such_module_xyz"), BenchOptions())
+        assert skipped["status"] == "skipped" and "not installed" in skipped["note"]
+    finally:
+        del CASES["test_broken_case"]
+
+
+def test_unknown_only_name_exits_with_an_error() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.bench", "--only", "no_such_case"],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 1
+    assert "no benchmark case matches" in proc.stderr
