@@ -29,6 +29,7 @@ Example::
 
 from __future__ import annotations
 
+import math
 import mmap
 import os
 import struct
@@ -238,11 +239,14 @@ class ShmReader:
         if magic != _MAGIC or cur != gen:
             raise StaleFrame(f"shared-memory frame {name} was reused before it was read")
         dt = np.dtype(dtype)
-        count = int(np.prod(shape, dtype=np.int64)) if shape else 1
-        mv = memoryview(mm)[offset : offset + count * dt.itemsize]
+        count = math.prod(shape)
+        arr = np.frombuffer(mm, dtype=dt, count=count, offset=offset)
         if on_release is not None:
-            weakref.finalize(mv, on_release, name, gen)
-        return np.frombuffer(mv, dtype=dt).reshape(shape)
+            # arr.base is the buffer numpy made for this call: every view derived from the
+            # returned array keeps it alive, so it dies exactly when the last view does.
+            # (Finalizing a memoryview we pass in does not work: NumPy 2 wraps it anew.)
+            weakref.finalize(arr.base, on_release, name, gen)
+        return arr.reshape(shape)
 
     def forget(self, name: str) -> None:
         self._maps.pop(name, None)

@@ -161,3 +161,22 @@ def test_shutdown_leaves_nothing(tmp_path: object) -> None:
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+def test_held_replies_are_never_overwritten(system: ActorSystem) -> None:
+    echo = system.spawn(Echo, "echo")
+    held = []
+    for i in range(12):
+        a = np.full(1 << 20, i, np.uint8)
+        held.append(echo.ask(a, timeout=5).get())
+    # Every reply we still hold keeps its own bytes: no segment was reused under it.
+    assert [int(h[0]) for h in held] == list(range(12))
+    assert all(int(h[-1]) == i for i, h in enumerate(held))
+
+
+def test_held_replies_in_an_actor_process_are_never_overwritten(system: ActorSystem) -> None:
+    from tests.actors.workers import Keeper
+
+    system.spawn(Echo, "echo")
+    keeper = system.spawn(Keeper, "keeper")
+    assert keeper.ask(["echo", 20], timeout=30).get() == list(range(20))

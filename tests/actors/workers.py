@@ -77,3 +77,13 @@ class Subscriber(Actor):
             out = [g if not isinstance(g, np.ndarray) else ["array", g.shape, int(g[-1])] for g in self.got]
             return out
         return None
+
+
+class Keeper(Actor):
+    """Asks an echo with large arrays from inside its handler and keeps every reply."""
+
+    def on_receive(self, message: Any) -> Any:
+        target, n = message
+        ref = self.context.ref(target)
+        held = [ref.ask(np.full(1 << 20, i, np.uint8), timeout=5).get() for i in range(n)]
+        return [int(h[0]) for h in held]
