@@ -120,6 +120,8 @@ def _bench_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--quick", action="store_true", help="few iterations (a smoke run, not a measurement)")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="run only cases matching these names or globs")
+    parser.add_argument("--list", action="store_true", help="list the cases in run order and exit")
+    parser.add_argument("--strict", action="store_true", help="exit 2 if a bar fails")
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:

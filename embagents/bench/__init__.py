@@ -42,7 +42,16 @@ from typing import Any
 # Importing a case module registers its cases. Cases run grouped by
 # transport, ours first: while this process has no sockets or threads of
 # its own yet (each ActorSystem forks its fork server from here).
-from embagents.bench import cases_actors, cases_mpqueue, cases_pyzmq, cases_rclpy, idle  # noqa: F401
+from embagents.bench import (  # noqa: F401 - importing a case module registers its cases
+    cases_actors,
+    cases_llm,
+    cases_mpqueue,
+    cases_pyzmq,
+    cases_rclpy,
+    cases_ros_bridge,
+    cases_supervisor,
+    idle,
+)
 from embagents.bench.registry import (
     CASES,
     OWNED_SHM_NAMES,

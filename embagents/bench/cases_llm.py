@@ -9,7 +9,10 @@ model, prompt and settings. ``ratio`` = runtime tokens/s ÷ in-process tokens/s.
 
 from __future__ import annotations
 
+import json
 import statistics
+import subprocess
+import sys
 import time
 from typing import Any
 
@@ -74,20 +77,21 @@ class StreamCounter(Actor):
 
 
 def _inprocess(path: str, max_tokens: int) -> tuple[int, float]:
-    from embagents.backends.llama import LlamaBackend
-
-    backend = LlamaBackend(path)
-    backend.load()
-    backend.warmup()
-    try:
-        t0 = time.monotonic()
-        n = 0
-        for chunk in backend.chat_stream([{"role": "user", "content": PROMPT}], max_tokens=max_tokens, temperature=0.0):
-            if chunk.get("delta"):
-                n += 1
-        return n, time.monotonic() - t0
-    finally:
-        backend.close()
+    """llama-cpp-python called in a fresh interpreter (same settings), so this process never
+    runs llama.cpp: its OpenMP threads would not survive the fork of a later ActorSystem."""
+    code = (
+        "import json, sys, time\n"
+        "from embagents.backends.llama import LlamaBackend\n"
+        "b = LlamaBackend(sys.argv[1]); b.load(); b.warmup()\n"
+        "t0 = time.monotonic(); n = 0\n"
+        "for c in b.chat_stream([{'role': 'user', 'content': sys.argv[3]}], max_tokens=int(sys.argv[2]), temperature=0.0):\n"
+        "    n += 1 if c.get('delta') else 0\n"
+        "print(json.dumps([n, time.monotonic() - t0]))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, path, str(max_tokens), PROMPT],
+                         capture_output=True, text=True, timeout=600, check=True)
+    n, dt = json.loads(out.stdout.strip().splitlines()[-1])
+    return int(n), float(dt)
 
 
 @case("llm_stream_overhead", transport="embagents", kind="llm", needs="llama_cpp")

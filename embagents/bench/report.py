@@ -95,6 +95,21 @@ def evaluate(rows: list[Row]) -> list[dict[str, Any]]:
         # psutil counts 10 ms ticks; the scheduler's ns counters are finer: judge by the larger.
         cpu = [v for v in (idle.get("cpu_percent"), idle.get("cpu_percent_schedstat")) if v is not None]
         bars.append(_bar("idle 10 actors CPU", max(cpu) if cpu else None, "<", 2.0, "% of a core"))
+    by_name = {r["name"]: r for r in rows}  # rows here are the cases that ran
+
+    def named(name: str, key: str, scale: float = 1.0) -> float | None:
+        r = by_name.get(name)
+        return None if r is None or r.get(key) is None else round(r[key] * scale, 3)
+
+    for name, title, key, op, target, unit, scale in (
+        ("crash_detect", "crash detection p50", "p50_us", "<=", 5.0, "ms", 1e-3),
+        ("restart_ready", "SIGKILL -> serving again p50", "p50_us", "<=", 50.0, "ms", 1e-3),
+        ("hang_detect", "hang detected past its deadline (p99)", "p99_us", "<=", 100.0, "ms", 1e-3),
+        ("llm_stream_overhead", "LLM tokens/s through the runtime / in-process", "ratio", ">=", 0.95, "x", 1.0),
+        ("ros_bridge_image", "ROS bridge 6.2MB image p50 / plain rclpy", "ratio", "<=", 1.5, "x", 1.0),
+    ):
+        if name in by_name:
+            bars.append(_bar(title, named(name, key, scale), op, target, unit))
     return bars
 
 

@@ -10,8 +10,8 @@ rclpy (see :mod:`embagents.bench.cases_rclpy`).
 
 Example::
 
-    python -m embagents.bench.rclpy_peer pong --prefix /b1 &
-    python -m embagents.bench.rclpy_peer ping --prefix /b1 --size 64 --warmup 10 --n 100
+    python -m embagents.ros.bench_peer pong --prefix /b1 &
+    python -m embagents.ros.bench_peer ping --prefix /b1 --size 64 --warmup 10 --n 100
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def _shm_mapped() -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one side of the ping-pong; returns the exit code."""
-    p = argparse.ArgumentParser(prog="python -m embagents.bench.rclpy_peer")
+    p = argparse.ArgumentParser(prog="python -m embagents.ros.bench_peer")
     p.add_argument("role", choices=["ping", "pong"])
     p.add_argument("--prefix", required=True)
     p.add_argument("--size", type=int, default=64)

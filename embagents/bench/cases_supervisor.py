@@ -1,0 +1,49 @@
+"""Supervision cases: ``crash_detect``, ``restart_ready`` and ``hang_detect``.
+
+- crash_detect: SIGKILL an actor; time until the supervisor's exit listener
+  runs (the fork server reaps it on SIGCHLD; nothing polls). Bar: p50 <= 5 ms.
+- restart_ready: SIGKILL a light actor under a one_for_one supervisor; time
+  until an ask answers again. Bar: p50 <= 50 ms (a fresh rclpy node takes
+  ~364 ms to start here; Sugarcoat respawns through a ROS launch process).
+- hang_detect: an actor holds the GIL in a C call; time from the moment its
+  heartbeat deadline passed until the supervisor killed it. Bar: <= 100 ms.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from embagents.bench.registry import BenchOptions, case
+
+
+def _row(samples_s: list[float], note: str) -> dict[str, Any]:
+    us = np.asarray(samples_s, dtype=np.float64) * 1e6
+    p50, p99 = np.percentile(us, [50, 99])
+    return {"p50_us": round(float(p50), 1), "p99_us": round(float(p99), 1), "msgs_per_s": None,
+            "samples": len(samples_s), "note": note}
+
+
+@case("crash_detect", transport="embagents", kind="supervision")
+def crash_detect(opts: BenchOptions) -> dict[str, Any]:
+    from supervisor.bench import measure_crash_detect
+
+    return _row(measure_crash_detect(20 if opts.quick else 100), "SIGKILL -> exit seen by the supervisor; bar p50 <= 5 ms")
+
+
+@case("restart_ready", transport="embagents", kind="supervision")
+def restart_ready(opts: BenchOptions) -> dict[str, Any]:
+    from supervisor.bench import measure_restart_ready
+
+    return _row(measure_restart_ready(20 if opts.quick else 100),
+                "SIGKILL -> the restarted actor answers an ask; bar p50 <= 50 ms")
+
+
+@case("hang_detect", transport="embagents", kind="supervision")
+def hang_detect(opts: BenchOptions) -> dict[str, Any]:
+    from supervisor.bench import measure_hang_detect
+
+    deadline = 0.5
+    late = [t - deadline for t in measure_hang_detect(deadline, 3 if opts.quick else 8)]
+    return _row(late, f"time past a {deadline} s heartbeat deadline until the hung actor was killed; bar <= 100 ms")
