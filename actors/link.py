@@ -13,6 +13,7 @@ import itertools
 import logging
 import os
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -28,6 +29,8 @@ if TYPE_CHECKING:
 __all__ = ["Link", "Pending"]
 
 log = logging.getLogger("actors.link")
+#: How often a blocked ask checks whether its actor is still there (seconds).
+WAIT_SLICE = 0.02
 _ids = itertools.count()
 
 
@@ -77,6 +80,7 @@ class Link:
         s.setsockopt(zmq.RCVHWM, 0)
         s.setsockopt(zmq.RECONNECT_IVL, 5)
         s.setsockopt(zmq.RECONNECT_IVL_MAX, 50)
+        s.setsockopt(zmq.RCVTIMEO, int(WAIT_SLICE * 1000))  # only blocking waits (see wait())
         self.monitor = s.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED)
         s.connect(endpoint)
         self.sock = s
@@ -151,39 +155,65 @@ class Link:
 
     def on_readable(self) -> None:
         sock = self.sock
+        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:  # cheaper than ending on zmq.Again
+            self.handle(sock.recv(zmq.NOBLOCK, copy=False))
+
+    def wait(self, pending: Pending, timeout: float | None) -> bool:
+        """Block this thread until ``pending`` is settled or ``timeout`` passes.
+
+        The fast path is a blocking ``recv`` on our socket, as raw pyzmq would
+        do (no poll); every ``WAIT_SLICE`` seconds it reads the monitor, so a
+        dead actor fails the ask within a slice. Not connected yet: the
+        loop's poll path, which reacts to the connection at once.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        sock = self.sock
+        beat = self.rt.beat
+        while not pending.done:
+            if not self.connected:
+                left = None if deadline is None else max(0.0, deadline - time.monotonic())
+                self.loop.run(until=lambda: pending.done or self.connected, timeout=left,  # type: ignore[attr-defined]
+                              only=[sock, self.monitor])
+            else:
+                try:
+                    self.handle(sock.recv(copy=False))  # blocks at most RCVTIMEO (a slice)
+                except zmq.Again:
+                    self.on_monitor()
+                    beat()
+            if deadline is not None and not pending.done and time.monotonic() >= deadline:
+                return False
+        return True
+
+    def handle(self, frame: Any) -> None:
+        """One frame from the actor: an ACK, a REPLY, a view RELEASE or a DEAD letter."""
         decode = self.rt.codec.decode
-        while True:
-            try:
-                frame = sock.recv(zmq.NOBLOCK, copy=False)
-            except zmq.Again:
-                return
-            try:
-                msg = decode(frame.buffer, self._release)
-                kind = msg[0]
-                if kind == wire.ACK:
-                    self._ack(msg[1])
-                elif kind == wire.REPLY:
-                    _, seq, ok, value = msg
-                    out = self.unacked.pop(seq, None)
-                    self._ack(seq)
-                    if out is not None:
-                        self.rt.pool.acked(out.segments)
-                        if out.pending is not None:
-                            out.pending.resolve(ok, value if ok else RemoteError(self.name, *value))
-                elif kind == wire.RELEASE:
-                    for n in msg[1]:
-                        self.rt.pool.released(n, self)
-                elif kind == wire.DEAD:
-                    _, seq, reason = msg
-                    out = self.unacked.pop(seq, None)
-                    if out is not None:
-                        self.rt.pool.acked(out.segments)
-                        if out.pending is not None:
-                            out.pending.resolve(False, ActorCrashed(self.name, f"message dead-lettered: {reason}"))
-                else:
-                    raise CorruptFrame(f"unexpected frame kind {kind!r}")
-            except Exception as exc:  # a bad frame must not take the sender down
-                log.warning("dropped a bad frame from actor %r: %s", self.name, exc)
+        try:
+            msg = decode(frame.buffer, self._release)
+            kind = msg[0]
+            if kind == wire.ACK:
+                self._ack(msg[1])
+            elif kind == wire.REPLY:
+                _, seq, ok, value = msg
+                out = self.unacked.pop(seq, None)
+                self._ack(seq)
+                if out is not None:
+                    self.rt.pool.acked(out.segments)
+                    if out.pending is not None:
+                        out.pending.resolve(ok, value if ok else RemoteError(self.name, *value))
+            elif kind == wire.RELEASE:
+                for n in msg[1]:
+                    self.rt.pool.released(n, self)
+            elif kind == wire.DEAD:
+                _, seq, reason = msg
+                out = self.unacked.pop(seq, None)
+                if out is not None:
+                    self.rt.pool.acked(out.segments)
+                    if out.pending is not None:
+                        out.pending.resolve(False, ActorCrashed(self.name, f"message dead-lettered: {reason}"))
+            else:
+                raise CorruptFrame(f"unexpected frame kind {kind!r}")
+        except Exception as exc:  # a bad frame must not take the sender down
+            log.warning("dropped a bad frame from actor %r: %s", self.name, exc)
 
     def _release(self, name: str, gen: int) -> None:
         # Runs in whatever thread drops the view; list.append is atomic.

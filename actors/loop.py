@@ -46,6 +46,7 @@ class Loop:
         self.max_wait: float | None = None  # upper bound on one poll (heartbeat interval)
         self.thread_id = threading.get_ident()
         self._stopping = False
+        self._restricted: dict[tuple[int, ...], zmq.Poller] = {}  # pollers of run(only=...)
 
     def add(self, sock: Any, handler: Handler) -> None:
         self._handlers[sock] = handler
@@ -54,6 +55,7 @@ class Loop:
     def remove(self, sock: Any) -> None:
         if self._handlers.pop(sock, None) is not None:
             self._poller.unregister(sock)
+            self._restricted = {k: p for k, p in self._restricted.items() if id(sock) not in k}
 
     def call_later(self, delay: float, fn: Handler) -> int:
         tid = next(self._ids)
@@ -104,9 +106,12 @@ class Loop:
         deadline = None if timeout is None else time.monotonic() + timeout
         poller = self._poller
         if only is not None:
-            poller = zmq.Poller()
-            for s in only:
-                poller.register(s, zmq.POLLIN)
+            key = tuple(id(s) for s in only)
+            poller = self._restricted.get(key)
+            if poller is None:
+                poller = self._restricted[key] = zmq.Poller()
+                for s in only:
+                    poller.register(s, zmq.POLLIN)
         self._stopping = False
         while not self._stopping:
             if until is not None and until():

@@ -90,23 +90,28 @@ class Mailbox:
                 jr.beat()
             if self.handled % 32 == 0:  # a crash under load re-delivers at most a batch
                 self.flush()
-            if not self.queue:
-                self._drain()
         self.flush()
 
     def _drain(self) -> None:
-        sock = self.sock
-        for _ in range(4096):
+        # The hot path: an EVENTS check is cheaper than a zmq.Again exception, and two
+        # recv calls are cheaper than recv_multipart.
+        sock, queue, POLLIN, EVENTS, NOBLOCK = self.sock, self.queue, zmq.POLLIN, zmq.EVENTS, zmq.NOBLOCK
+        for i in range(4096):
+            if i and not sock.getsockopt(EVENTS) & POLLIN:  # the first read follows a poll
+                return
             try:
-                ident, frame = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                ident = sock.recv(NOBLOCK, copy=False)
             except zmq.Again:
                 return
-            except ValueError:  # not two frames: foreign peer
+            frame = sock.recv(NOBLOCK, copy=False) if ident.more else None
+            if frame is None or frame.more:
+                while frame is not None and frame.more:  # more parts than ours: skip the rest
+                    frame = sock.recv(NOBLOCK, copy=False)
                 self.dropped += 1
                 log.warning("[%s] dropped a frame with the wrong number of parts", self.name)
                 continue
             self.received += 1
-            self.queue.append((ident.bytes, frame))
+            queue.append((ident.bytes, frame))
 
     def _handle(self, ident: bytes, frame: Any) -> None:
         try:
@@ -167,7 +172,8 @@ class Mailbox:
             frame, segs = self.rt.codec.encode(
                 [wire.REPLY, seq, False, [type(exc).__name__, f"cannot send the reply: {exc}", ""]]
             )
-        self.sock.send_multipart([ident, frame], copy=len(frame) > 4096)
+        self.sock.send(ident, zmq.SNDMORE)
+        self.sock.send(frame, copy=len(frame) > 4096)
         if segs:
             self.rt.pool.sent(segs, ident)
             self.rt.pool.acked(segs)  # replies are not re-sent: only the view holds them
@@ -198,8 +204,10 @@ class Mailbox:
         """Send batched acks and view releases."""
         if self.to_ack:
             acks, self.to_ack = self.to_ack, {}
+            sock = self.sock
             for ident, seq in acks.items():
-                self.sock.send_multipart([ident, msgpack.packb([wire.ACK, seq])])
+                sock.send(ident, zmq.SNDMORE)
+                sock.send(msgpack.packb([wire.ACK, seq]))
         if self.releases:
             rel, self.releases = self.releases, {}
             for ident, names in rel.items():

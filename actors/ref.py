@@ -42,10 +42,8 @@ class LinkFuture(pykka.Future):
         p = self._pending
         if not p.done:
             t = self._default_timeout if timeout is None else timeout
-            link = self._link
-            link.loop.run(until=lambda: p.done, timeout=t, only=[link.sock, link.monitor])  # type: ignore[attr-defined]
-            if not p.done:
-                raise Timeout(f"no answer from actor {link.name!r} within {t} s")
+            if not self._link.wait(p, t):
+                raise Timeout(f"no answer from actor {self._link.name!r} within {t} s")
         if p.ok:
             return p.value
         raise p.value
