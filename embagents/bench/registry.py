@@ -191,7 +191,15 @@ def sized(
     """
     for size in sizes:
         def run(opts: BenchOptions, size: int = size) -> dict[str, Any]:
-            return fn(size, opts)
+            if kind != "ask" or size != 64 or opts.quick:
+                return fn(size, opts)
+            # A 64 B round trip is ~0.1 ms: where the scheduler puts the two processes on
+            # 2 cores moves it by +-30 % from one start to the next. Every transport gets
+            # the same treatment: three fresh starts, the run with the median p50 reported.
+            runs = sorted((fn(size, opts) for _ in range(3)), key=lambda r: r["p50_us"])
+            best = dict(runs[1])
+            best["runs_p50_us"] = [r["p50_us"] for r in runs]
+            return best
 
         add(Case(f"{transport}_{kind}_{label(size)}", transport, size, kind, run, needs))
 
