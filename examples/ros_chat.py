@@ -12,7 +12,7 @@ Only the bridge actor imports rclpy; the LLM and the model run ROS-free.
 
 from __future__ import annotations
 
-from embagents import LLM, LLMConfig, LlamaModel, LocalModelClient, String, System, Topic
+from embagents import LLM, LlamaModel, LLMConfig, LocalModelClient, String, System, Topic
 from embagents.ros import RosInput, RosOutput
 
 text_in = Topic("text_in", String)
