@@ -94,6 +94,8 @@ class Link:
 
     # -- sending ------------------------------------------------------------
     def send(self, kind: int, body: Any, pending: Pending | None = None) -> int:
+        if self.releases:  # views dropped since the last frame (maybe inside a handler's loop)
+            self.flush_releases()
         self.seq += 1
         frame, segs = self.rt.codec.encode([kind, self.seq, body])
         out = _Out(kind, frame, segs, pending)

@@ -101,7 +101,7 @@ def llm_stream_overhead(opts: BenchOptions) -> dict[str, Any]:
 
     path = default_llm_path()
     max_tokens = 24 if opts.quick else 64
-    rounds = 1 if opts.quick else 3
+    rounds = 1 if opts.quick else 5
     runtime_tps: list[float] = []
     baseline_tps: list[float] = []
     with ActorSystem() as asys:
@@ -109,16 +109,15 @@ def llm_stream_overhead(opts: BenchOptions) -> dict[str, Any]:
         counter = asys.spawn(StreamCounter, "bench_llm_counter")
         llm = asys.spawn(StreamingLLM, "bench_llm_component", max_tokens)
         llm.ask("Hi", timeout=120).get()  # warm the whole path once
-        for _ in range(rounds):
+        for _ in range(rounds):  # interleaved, so drifts of the machine hit both alike
             counter.ask("reset", timeout=10).get()
             t0 = llm.ask(PROMPT, timeout=300).get()
             deadline = time.monotonic() + 10
             while not (got := counter.ask("stats", timeout=10).get())["done"] and time.monotonic() < deadline:
                 time.sleep(0.01)
             runtime_tps.append(got["chunks"] / (got["last"] - t0))
-    for _ in range(rounds):
-        n, dt = _inprocess(path, max_tokens)
-        baseline_tps.append(n / dt)
+            n, dt = _inprocess(path, max_tokens)  # the model actor idles meanwhile
+            baseline_tps.append(n / dt)
     ours, base = statistics.median(runtime_tps), statistics.median(baseline_tps)
     return {
         "p50_us": 1e6 / ours,

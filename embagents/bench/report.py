@@ -187,7 +187,7 @@ def format_report(doc: dict[str, Any]) -> str:
     if doc.get("bars"):
         bar_rows = []
         for b in doc["bars"]:
-            target = f"{b['op']} {_num(float(b['target']), 1)} {b['unit']}"
+            target = f"{b['op']} {_num(float(b['target']), 2 if float(b['target']) < 1 else 1)} {b['unit']}"
             verdict = "n/a" if b["pass"] is None else ("PASS" if b["pass"] else "FAIL")
             bar_rows.append([b["name"], _num(b["value"], 2), target, verdict])
         out.append(table(["bar", "measured", "target", "result"], bar_rows, "lrrl"))

@@ -87,3 +87,15 @@ class Keeper(Actor):
         ref = self.context.ref(target)
         held = [ref.ask(np.full(1 << 20, i, np.uint8), timeout=5).get() for i in range(n)]
         return [int(h[0]) for h in held]
+
+
+class Looper(Actor):
+    """Asks an echo ``n`` times with a large array from inside its handler, keeping only the last reply."""
+
+    def on_receive(self, message: Any) -> Any:
+        target, n = message
+        ref = self.context.ref(target)
+        reply = None
+        for i in range(n):
+            reply = ref.ask(np.full(1 << 20, i % 251, np.uint8), timeout=5).get()
+        return int(reply[0]) if reply is not None else None
