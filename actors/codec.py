@@ -124,9 +124,11 @@ class ShmSource(Protocol):
 class _Enc:
     """Per-thread encoding state: a reusable Packer (building one per frame costs ~1 us)."""
 
-    __slots__ = ("sink", "threshold", "segments", "packer")
+    __slots__ = ("sink", "threshold", "segments", "packer", "source", "owner_prefix")
 
-    def __init__(self, threshold: int) -> None:
+    def __init__(self, threshold: int, source: Any = None) -> None:
+        self.source = source
+        self.owner_prefix: str | None = None  # segments of this prefix go back as they are
         self.sink: ShmSink | None = None
         self.threshold = threshold
         self.segments: list[str] = []
@@ -143,6 +145,12 @@ class _Enc:
             if obj.dtype.hasobject:
                 raise UnregisteredType("numpy arrays of dtype object cannot be sent; use a plain dtype")
             if self.sink is not None and obj.nbytes >= self.threshold:
+                prefix = self.owner_prefix
+                if prefix is not None and self.source is not None:
+                    origin = self.source.origin(obj)
+                    if origin is not None and origin[0].startswith(prefix):
+                        # The frame goes back to the process that owns its segment: no copy.
+                        return msgpack.ExtType(EXT_SHM, msgpack.packb(origin))
                 handle = self.sink.put(obj)
                 self.segments.append(handle[0])
                 return msgpack.ExtType(EXT_SHM, msgpack.packb(handle))
@@ -205,12 +213,17 @@ class Codec:
     def _state(self) -> tuple[_Enc, _Dec]:
         st = getattr(self._local, "st", None)
         if st is None:
-            st = self._local.st = (_Enc(self.threshold), _Dec(self.source))
+            st = self._local.st = (_Enc(self.threshold, self.source), _Dec(self.source))
         return st
 
-    def encode(self, obj: Any, *, shm: bool = True) -> tuple[bytes, list[str]]:
-        """Return the frame and the names of the shared-memory segments it refers to."""
+    def encode(self, obj: Any, *, shm: bool = True, owner_prefix: str | None = None) -> tuple[bytes, list[str]]:
+        """Return the frame and the names of the shared-memory segments it refers to.
+
+        ``owner_prefix``: the receiver's segment prefix; a received frame of the
+        receiver's own is sent back as its handle instead of being copied.
+        """
         enc = self._state()[0]
+        enc.owner_prefix = owner_prefix
         enc.sink = self.sink if shm else None
         enc.segments = segments = []
         try:

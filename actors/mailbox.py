@@ -23,6 +23,7 @@ import zmq
 
 from actors import wire
 from actors.errors import CodecError
+from actors.runtime import shm_prefix
 
 if TYPE_CHECKING:
     from actors.journal import Journal
@@ -166,8 +167,10 @@ class Mailbox:
             self._reply(ident, seq, ok, result)
 
     def _reply(self, ident: bytes, seq: int, ok: bool, result: Any) -> None:
+        # Link idents start with the asker's pid: a frame it sent us goes back as is.
+        owner = shm_prefix(self.rt.run_id, int(ident.split(b".", 1)[0])) if ident[:1].isdigit() else None
         try:
-            frame, segs = self.rt.codec.encode([wire.REPLY, seq, ok, result])
+            frame, segs = self.rt.codec.encode([wire.REPLY, seq, ok, result], owner_prefix=owner)
         except Exception as exc:
             frame, segs = self.rt.codec.encode(
                 [wire.REPLY, seq, False, [type(exc).__name__, f"cannot send the reply: {exc}", ""]]

@@ -48,7 +48,7 @@ class Runtime:
         self.pid = os.getpid()
         self.ctx = zmq.Context()
         self.pool = ShmPool(shm_prefix(run_id, self.pid))
-        self.reader = ShmReader()
+        self.reader = ShmReader(pool=self.pool)
         self.codec = Codec(self.pool, self.reader)
         self._loops: dict[int, Loop] = {}
         self._links: dict[tuple[int, str], Link] = {}

@@ -105,6 +105,7 @@ class ShmPool:
         self._free: list[_Segment] = []
         self._rings: dict[str, deque[_Segment]] = {}
         self.max_free_bytes = max_free_bytes
+        self._local_released: deque[str] = deque()  # appended from any thread (GC)
 
     def _new(self, nbytes: int) -> _Segment:
         self._seq += 1
@@ -113,7 +114,16 @@ class ShmPool:
         self._segs[seg.name] = seg
         return seg
 
+    def local_release(self, name: str) -> None:
+        """A local view of our own segment died (any thread): applied at the next put."""
+        self._local_released.append(name)
+
+    def _apply_local_releases(self) -> None:
+        while self._local_released:
+            self.released(self._local_released.popleft(), LOCAL)
+
     def _take_free(self, nbytes: int) -> _Segment | None:
+        self._apply_local_releases()
         best = None
         for seg in self._free:
             if _HEADER + nbytes <= seg.size <= 2 * (_HEADER + nbytes) + _PAGE:
@@ -206,12 +216,22 @@ class ShmPool:
         self._rings.clear()
 
 
-class ShmReader:
-    """Maps segments written by other processes; caches recent mappings."""
+LOCAL = "local"  # the pool's own process, as a viewer of its own segments
 
-    def __init__(self, max_cached: int = 128) -> None:
+
+class ShmReader:
+    """Maps segments written by other processes; caches recent mappings.
+
+    With ``pool`` (this process's own), a frame that comes back to its owner
+    (an actor returned the array it was sent) is a view of the owner's own
+    segment, counted as a local view so the pool does not reuse it under it.
+    """
+
+    def __init__(self, max_cached: int = 128, pool: ShmPool | None = None) -> None:
         self._maps: OrderedDict[str, mmap.mmap] = OrderedDict()
         self.max_cached = max_cached
+        self.pool = pool
+        self._origins: dict[int, list[Any]] = {}  # data address of a received frame -> its handle
 
     def _map(self, name: str) -> mmap.mmap:
         mm = self._maps.get(name)
@@ -241,12 +261,27 @@ class ShmReader:
         dt = np.dtype(dtype)
         count = math.prod(shape)
         arr = np.frombuffer(mm, dtype=dt, count=count, offset=offset)
+        addr = arr.__array_interface__["data"][0]
+        self._origins[addr] = handle
+        weakref.finalize(arr.base, self._origins.pop, addr, None)
+        pool = self.pool
+        if pool is not None and name.startswith(pool.prefix):
+            pool.sent([name], LOCAL)  # our own segment came back: a local view now holds it
+            weakref.finalize(arr.base, pool.local_release, name)
+            return arr.reshape(shape)
         if on_release is not None:
             # arr.base is the buffer numpy made for this call: every view derived from the
             # returned array keeps it alive, so it dies exactly when the last view does.
             # (Finalizing a memoryview we pass in does not work: NumPy 2 wraps it anew.)
             weakref.finalize(arr.base, on_release, name, gen)
         return arr.reshape(shape)
+
+    def origin(self, arr: np.ndarray) -> list[Any] | None:
+        """The handle of the received frame ``arr`` is, whole and unchanged in shape; else None."""
+        handle = self._origins.get(arr.__array_interface__["data"][0])
+        if handle is None or arr.dtype.str != handle[3] or list(arr.shape) != list(handle[4]):
+            return None
+        return handle if arr.flags.c_contiguous else None
 
     def forget(self, name: str) -> None:
         self._maps.pop(name, None)

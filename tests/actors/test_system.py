@@ -193,3 +193,15 @@ def test_segments_are_recycled_when_replies_are_dropped_inside_a_handler(system:
     for name in ("echo", "looper"):
         pid = system.procs[name].pid
         assert len([n for n in shm_names(system.run_id) if f"_{pid}_" in n]) <= 4, name
+
+
+def test_a_frame_returned_to_its_owner_is_not_copied(system: ActorSystem) -> None:
+    from tests.actors.workers import Looper
+
+    system.spawn(Echo, "echo")
+    looper = system.spawn(Looper, "looper")
+    assert looper.ask(["echo", 10], timeout=60).get() == 9
+    # The echo returned each frame it was sent: it went back as a handle to the
+    # looper's own segment, so the echo never wrote a segment of its own.
+    echo_pid = system.procs["echo"].pid
+    assert [n for n in shm_names(system.run_id) if f"_{echo_pid}_" in n] == []
