@@ -25,16 +25,19 @@ import time
 
 __all__ = ["Journal"]
 
-_SIZE = 512
+_SIZE = 4096
 _HB = struct.Struct("<d")  # 0: heartbeat, CLOCK_MONOTONIC (system-wide on Linux)
 _ID = struct.Struct("<QB64s")  # seq, ident length, ident
 _INFLIGHT = 8
-_CRASH = 96  # the message that killed the previous incarnation(s) ...
-_CRASH_COUNT = struct.Struct("<I")  # ... and how many times
-_CRASH_COUNT_AT = 180
 _STATE_AT = 200  # lifecycle state, one byte
 _INCARNATION = struct.Struct("<I")
 _INCARNATION_AT = 204
+# Messages that killed earlier incarnations, with how many times: several slots, so a
+# crash on another message (a SIGKILL from outside, say) does not reset a poison's count.
+_CRASH_SLOT = struct.Struct("<QB64sI")  # seq, ident length, ident, count
+_CRASH_AT = 1024
+_CRASH_SLOTS = 16
+_CRASH_NEXT_AT = 1020  # next slot to overwrite when all are taken (u32)
 
 
 class Journal:
@@ -68,25 +71,47 @@ class Journal:
         seq, n, ident = _ID.unpack_from(self.mm, _INFLIGHT)
         return (ident[:n], seq) if seq else None
 
-    def crashed_message(self) -> tuple[bytes, int, int] | None:
-        """(sender, seq, crash count) of the message that killed earlier incarnations."""
-        seq, n, ident = _ID.unpack_from(self.mm, _CRASH)
-        if not seq:
-            return None
-        return ident[:n], seq, _CRASH_COUNT.unpack_from(self.mm, _CRASH_COUNT_AT)[0]
+    def crashes(self) -> dict[tuple[bytes, int], int]:
+        """(sender, seq) -> how many incarnations died while handling that message."""
+        out = {}
+        for i in range(_CRASH_SLOTS):
+            seq, n, ident, count = _CRASH_SLOT.unpack_from(self.mm, _CRASH_AT + i * _CRASH_SLOT.size)
+            if seq:
+                out[(ident[:n], seq)] = count
+        return out
 
-    def on_restart(self) -> tuple[bytes, int, int] | None:
+    def forget_crash(self, ident: bytes, seq: int) -> None:
+        """Drop a message from the crash table (it was dead-lettered)."""
+        for i in range(_CRASH_SLOTS):
+            at = _CRASH_AT + i * _CRASH_SLOT.size
+            s, n, ident_b, _ = _CRASH_SLOT.unpack_from(self.mm, at)
+            if s == seq and ident_b[:n] == ident:
+                _CRASH_SLOT.pack_into(self.mm, at, 0, 0, b"", 0)
+
+    def on_restart(self) -> dict[tuple[bytes, int], int]:
         """Called by a new incarnation: count the message its predecessor died on."""
         cur = self.inflight()
         if cur is not None:
-            prev = self.crashed_message()
-            count = prev[2] + 1 if prev is not None and prev[:2] == cur else 1
-            _ID.pack_into(self.mm, _CRASH, cur[1], len(cur[0]), cur[0])
-            _CRASH_COUNT.pack_into(self.mm, _CRASH_COUNT_AT, count)
+            ident, seq = cur
+            free = None
+            for i in range(_CRASH_SLOTS):
+                at = _CRASH_AT + i * _CRASH_SLOT.size
+                s, n, ident_b, count = _CRASH_SLOT.unpack_from(self.mm, at)
+                if s == seq and ident_b[:n] == ident:
+                    _CRASH_SLOT.pack_into(self.mm, at, seq, len(ident), ident[:64], count + 1)
+                    break
+                if not s and free is None:
+                    free = at
+            else:
+                if free is None:  # all taken: overwrite round robin
+                    nxt = _INCARNATION.unpack_from(self.mm, _CRASH_NEXT_AT)[0] % _CRASH_SLOTS
+                    _INCARNATION.pack_into(self.mm, _CRASH_NEXT_AT, nxt + 1)
+                    free = _CRASH_AT + nxt * _CRASH_SLOT.size
+                _CRASH_SLOT.pack_into(self.mm, free, seq, len(ident), ident[:64], 1)
             self.end()
         inc = _INCARNATION.unpack_from(self.mm, _INCARNATION_AT)[0] + 1
         _INCARNATION.pack_into(self.mm, _INCARNATION_AT, inc)
-        return self.crashed_message()
+        return self.crashes()
 
     @property
     def incarnation(self) -> int:

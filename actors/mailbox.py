@@ -68,7 +68,7 @@ class Mailbox:
         self.last_seq: dict[bytes, int] = {}
         self.to_ack: dict[bytes, int] = {}
         self.releases: dict[bytes, list[str]] = {}
-        self.crashed = journal.crashed_message() if journal is not None else None
+        self.crashed = journal.crashes() if journal is not None else {}
         self.received = 0
         self.handled = 0
         self.dropped = 0
@@ -138,10 +138,9 @@ class Mailbox:
             self.to_ack[ident] = self.last_seq[ident]  # a duplicate after a resend
             return
         self.last_seq[ident] = seq
-        if self.crashed is not None and self.crashed[0] == ident and self.crashed[1] == seq:
-            if self.crashed[2] >= self.poison_limit:
-                self._dead_letter(ident, seq, kind, body)
-                return
+        if self.crashed and self.crashed.get((ident, seq), 0) >= self.poison_limit:
+            self._dead_letter(ident, seq, kind, body)
+            return
         jr = self.journal
         if jr is not None:
             jr.begin(ident, seq)
@@ -183,7 +182,7 @@ class Mailbox:
 
     def _dead_letter(self, ident: bytes, seq: int, kind: int, body: Any) -> None:
         self.dead_lettered += 1
-        reason = f"it crashed actor {self.name!r} {self.crashed[2] if self.crashed else '?'} times"
+        reason = f"it crashed actor {self.name!r} {self.crashed.get((ident, seq), '?')} times"
         record = {
             "actor": self.name,
             "sender": ident.decode(errors="replace"),
@@ -197,7 +196,9 @@ class Mailbox:
         if self.dead_letter is not None:
             self.dead_letter(record)
         self.sock.send_multipart([ident, msgpack.packb([wire.DEAD, seq, reason])])
-        self.crashed = None
+        self.crashed.pop((ident, seq), None)
+        if self.journal is not None:
+            self.journal.forget_crash(ident, seq)
 
     def _release(self, ident: bytes, name: str) -> None:
         self.releases.setdefault(ident, []).append(name)
