@@ -92,7 +92,8 @@ class ActorSystem:
         self.loop: Loop = self.rt.client_loop()
         self.procs: dict[str, ProcessInfo] = {}
         self.order: list[str] = []
-        self.attached: dict[str, tuple[pykka.ActorRef, threading.Thread, Loop]] = {}
+        self.attached: dict[str, tuple[pykka.ActorRef, threading.Thread]] = {}
+        self._attached_hosts: dict[str, ActorHost] = {}
         self._tokens = itertools.count(1)
         self._spawning: dict[int, ProcessInfo] = {}
         self.exit_listeners: list[Callable[[ProcessInfo], None]] = []
@@ -263,8 +264,7 @@ class ActorSystem:
         t = threading.Thread(target=io, name=f"attached-{name}", daemon=True)
         t.start()
         started.wait(10)
-        self.attached[name] = (wrapper, t, box[0].loop if box else None)
-        self._attached_hosts = getattr(self, "_attached_hosts", {})
+        self.attached[name] = (wrapper, t)
         if box:
             self._attached_hosts[name] = box[0]
 
@@ -286,7 +286,7 @@ class ActorSystem:
     def stop(self, name: str, timeout: float = 5.0, *, unregister: bool = True) -> int | None:
         """Stop ``name`` cleanly (its ``on_stop`` runs), killing it after ``timeout``."""
         if name in self.attached:
-            wrapper, thread, _ = self.attached.pop(name)
+            wrapper, thread = self.attached.pop(name)
             host = self._attached_hosts.pop(name, None)
             if host is not None:
                 host.loop.call_soon_threadsafe(host.request_stop)
