@@ -66,6 +66,7 @@ class Mailbox:
         self.sock = s
         self.queue: deque[tuple[bytes, Any]] = deque()
         self.last_seq: dict[bytes, int] = {}
+        self._owners: dict[bytes, str] = {}  # asker ident -> its shared-memory prefix
         self.to_ack: dict[bytes, int] = {}
         self.releases: dict[bytes, list[str]] = {}
         self.crashed = journal.crashes() if journal is not None else {}
@@ -166,8 +167,10 @@ class Mailbox:
             self._reply(ident, seq, ok, result)
 
     def _reply(self, ident: bytes, seq: int, ok: bool, result: Any) -> None:
-        # Link idents start with the asker's pid: a frame it sent us goes back as is.
-        owner = shm_prefix(self.rt.run_id, int(ident.split(b".", 1)[0])) if ident[:1].isdigit() else None
+        owner = self._owners.get(ident)
+        if owner is None and ident[:1].isdigit():
+            # Link idents start with the asker's pid: a frame it sent us goes back as is.
+            owner = self._owners[ident] = shm_prefix(self.rt.run_id, int(ident.split(b".", 1)[0]))
         try:
             frame, segs = self.rt.codec.encode([wire.REPLY, seq, ok, result], owner_prefix=owner)
         except Exception as exc:

@@ -167,11 +167,3 @@ class CommandProcess(Incarnation):
             with contextlib.suppress(ProcessLookupError):
                 self.proc.send_signal(sig)
 
-    def stop(self) -> None:
-        self.stopping = True
-        self._signal(signal.SIGTERM)
-
-    def kill(self, cause: Exit | None = None) -> None:
-        if cause is not None and self.cause is None:
-            self.cause = cause
-        self._signal(signal.SIGKILL)

@@ -79,13 +79,19 @@ class Incarnation:
     def start(self) -> None:
         raise NotImplementedError
 
-    def stop(self) -> None:
-        """Ask it to stop cleanly."""
+    def _signal(self, sig: int) -> None:
         raise NotImplementedError
+
+    def stop(self) -> None:
+        """Ask it to stop cleanly (SIGTERM: an actor finishes its message and runs on_stop)."""
+        self.stopping = True
+        self._signal(signal.SIGTERM)
 
     def kill(self, cause: Exit | None = None) -> None:
         """Kill it now; ``cause`` replaces the exit reason (hang, limit)."""
-        raise NotImplementedError
+        if cause is not None and self.cause is None:
+            self.cause = cause
+        self._signal(signal.SIGKILL)
 
     def _set_ready(self) -> None:
         if not self.ready.done() and not self.exited.done():
@@ -195,11 +201,3 @@ class ActorProcess(Incarnation):
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, sig)
 
-    def stop(self) -> None:
-        self.stopping = True
-        self._signal(signal.SIGTERM)
-
-    def kill(self, cause: Exit | None = None) -> None:
-        if cause is not None and self.cause is None:
-            self.cause = cause
-        self._signal(signal.SIGKILL)
