@@ -17,8 +17,9 @@ Example::
     >>> from embagents.backends.llama import LlamaBackend
     >>> from embagents.modelfiles import default_llm_path
     >>> llm = LlamaBackend(default_llm_path())
-    >>> llm.chat([{"role": "user", "content": "What is the capital of France?"}],
-    ...          max_tokens=24)["content"]                         # doctest: +SKIP
+    >>> llm.chat([{"role": "system", "content": "You are a helpful assistant that answers in one sentence."},
+    ...           {"role": "user", "content": "What is the capital of France?"}],
+    ...          temperature=0.0, max_tokens=24)["content"]        # doctest: +SKIP
     'The capital of France is Paris.'
 """
 

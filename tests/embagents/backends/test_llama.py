@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import os
+import runpy
 from collections.abc import Iterator
+from pathlib import Path
 
 import msgpack
+import numpy as np
 import pytest
 
 pytest.importorskip(
@@ -206,10 +209,12 @@ def test_inprocess_tokens_per_second(tiny_gguf: str) -> None:
 def test_smollm2_knows_the_capital_of_france() -> None:
     backend = LlamaBackend(default_llm_path())
     try:
-        # Without a system prompt SmolLM2's template injects its own, after which
-        # this 135M model rambles in French at temperature 0.
+        # A 135M model's greedy path can hinge on a near-tie that the CPU's SIMD kernels
+        # (AVX2, AVX-512, AMX) break differently: "You are a helpful assistant." gives
+        # Paris on one machine and French on another (first-token margin 0.13 logits).
+        # This prompt keeps every step's margin above 1 logit (see test below).
         messages = [
-            {"role": "system", "content": "You are a helpful assistant."},
+            {"role": "system", "content": "You are a helpful assistant that answers in one sentence."},
             {"role": "user", "content": "What is the capital of France?"},
         ]
         reply = backend.chat(messages, temperature=0.0, max_tokens=24)
@@ -217,3 +222,30 @@ def test_smollm2_knows_the_capital_of_france() -> None:
         assert reply["finish_reason"] == "stop"
     finally:
         backend.close()
+
+
+def test_the_example_prompt_has_no_near_tie_on_its_greedy_path() -> None:
+    """Guards the main job: a margin this wide survives other CPUs' rounding."""
+    from llama_cpp import Llama
+
+    prompt = runpy.run_path(str(Path(__file__).parents[3] / "examples" / "chat.py"))["SYSTEM_PROMPT"]
+    llm = Llama(default_llm_path(), n_ctx=256, logits_all=True, verbose=False)
+    try:
+        text = (
+            f"<|im_start|>system\n{prompt}<|im_end|>\n"
+            "<|im_start|>user\nWhat is the capital of France?<|im_end|>\n<|im_start|>assistant\n"
+        )
+        llm.eval(llm.tokenize(text.encode(), add_bos=False, special=True))
+        margins, out = [], []
+        for _ in range(24):
+            logits = np.asarray(llm.scores[llm.n_tokens - 1])
+            second, first = np.argsort(logits)[-2:]
+            margins.append(float(logits[first] - logits[second]))
+            if first == llm.token_eos():
+                break
+            out.append(int(first))
+            llm.eval([int(first)])
+        assert "Paris" in llm.detokenize(out).decode(), llm.detokenize(out)
+        assert min(margins) > 0.5, [round(m, 2) for m in margins]
+    finally:
+        llm.close()
