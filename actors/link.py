@@ -22,6 +22,7 @@ import zmq
 
 from actors import wire
 from actors.errors import ActorCrashed, CorruptFrame, RemoteError
+from actors.wire import ACK, REPLY
 
 if TYPE_CHECKING:
     from actors.runtime import Runtime
@@ -29,6 +30,8 @@ if TYPE_CHECKING:
 __all__ = ["Link", "Pending"]
 
 log = logging.getLogger("actors.link")
+# Plain ints: zmq's constants are IntFlags, whose arithmetic runs in enum code.
+_POLLIN, _EVENTS, _NOBLOCK = int(zmq.POLLIN), int(zmq.EVENTS), int(zmq.NOBLOCK)
 #: How often a blocked ask checks whether its actor is still there (seconds).
 WAIT_SLICE = 0.02
 _ids = itertools.count()
@@ -96,17 +99,19 @@ class Link:
     def send(self, kind: int, body: Any, pending: Pending | None = None) -> int:
         if self.releases:  # views dropped since the last frame (maybe inside a handler's loop)
             self.flush_releases()
-        self.seq += 1
-        frame, segs = self.rt.codec.encode([kind, self.seq, body])
+        seq = self.seq = self.seq + 1
+        frame, segs = self.rt.codec.encode([kind, seq, body])
         out = _Out(kind, frame, segs, pending)
-        self.unacked[self.seq] = out
+        self.unacked[seq] = out
         if self.connected:
             self._transmit(out)
-        return self.seq
+        return seq
 
     def _transmit(self, out: _Out) -> bool:
         try:
-            self.sock.send(out.frame, zmq.NOBLOCK, copy=len(out.frame) > 4096)
+            # A copying send: arrays of 64 KB and more travel in shared memory, and pyzmq
+            # copies smaller frames anyway, only through a slower path when asked not to.
+            self.sock.send(out.frame, _NOBLOCK)
         except zmq.Again:
             self.connected = False
             return False
@@ -157,8 +162,8 @@ class Link:
 
     def on_readable(self) -> None:
         sock = self.sock
-        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:  # cheaper than ending on zmq.Again
-            self.handle(sock.recv(zmq.NOBLOCK, copy=False))
+        while sock.getsockopt(_EVENTS) & _POLLIN:  # cheaper than ending on zmq.Again
+            self.handle(sock.recv(_NOBLOCK, copy=False))
 
     def wait(self, pending: Pending, timeout: float | None) -> bool:
         """Block this thread until ``pending`` is settled or ``timeout`` passes.
@@ -188,20 +193,21 @@ class Link:
 
     def handle(self, frame: Any) -> None:
         """One frame from the actor: an ACK, a REPLY, a view RELEASE or a DEAD letter."""
-        decode = self.rt.codec.decode
         try:
-            msg = decode(frame.buffer, self._release)
+            msg = self.rt.codec.decode(frame.buffer, self._release)
             kind = msg[0]
-            if kind == wire.ACK:
-                self._ack(msg[1])
-            elif kind == wire.REPLY:
+            if kind == REPLY:  # the ask path first: it is the one someone waits on
                 _, seq, ok, value = msg
                 out = self.unacked.pop(seq, None)
-                self._ack(seq)
+                if self.unacked:
+                    self._ack(seq)
                 if out is not None:
-                    self.rt.pool.acked(out.segments)
+                    if out.segments:
+                        self.rt.pool.acked(out.segments)
                     if out.pending is not None:
                         out.pending.resolve(ok, value if ok else RemoteError(self.name, *value))
+            elif kind == ACK:
+                self._ack(msg[1])
             elif kind == wire.RELEASE:
                 for n in msg[1]:
                     self.rt.pool.released(n, self)

@@ -81,16 +81,21 @@ class Loop:
         self._stopping = True
 
     def _run_timers(self) -> float | None:
-        now = time.monotonic()
-        while self._timers and self._timers[0][0] <= now:
-            _, tid, fn = heapq.heappop(self._timers)
-            if tid in self._cancelled:
-                self._cancelled.discard(tid)
-                continue
-            fn()
-        if not self._timers:
+        timers = self._timers
+        if not timers:
             return None
-        return max(0.0, self._timers[0][0] - time.monotonic())
+        now = time.monotonic()
+        if timers[0][0] <= now:
+            while timers and timers[0][0] <= now:
+                _, tid, fn = heapq.heappop(timers)
+                if tid in self._cancelled:
+                    self._cancelled.discard(tid)
+                    continue
+                fn()
+            if not timers:
+                return None
+            now = time.monotonic()
+        return max(0.0, timers[0][0] - now)
 
     def run(
         self,
@@ -113,6 +118,8 @@ class Loop:
                 for s in only:
                     poller.register(s, zmq.POLLIN)
         self._stopping = False
+        # zmq_poll on the Poller's own item list: Poller.poll() only adds argument checks.
+        items, handlers, hooks = poller.sockets, self._handlers, self.after_poll
         while not self._stopping:
             if until is not None and until():
                 return True
@@ -121,17 +128,20 @@ class Loop:
                 break
             if until is not None and until():
                 return True
-            for bound in (self.max_wait, None if deadline is None else deadline - time.monotonic()):
-                if bound is not None:
-                    wait = bound if wait is None else min(wait, bound)
-            if wait is not None and wait <= 0 and deadline is not None and time.monotonic() >= deadline:
-                return until() if until is not None else False
-            events = poller.poll(None if wait is None else max(0, int(wait * 1000 + 0.999)))
-            for sock, _ in events:
-                h = self._handlers.get(sock)
+            bound = self.max_wait
+            if bound is not None and (wait is None or bound < wait):
+                wait = bound
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return until() if until is not None else False
+                if wait is None or left < wait:
+                    wait = left
+            for sock, _ in zmq.zmq_poll(items, -1 if wait is None else int(wait * 1000 + 0.999)):
+                h = handlers.get(sock)
                 if h is not None:
                     h()
-            for hook in self.after_poll:
+            for hook in hooks:
                 hook()
         return until() if until is not None else False
 

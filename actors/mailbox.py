@@ -24,6 +24,7 @@ import zmq
 from actors import wire
 from actors.errors import CodecError
 from actors.runtime import shm_prefix
+from actors.wire import ASK, CTRL, RELEASE, TELL
 
 if TYPE_CHECKING:
     from actors.journal import Journal
@@ -34,6 +35,10 @@ __all__ = ["Mailbox"]
 log = logging.getLogger("actors.mailbox")
 
 Handler = Callable[[int, Any], Any]
+
+# Plain ints: zmq's constants are IntFlags, and `int & IntFlag` costs ~1 us in enum code.
+_POLLIN, _EVENTS, _NOBLOCK, _SNDMORE = int(zmq.POLLIN), int(zmq.EVENTS), int(zmq.NOBLOCK), int(zmq.SNDMORE)
+_KINDS = frozenset((TELL, ASK, CTRL))
 
 
 class Mailbox:
@@ -67,6 +72,7 @@ class Mailbox:
         self.queue: deque[tuple[bytes, Any]] = deque()
         self.last_seq: dict[bytes, int] = {}
         self._owners: dict[bytes, str] = {}  # asker ident -> its shared-memory prefix
+        self._releasers: dict[bytes, Callable[[str, int], None]] = {}  # one per sender, not per frame
         self.to_ack: dict[bytes, int] = {}
         self.releases: dict[bytes, list[str]] = {}
         self.crashed = journal.crashes() if journal is not None else {}
@@ -96,28 +102,33 @@ class Mailbox:
 
     def _drain(self) -> None:
         # The hot path: an EVENTS check is cheaper than a zmq.Again exception, and two
-        # recv calls are cheaper than recv_multipart.
-        sock, queue, POLLIN, EVENTS, NOBLOCK = self.sock, self.queue, zmq.POLLIN, zmq.EVENTS, zmq.NOBLOCK
+        # recv calls are cheaper than recv_multipart. A ROUTER always puts the sender's
+        # id first and at least one part after it, so the id is read as plain bytes.
+        sock, queue = self.sock, self.queue
+        recv, events = sock.recv, sock.getsockopt
         for i in range(4096):
-            if i and not sock.getsockopt(EVENTS) & POLLIN:  # the first read follows a poll
+            if i and not events(_EVENTS) & _POLLIN:  # the first read follows a poll
                 return
             try:
-                ident = sock.recv(NOBLOCK, copy=False)
+                ident = recv(_NOBLOCK)
             except zmq.Again:
                 return
-            frame = sock.recv(NOBLOCK, copy=False) if ident.more else None
-            if frame is None or frame.more:
-                while frame is not None and frame.more:  # more parts than ours: skip the rest
-                    frame = sock.recv(NOBLOCK, copy=False)
+            frame = recv(_NOBLOCK, copy=False)
+            if frame.more:  # more parts than ours: skip the rest
+                while frame.more:
+                    frame = recv(_NOBLOCK, copy=False)
                 self.dropped += 1
                 log.warning("[%s] dropped a frame with the wrong number of parts", self.name)
                 continue
             self.received += 1
-            queue.append((ident.bytes, frame))
+            queue.append((ident, frame))
 
     def _handle(self, ident: bytes, frame: Any) -> None:
+        release = self._releasers.get(ident)
+        if release is None:
+            release = self._releasers[ident] = lambda n, g, i=ident: self._release(i, n)
         try:
-            msg = self.rt.codec.decode(frame.buffer, lambda n, g, i=ident: self._release(i, n))
+            msg = self.rt.codec.decode(frame.buffer, release)
             kind, seq, body = msg[0], msg[1], msg[2] if len(msg) > 2 else None
         except CodecError as exc:
             self.dropped += 1
@@ -127,11 +138,11 @@ class Mailbox:
             self.dropped += 1
             log.warning("[%s] dropped a foreign frame from %r", self.name, ident)
             return
-        if kind == wire.RELEASE:
+        if kind == RELEASE:
             for n in seq:  # [RELEASE, names]
                 self.rt.pool.released(n, ident)
             return
-        if kind not in (wire.TELL, wire.ASK, wire.CTRL) or not isinstance(seq, int):
+        if kind not in _KINDS or not isinstance(seq, int):
             self.dropped += 1
             log.warning("[%s] dropped a frame of unknown kind %r from %r", self.name, kind, ident)
             return
@@ -150,7 +161,7 @@ class Mailbox:
             result = self.handler(kind, body)
             ok = True
         except Exception as exc:
-            if kind == wire.TELL:
+            if kind == TELL:
                 # The actor crashes; the journal keeps this message's id, so the
                 # next incarnation counts it towards the poison limit.
                 raise
@@ -160,7 +171,7 @@ class Mailbox:
         if jr is not None:
             jr.end()
         self.handled += 1
-        if kind == wire.TELL:
+        if kind == TELL:
             self.to_ack[ident] = seq
         else:
             self.to_ack.pop(ident, None)
@@ -177,8 +188,9 @@ class Mailbox:
             frame, segs = self.rt.codec.encode(
                 [wire.REPLY, seq, False, [type(exc).__name__, f"cannot send the reply: {exc}", ""]]
             )
-        self.sock.send(ident, zmq.SNDMORE)
-        self.sock.send(frame, copy=len(frame) > 4096)
+        sock = self.sock
+        sock.send(ident, _SNDMORE)
+        sock.send(frame)  # a copying send (see Link._transmit)
         if segs:
             self.rt.pool.sent(segs, ident)
             self.rt.pool.acked(segs)  # replies are not re-sent: only the view holds them

@@ -58,7 +58,9 @@ from embagents.bench.registry import (
     OWNED_SHM_PREFIXES,
     BenchOptions,
     case,
+    interleaved,
     run_case,
+    run_rounds,
     select,
     shm_entries,
     shm_leftovers,
@@ -91,9 +93,13 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
     load0 = [round(x, 2) for x in os.getloadavg()]
     t0 = time.monotonic()
     rows, skipped, errors = [], [], []
+    paired = [c for c in chosen if interleaved(c)] if not quick else []
+    done = run_rounds(paired, opts, _log) if paired else {}
     for c in chosen:
-        _log(f"bench: {c.name} ...")
-        row = run_case(c, opts)
+        row = done.get(c.name)
+        if row is None:
+            _log(f"bench: {c.name} ...")
+            row = run_case(c, opts)
         status = row.get("status")
         if status == "ok":
             rows.append({k: v for k, v in row.items() if k not in _ROW_DROP})

@@ -44,11 +44,13 @@ __all__ = [
     "BenchOptions",
     "Case",
     "case",
+    "interleaved",
     "iterations",
     "label",
     "payload",
     "percentiles",
     "run_case",
+    "run_rounds",
     "select",
     "shm_entries",
     "shm_leftovers",
@@ -191,17 +193,56 @@ def sized(
     """
     for size in sizes:
         def run(opts: BenchOptions, size: int = size) -> dict[str, Any]:
-            if kind != "ask" or size != 64 or opts.quick:
-                return fn(size, opts)
-            # A 64 B round trip is ~0.1 ms: where the scheduler puts the two processes on
-            # 2 cores moves it by +-30 % from one start to the next. Every transport gets
-            # the same treatment: three fresh starts, the run with the median p50 reported.
-            runs = sorted((fn(size, opts) for _ in range(3)), key=lambda r: r["p50_us"])
-            best = dict(runs[1])
-            best["runs_p50_us"] = [r["p50_us"] for r in runs]
-            return best
+            return fn(size, opts)
 
         add(Case(f"{transport}_{kind}_{label(size)}", transport, size, kind, run, needs))
+
+
+#: Fresh starts per transport for the interleaved cases (see :func:`interleaved`).
+ROUNDS = 3
+
+
+def interleaved(c: Case) -> bool:
+    """Whether ``c`` runs in round-robin rounds with the other transports' same case.
+
+    A 64 B round trip is ~0.1 ms: where the scheduler puts the two processes
+    on 2 cores moves it by +-30 % from one start to the next, and a shared
+    virtual machine's speed drifts by as much from one minute to the next.
+    So the 64 B asks of every transport run round robin, ``ROUNDS`` fresh
+    starts each, and each reports its median start: the two sides of a
+    ratio are measured in the same minute.
+
+    >>> interleaved(Case("x", "pyzmq", 64, "ask", lambda o: {})), interleaved(Case("y", "pyzmq", MIB, "ask", lambda o: {}))
+    (True, False)
+    """
+    return c.kind == "ask" and c.payload_bytes == 64
+
+
+def run_rounds(cases: list[Case], opts: BenchOptions, log: Callable[[str], None] = print) -> dict[str, dict[str, Any]]:
+    """Run ``cases`` round robin, ``ROUNDS`` times; return each case's row of its median start.
+
+    A case that errs or is skipped in any round reports that round's row.
+    """
+    runs: dict[str, list[dict[str, Any]]] = {c.name: [] for c in cases}
+    for r in range(ROUNDS):
+        for c in cases:
+            if runs[c.name] and runs[c.name][-1]["status"] != "ok":
+                continue
+            row = run_case(c, opts)
+            runs[c.name].append(row)
+            log(f"bench: {c.name} round {r + 1}/{ROUNDS}: " + (f"p50 {row['p50_us']} us" if row["status"] == "ok" else row["status"]))
+    out = {}
+    for name, rows in runs.items():
+        bad = [row for row in rows if row["status"] != "ok"]
+        if bad:
+            out[name] = bad[0]
+            continue
+        rows.sort(key=lambda row: row["p50_us"])
+        best = dict(rows[len(rows) // 2])
+        best["runs_p50_us"] = sorted(row["p50_us"] for row in rows)
+        best["seconds"] = round(sum(row["seconds"] for row in rows), 2)
+        out[name] = best
+    return out
 
 
 def select(only: list[str] | None) -> list[Case]:

@@ -23,7 +23,9 @@ from embagents.bench.registry import (
     BenchOptions,
     Case,
     add,
+    interleaved,
     run_case,
+    run_rounds,
     select,
 )
 
@@ -154,3 +156,29 @@ def test_unknown_only_name_exits_with_an_error() -> None:
     )
     assert proc.returncode == 1
     assert "no benchmark case matches" in proc.stderr
+
+
+def test_interleaved_cases_run_round_robin_and_report_their_median_start() -> None:
+    order: list[str] = []
+
+    def measuring(name: str, p50s: list[float]):
+        def fn(opts: BenchOptions) -> dict:
+            order.append(name)
+            return {"p50_us": p50s[order.count(name) - 1], "p99_us": 1.0, "msgs_per_s": None}
+        return fn
+
+    def broken(opts: BenchOptions) -> dict:
+        order.append("c")
+        raise RuntimeError("no peer")
+
+    cases = [
+        Case("a", "embagents", 64, "ask", measuring("a", [30.0, 10.0, 20.0])),
+        Case("b", "pyzmq", 64, "ask", measuring("b", [5.0, 7.0, 6.0])),
+        Case("c", "rclpy", 64, "ask", broken),
+    ]
+    assert all(interleaved(c) for c in cases)
+    rows = run_rounds(cases, BenchOptions(), log=lambda msg: None)
+    assert order == ["a", "b", "c", "a", "b", "a", "b"]  # a failing case is not tried again
+    assert rows["a"]["p50_us"] == 20.0 and rows["a"]["runs_p50_us"] == [10.0, 20.0, 30.0]
+    assert rows["b"]["p50_us"] == 6.0
+    assert rows["c"]["status"] == "error" and "no peer" in rows["c"]["error"]
