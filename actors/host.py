@@ -69,6 +69,7 @@ class ActorHost:
         self.mailbox = Mailbox(
             rt, name, rt.endpoint(name), self._dispatch, self.journal,
             poison_limit=poison_limit, dead_letter=self._dead_letter,
+            seen_path=os.path.join(rt.run_dir, f"{name}.seen"),
         )
         self.mailbox.loop = loop  # type: ignore[attr-defined]
         self.publishers: dict[str, Publisher] = {}

@@ -7,11 +7,18 @@ acknowledges it). Before a message is handled its id is written to the
 actor's journal; if the process dies while handling it, the next
 incarnation counts that against the message, and past ``poison_limit``
 crashes it is dead-lettered with the reason instead of handled again.
+
+On a clean stop the mailbox writes, per sender, the last sequence number it
+handled to ``seen_path``, and the next incarnation starts from that table: a
+told message whose acknowledgement was lost with the closing connection (the
+actor exits right after it) is re-sent by its sender, and is then
+acknowledged, not handled a second time.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import time
 import traceback
 from collections import deque
@@ -54,6 +61,7 @@ class Mailbox:
         *,
         poison_limit: int = 3,
         dead_letter: Callable[[dict[str, Any]], None] | None = None,
+        seen_path: str | None = None,
     ) -> None:
         self.rt = rt
         self.name = name
@@ -70,7 +78,8 @@ class Mailbox:
         s.bind(endpoint)
         self.sock = s
         self.queue: deque[tuple[bytes, Any]] = deque()
-        self.last_seq: dict[bytes, int] = {}
+        self.seen_path = seen_path
+        self.last_seq: dict[bytes, int] = _load_seen(seen_path)
         self._owners: dict[bytes, str] = {}  # asker ident -> its shared-memory prefix
         self._releasers: dict[bytes, Callable[[str, int], None]] = {}  # one per sender, not per frame
         self.to_ack: dict[bytes, int] = {}
@@ -233,5 +242,26 @@ class Mailbox:
                 self.sock.send_multipart([ident, msgpack.packb([wire.RELEASE, names])])
 
     def close(self) -> None:
+        """Send what is batched, remember what was handled (see the module docstring), close."""
         self.flush()
         self.sock.close()
+        if self.seen_path is not None and self.last_seq:
+            tmp = f"{self.seen_path}.{os.getpid()}"
+            with open(tmp, "wb") as f:
+                f.write(msgpack.packb(self.last_seq))
+            os.replace(tmp, self.seen_path)
+
+
+def _load_seen(path: str | None) -> dict[bytes, int]:
+    """The last handled sequence number per sender, as the previous incarnation left it."""
+    if path is None:
+        return {}
+    try:
+        with open(path, "rb") as f:
+            seen = msgpack.unpackb(f.read())
+    except FileNotFoundError:
+        return {}
+    except Exception as exc:  # a torn or foreign file must not keep the actor from starting
+        log.warning("ignored the unreadable sequence table %s: %s", path, exc)
+        return {}
+    return {k: v for k, v in seen.items() if isinstance(k, bytes) and isinstance(v, int)} if isinstance(seen, dict) else {}

@@ -4,6 +4,7 @@ import os
 import signal
 import time
 
+import msgpack
 import numpy as np
 import pytest
 import zmq
@@ -16,6 +17,7 @@ from actors import (
     RemoteError,
     Timeout,
     UnregisteredType,
+    wire,
 )
 from tests.actors.conftest import shm_names
 from tests.actors.workers import Counter, Echo, Forwarder, Holder
@@ -205,3 +207,33 @@ def test_a_frame_returned_to_its_owner_is_not_copied(system: ActorSystem) -> Non
     # looper's own segment, so the echo never wrote a segment of its own.
     echo_pid = system.procs["echo"].pid
     assert [n for n in shm_names(system.run_id) if f"_{echo_pid}_" in n] == []
+
+
+def test_a_message_handled_before_a_clean_stop_is_not_handled_again_when_resent(system: ActorSystem) -> None:
+    # An actor that stops right after a tell can take that tell's ACK down with its
+    # connection; the sender then re-sends it to the next incarnation (at-least-once).
+    # The mailbox's table of handled sequence numbers, kept across a clean stop, acks it instead.
+    c = system.spawn(Counter, "c")
+    info = system.procs["c"]
+    s = zmq.Context.instance().socket(zmq.DEALER)
+    s.setsockopt(zmq.LINGER, 0)
+    s.setsockopt(zmq.ROUTING_ID, f"{os.getpid()}.9.9".encode())
+    s.setsockopt(zmq.RCVTIMEO, 5000)
+
+    def tell_and_wait_ack(*frames: tuple[int, str]) -> None:
+        s.connect(system.rt.endpoint("c"))
+        for seq, body in frames:
+            s.send(msgpack.packb([wire.TELL, seq, body]))
+        while msgpack.unpackb(s.recv()) != [wire.ACK, frames[-1][0]]:
+            pass
+        s.disconnect(system.rt.endpoint("c"))
+
+    try:
+        tell_and_wait_ack((1, "x"), (2, "y"))
+        assert c.ask("seen", timeout=5).get() == ["x", "y"]
+        system.stop("c", unregister=False)
+        system.wait_ready(system.start_process(info.spec), 10)
+        tell_and_wait_ack((2, "y"), (3, "z"))  # "y" again, as after a lost ACK
+        assert c.ask("seen", timeout=5).get() == ["z"]
+    finally:
+        s.close()
