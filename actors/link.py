@@ -74,7 +74,10 @@ class Link:
         self.rt = rt
         self.name = name
         self.endpoint = endpoint
-        self.ident = f"{os.getpid()}.{threading.get_ident() % 100000}.{next(_ids)}".encode()
+        # pid first (the actor finds the sender's shared-memory prefix from it); the random part
+        # keeps an id unique even when a later process gets a dead sender's pid, since mailboxes
+        # remember each sender's last sequence number across restarts.
+        self.ident = f"{os.getpid()}.{threading.get_ident() % 100000}.{next(_ids)}.{os.urandom(4).hex()}".encode()
         s = rt.ctx.socket(zmq.DEALER)
         s.setsockopt(zmq.ROUTING_ID, self.ident)
         s.setsockopt(zmq.IMMEDIATE, 1)  # never queue into zmq for an absent peer: we keep it
