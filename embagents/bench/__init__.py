@@ -39,9 +39,10 @@ import sys
 import time
 from typing import Any
 
-# Importing a case module registers its cases. Cases run grouped by
-# transport, ours first: while this process has no sockets or threads of
-# its own yet (each ActorSystem forks its fork server from here).
+# Importing a case module registers its cases. The 64 B asks of every transport run
+# first, round robin (see registry.interleaved); the rest run grouped by transport, ours
+# first. Each ActorSystem forks its fork server from this process, which holds no
+# sockets or threads between cases: every case closes its contexts and joins its threads.
 from embagents.bench import (  # noqa: F401 - importing a case module registers its cases
     cases_actors,
     cases_llm,

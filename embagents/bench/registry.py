@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import fnmatch
+import functools
 import importlib.util
 import os
 import subprocess
@@ -192,10 +193,7 @@ def sized(
     >>> del CASES["pyzmq_demo_64B"]
     """
     for size in sizes:
-        def run(opts: BenchOptions, size: int = size) -> dict[str, Any]:
-            return fn(size, opts)
-
-        add(Case(f"{transport}_{kind}_{label(size)}", transport, size, kind, run, needs))
+        add(Case(f"{transport}_{kind}_{label(size)}", transport, size, kind, functools.partial(fn, size), needs))
 
 
 #: Fresh starts per transport for the interleaved cases (see :func:`interleaved`).
@@ -239,7 +237,7 @@ def run_rounds(cases: list[Case], opts: BenchOptions, log: Callable[[str], None]
             continue
         rows.sort(key=lambda row: row["p50_us"])
         best = dict(rows[len(rows) // 2])
-        best["runs_p50_us"] = sorted(row["p50_us"] for row in rows)
+        best["runs_p50_us"] = [row["p50_us"] for row in rows]
         best["seconds"] = round(sum(row["seconds"] for row in rows), 2)
         out[name] = best
     return out
