@@ -22,6 +22,8 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import time
+import weakref
 from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -39,6 +41,8 @@ __all__ = ["Publisher", "Subscription", "topic_dir"]
 
 log = logging.getLogger("actors.topics")
 _ids = itertools.count()
+# This process's subscriptions by id (their mark's name): see Publisher._await_subscriptions.
+_local: weakref.WeakValueDictionary[str, Subscription] = weakref.WeakValueDictionary()
 
 
 def topic_dir(run_dir: str, topic: str) -> str:
@@ -65,6 +69,7 @@ class Publisher:
         self.sock = s
         self._mtime = -1
         self._peers: set[str] = set()
+        self.unconfirmed = 0  # new subscriptions whose SUBSCRIBE did not come within the wait (dead ones)
         self.sent = 0
 
     def _refresh(self) -> None:
@@ -79,7 +84,7 @@ class Publisher:
         new = now - self._peers
         for f in new:
             self.sock.connect(f"ipc://{self.rt.run_dir}/s.{f}")
-        self._await_subscriptions(len(new))
+        self.unconfirmed = self._await_subscriptions(new)
         for f in self._peers - now:
             try:
                 self.sock.disconnect(f"ipc://{self.rt.run_dir}/s.{f}")
@@ -87,11 +92,23 @@ class Publisher:
                 pass
         self._peers = now
 
-    def _await_subscriptions(self, n: int, timeout_ms: int = 500) -> None:
-        sock = self.sock
-        while n > 0 and sock.poll(timeout_ms):
-            if sock.recv()[:1] == b"\x01":
+    def _await_subscriptions(self, new: set[str], timeout: float = 0.5) -> int:
+        """Wait until the ``new`` subscriptions' SUBSCRIBE arrived; return how many did not."""
+        # A ZeroMQ socket runs its pending commands (attach the new pipe, send
+        # SUBSCRIBE) only inside its owner's calls. A subscription of this
+        # process would not answer until the wait is over (measured: the full
+        # 0.5 s), so nudge those sockets while waiting.
+        own = [sub.sock for f in new if (sub := _local.get(f)) is not None]
+        sock, n, deadline = self.sock, len(new), time.monotonic() + timeout
+        while n > 0:
+            for s in own:
+                s.getsockopt(zmq.EVENTS)
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            if sock.poll(max(1, int(1000 * (min(left, 0.002) if own else left)))) and sock.recv()[:1] == b"\x01":
                 n -= 1
+        return n
 
     @property
     def subscribers(self) -> int:
@@ -170,6 +187,7 @@ class Subscription:
         self._mark = os.path.join(d, self.id)
         with open(self._mark, "w") as f:
             f.write(str(os.getpid()))
+        _local[self.id] = self
         loop.add(s, self.on_readable)
 
     def on_readable(self) -> None:

@@ -35,6 +35,7 @@ from typing import Any
 import attrs
 import rclpy
 from rclpy.context import Context
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -50,6 +51,7 @@ __all__ = ["RosBridgeCore", "clean_zombie_fastdds_segments", "configure_fastdds_
 log = logging.getLogger("embagents.ros")
 
 OnMessage = Callable[[str, object], None]
+OnMatched = Callable[[str, int], None]
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -80,6 +82,8 @@ class _Running:
     thread: threading.Thread
     stopping: Future
     publishers: dict[str, Any]  # internal topic -> rclpy Publisher
+    subscriptions: dict[str, Any]  # ROS topic (as declared) -> rclpy Subscription
+    on_matched: OnMatched | None
 
 
 class RosBridgeCore:
@@ -98,6 +102,7 @@ class RosBridgeCore:
         self._outputs = {o.topic: o for o in self.outputs}
         self._lock = threading.Lock()
         self._run: _Running | None = None
+        self._started_with: dict[str, Any] = {}
         self.counts: dict[str, _Counts] = {}
 
     @property
@@ -120,6 +125,7 @@ class RosBridgeCore:
         clean_shm: bool = True,
         shm_segment_mb: int | None = None,
         participant_id: int | None = None,
+        on_matched: OnMatched | None = None,
     ) -> None:
         """Init a Context (``domain_id`` default: $ROS_DOMAIN_ID), create the node and spin it.
 
@@ -129,6 +135,9 @@ class RosBridgeCore:
         :func:`clean_zombie_fastdds_segments`. ``shm_segment_mb`` calls
         :func:`configure_fastdds_shm` first (needed for publishing large
         images; only effective before this process's first start).
+        ``on_matched(ros_topic, count)`` is called from the spin thread
+        whenever the number of ROS peers matched on a declared ROS topic
+        changes (publishers of an input, subscriptions of an output).
 
         Raises RuntimeError if already started; on any failure everything
         created so far is torn down before the error propagates.
@@ -149,13 +158,19 @@ class RosBridgeCore:
             try:
                 node = Node(node_name, namespace=namespace, context=context, start_parameter_services=False)
                 self.counts = {d.topic: _Counts() for d in [*self.inputs, *self.outputs]}
-                for inp in self.inputs:
-                    node.create_subscription(
-                        ros_msg_class(inp.ros_type), inp.ros_topic, self._callback(inp, on_message), qos_profile(inp.qos)
+                subscriptions = {
+                    inp.ros_topic: node.create_subscription(
+                        ros_msg_class(inp.ros_type),
+                        inp.ros_topic,
+                        self._callback(inp, on_message),
+                        qos_profile(inp.qos),
+                        event_callbacks=SubscriptionEventCallbacks(matched=_matched(inp.ros_topic, on_matched)),
                     )
+                    for inp in self.inputs
+                }
                 publishers = {
-                    o.topic: node.create_publisher(ros_msg_class(o.ros_type), o.ros_topic, qos_profile(o.qos))
-                    for o in self.outputs
+                    o.topic: _create_publisher(node, o, on_matched)
+                    for o in self._outputs.values()
                     if o.ros_type is not None
                 }
                 executor = SingleThreadedExecutor(context=context)
@@ -164,7 +179,12 @@ class RosBridgeCore:
                 thread = threading.Thread(
                     target=self._spin, args=(executor, context, stopping), name=f"ros-spin-{node_name}", daemon=True
                 )
-                self._run = _Running(context, node, executor, thread, stopping, publishers)
+                self._run = _Running(context, node, executor, thread, stopping, publishers, subscriptions, on_matched)
+                self._started_with = {
+                    "node_name": node_name, "on_message": on_message, "domain_id": domain_id, "namespace": namespace,
+                    "clean_shm": clean_shm, "shm_segment_mb": shm_segment_mb, "participant_id": participant_id,
+                    "on_matched": on_matched,
+                }
                 thread.start()
             except BaseException:
                 self._run = None
@@ -237,10 +257,36 @@ class RosBridgeCore:
             pub = run.publishers.get(internal_topic)
             if pub is None:  # output declared without ros_type: its first message fixes the type
                 out = self._outputs[internal_topic] = out.resolved(type(msg))
-                pub = run.node.create_publisher(ros_msg_class(out.ros_type), out.ros_topic, qos_profile(out.qos))
-                run.publishers[internal_topic] = pub
+                pub = run.publishers[internal_topic] = _create_publisher(run.node, out, run.on_matched)
             pub.publish(ros_msg)
         self.counts[internal_topic].published += 1
+
+    def matched(self) -> dict[str, int]:
+        """ROS topic (as declared) -> peers matched now: publishers of an input, subscriptions of an output.
+
+        An output declared without ``ros_type`` counts once its first message created its publisher.
+        """
+        with self._lock:
+            run = self._run
+            if run is None:
+                return {}
+            counts = {name: sub.get_publisher_count() for name, sub in run.subscriptions.items()}
+            for topic, pub in run.publishers.items():
+                name = self._outputs[topic].ros_topic
+                counts[name] = counts.get(name, 0) + pub.get_subscription_count()
+        return counts
+
+    def restart(self) -> None:
+        """Stop, then start again with the arguments of the last ``start``: a new DDS participant.
+
+        Remote participants answer a participant they have not seen before at
+        once; see :class:`embagents.ros.bridge_actor.RosBridgeActor` for why
+        the bridge needs that. Raises RuntimeError if never started.
+        """
+        if not self._started_with:
+            raise RuntimeError("RosBridgeCore.restart() needs an earlier start()")
+        self.stop()
+        self.start(**self._started_with)
 
     @staticmethod
     def _ros_type_of(out: RosOutput, msg: object) -> str:
@@ -283,6 +329,17 @@ class RosBridgeCore:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _matched(topic: str, on_matched: OnMatched | None) -> Callable[[Any], None] | None:
+    if on_matched is None:
+        return None
+    return lambda info: on_matched(topic, info.current_count)
+
+
+def _create_publisher(node: Node, out: RosOutput, on_matched: OnMatched | None) -> Any:
+    events = PublisherEventCallbacks(matched=_matched(out.ros_topic, on_matched))
+    return node.create_publisher(ros_msg_class(out.ros_type), out.ros_topic, qos_profile(out.qos), event_callbacks=events)
 
 
 def _worth_logging(n: int) -> bool:

@@ -1,11 +1,16 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from actors import ActorSystem
+from actors.loop import Loop
+from actors.runtime import Runtime
+from actors.topics import Publisher as TopicPublisher
+from actors.topics import Subscription
 from tests.actors.workers import Publisher, Subscriber
 from tests.helpers import until
 
@@ -46,3 +51,22 @@ def test_keep_latest_drops_the_oldest(system: ActorSystem) -> None:
     time.sleep(0.3)
     got = sub.ask("got", timeout=5).get()
     assert got[-1] == 49
+
+
+def test_a_subscription_in_the_publishers_own_thread_confirms_at_once(tmp_path: Path) -> None:
+    # ZeroMQ runs a socket's commands only in its owner's calls: without a nudge, our own
+    # SUBSCRIBE would only arrive after the publisher's wait timed out.
+    rt, loop, got = Runtime(str(tmp_path), "tt"), Loop(), []
+    sub = Subscription(rt, loop, "loopback", got.append)
+    pub = TopicPublisher(rt, "loopback")
+    try:
+        assert pub.subscribers == 1
+        assert pub.unconfirmed == 0
+        pub.publish({"n": 1})
+        loop.run(until=lambda: bool(got), timeout=10.0)
+        assert got == [{"n": 1}]
+    finally:
+        sub.close()
+        pub.close()
+        loop.close()
+        rt.close()

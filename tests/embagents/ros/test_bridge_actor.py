@@ -199,3 +199,40 @@ def test_killing_the_bridge_mid_stream_recovers(tmp_path: Path, ros_env: dict[st
         sup.send_signal(signal.SIGTERM)
         log, _ = sup.communicate(timeout=30)
     assert sup.returncode == 0, log
+
+
+def test_a_restarted_bridge_looks_again_for_the_peers_it_had(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    import json
+    import queue
+    import threading
+
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(ECHO_SYSTEM))
+    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ros_env)
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in sup.stdout or ()], daemon=True).start()
+    peer = subprocess.Popen([sys.executable, "-c", STREAMER, "60"], stdout=subprocess.PIPE, text=True, env=ros_env)
+    seen: list[str] = []
+    try:
+        assert peer.stdout is not None
+        assert peer.stdout.readline().strip() == "FLOWING"
+        # SIGKILL: the bridge keeps counting the peer until its DDS lease ends (20 s), as after a
+        # lost reply, so its next incarnation looks for a peer that does not answer.
+        peer.kill()
+        peer.wait()
+        status = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(sup.pid)],
+                                capture_output=True, text=True, timeout=30)
+        bridge = next(r for r in json.loads(status.stdout)["rows"] if r["name"] == "_ros_bridge")
+        os.kill(bridge["pid"], signal.SIGKILL)
+        while not any("waiting for their periodic announcements" in x for x in seen):
+            seen.append(lines.get(timeout=30))
+    finally:
+        peer.kill()
+        sup.send_signal(signal.SIGTERM)
+        sup.wait(timeout=30)
+    log = "".join(seen)
+    for attempt in (1, 2, 3):
+        assert f"new DDS participant ({attempt} of 3)" in log, log
+    assert "no ROS peer seen again on /ping, /pong" in log, log
+    assert sup.returncode == 0

@@ -24,6 +24,7 @@ pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embag
 from embagents.msgs import Image, StreamingString, String, Twist  # noqa: E402
 from embagents.ros import QoS, RosInput, RosOutput  # noqa: E402
 from embagents.ros.node import RosBridgeCore, clean_zombie_fastdds_segments  # noqa: E402
+from tests.helpers import until  # noqa: E402
 
 DOMAIN_ID = 1 + os.getpid() % 100
 DEADLINE = 15.0  # seconds for any one exchange; discovery takes ~0.1-1 s here
@@ -432,3 +433,30 @@ def test_stop_from_inside_on_message(core_factory):
     while set(threading.enumerate()) != before and time.monotonic() < end:
         time.sleep(0.01)
     assert set(threading.enumerate()) == before
+
+
+def test_matched_counts_peers_and_restart_makes_a_new_participant(core_factory):
+    events: queue.Queue = queue.Queue()
+    got: queue.Queue = queue.Queue()
+    rx = core_factory(inputs=[RosInput("/peer_in", "std_msgs/String")])
+    tx = core_factory(outputs=[RosOutput("p", ros_topic="/peer_in", ros_type="std_msgs/String")])
+    with pytest.raises(RuntimeError, match="needs an earlier start"):
+        rx.restart()
+    rx.start("bridge_peer_rx", lambda t, m: got.put(m.data), domain_id=DOMAIN_ID, on_matched=lambda *e: events.put(e))
+    assert rx.matched() == {"/peer_in": 0}
+    tx.start("bridge_peer_tx", lambda t, m: None, domain_id=DOMAIN_ID)
+    assert events.get(timeout=DEADLINE) == ("/peer_in", 1)
+    assert rx.matched() == {"/peer_in": 1}
+    assert until(lambda: tx.matched() == {"/peer_in": 1}, timeout=DEADLINE)
+    old = rx.node.get_fully_qualified_name(), rx.node.context
+
+    rx.restart()  # same node and declarations, a new context (DDS participant)
+    assert rx.node.get_fully_qualified_name() == old[0] and rx.node.context is not old[1]
+    assert events.get(timeout=DEADLINE) == ("/peer_in", 1)  # the new participant found the peer again
+    end = time.monotonic() + DEADLINE
+    while got.empty() and time.monotonic() < end:
+        tx.publish("p", String(data="after restart"))
+        time.sleep(0.02)
+    assert got.get_nowait() == "after restart"
+    rx.stop()
+    assert rx.matched() == {}
