@@ -50,6 +50,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_pyzmq,
     cases_rclpy,
     cases_ros_bridge,
+    cases_ros_recovery,
     cases_supervisor,
     idle,
 )

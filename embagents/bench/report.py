@@ -107,6 +107,7 @@ def evaluate(rows: list[Row]) -> list[dict[str, Any]]:
         ("hang_detect", "hang detected past its deadline (p99)", "p99_us", "<=", 100.0, "ms", 1e-3),
         ("llm_stream_overhead", "LLM tokens/s through the runtime / in-process", "ratio", ">=", 0.95, "x", 1.0),
         ("ros_bridge_image", "ROS bridge 6.2MB image p50 / plain rclpy", "ratio", "<=", 1.5, "x", 1.0),
+        ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))
