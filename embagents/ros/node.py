@@ -22,6 +22,7 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import logging
 import os
@@ -363,37 +364,46 @@ def _teardown(context: Context, node: Node | None, executor: SingleThreadedExecu
             log.debug("ROS teardown step failed", exc_info=True)
 
 
-_SEGMENT = re.compile(r"^fastdds_[0-9a-z]{16}$")
+_SEGMENT = re.compile(r"^fastdds_(?:[0-9a-z]{16}|port\d{1,5})$")
 
 
 def clean_zombie_fastdds_segments(shm_dir: str = "/dev/shm", min_age: float = 10.0) -> list[str]:
-    """Remove Fast DDS segments whose owner process is gone; return their paths.
+    """Remove Fast DDS segments and ports whose owner process is gone; return their paths.
 
     Each DDS participant maps a ~0.5 MB ``fastdds_<16 hex>`` segment and
-    holds an flock on its ``_el`` file while alive. A SIGKILLed process
-    cannot unlink them, so every supervisor restart of the bridge would leak
-    one. Same rule as ``fastdds shm clean``, plus ``min_age`` so a segment
-    being created right now (lock not yet taken) is never touched.
+    listens on ``fastdds_port<N>`` ports (with a ``sem.fastdds_port<N>_mutex``),
+    holding an flock on each one's ``_el`` (or, for a shared port, ``_sl``)
+    file while alive. A SIGKILLed process cannot unlink them, so every
+    supervisor restart of the bridge would leak some. Same rule as ``fastdds
+    shm clean``, plus ``min_age`` so one being created right now (lock not
+    yet taken) is never touched.
     """
     removed: list[str] = []
     try:
-        names = os.listdir(shm_dir)
+        names = set(os.listdir(shm_dir))
     except OSError:
         return removed
     now = time.time()
-    for name in names:
+    for name in sorted(names):
         if not _SEGMENT.match(name):
             continue
-        seg, lock = os.path.join(shm_dir, name), os.path.join(shm_dir, name + "_el")
+        locks = [os.path.join(shm_dir, name + s) for s in ("_el", "_sl") if name + s in names]
+        if not locks:
+            continue  # no lock file: not ours to judge (the tool skips these too)
+        seg = os.path.join(shm_dir, name)
         try:
-            if now - os.stat(lock).st_mtime < min_age:
+            if any(now - os.stat(lock).st_mtime < min_age for lock in locks):
                 continue
-            with open(lock, "ab") as fd:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # fails while the owner lives
-                os.unlink(seg)
-                os.unlink(lock)
+            with contextlib.ExitStack() as held:  # every lock stays taken until all are unlinked
+                for lock in locks:
+                    fd = held.enter_context(open(lock, "ab"))  # noqa: SIM115
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # fails while an owner lives
+                for path in (seg, *locks):
+                    os.unlink(path)
         except OSError:
             continue
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(os.path.join(shm_dir, f"sem.{name}_mutex"))  # ports only
         removed.append(seg)
     return removed
 

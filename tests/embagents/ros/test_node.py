@@ -375,7 +375,7 @@ def test_stop_is_idempotent_leaves_no_threads_and_restarts():
 
 
 def _segments() -> set[str]:
-    return {f for f in os.listdir("/dev/shm") if f.startswith("fastdds_") and len(f) == 24}
+    return {f for f in os.listdir("/dev/shm") if f.startswith(("fastdds_", "sem.fastdds_"))}
 
 
 def test_killed_bridge_process_is_replaced_by_a_fresh_one(spawn):
@@ -391,9 +391,12 @@ def test_killed_bridge_process_is_replaced_by_a_fresh_one(spawn):
         os.killpg(bridge.pid, signal.SIGKILL)  # as the supervisor does
         bridge.wait(timeout=5)
         assert pub.poll() is None
-        # The killed bridge could not unlink its DDS segment; the next start cleans it.
+        # The killed bridge could not unlink its DDS segment and ports; the next start cleans them.
         removed = {os.path.basename(p) for p in clean_zombie_fastdds_segments(min_age=0)}
-        assert mine & removed, f"killed bridge's segments {mine} not cleaned ({removed})"
+        assert any(len(f) == 24 for f in mine & removed), f"killed bridge's segment in {mine} not cleaned ({removed})"
+        assert any(f.startswith("fastdds_port") for f in removed), f"killed bridge's ports in {mine} not cleaned"
+        left = _segments()
+        assert not {f for f in mine & left if f.endswith(("_el", "_sl"))}, f"locks left: {mine & left}"
 
 
 def test_large_frames_best_effort_with_a_big_dds_segment(spawn, monkeypatch):
