@@ -44,7 +44,9 @@ class RosBridgeActor(Actor):
     Its snapshot is the ROS topics that have peers (see the module docstring).
     """
 
-    peer_ros_topics: ClassVar[frozenset[str]] = frozenset()  # restored from the last incarnation's snapshot
+    # Restored from the last incarnation's snapshot:
+    peer_ros_topics: ClassVar[frozenset[str]] = frozenset()
+    predecessor_dds_files: ClassVar[frozenset[str]] = frozenset()  # its Fast DDS files in /dev/shm
 
     def __init__(
         self,
@@ -80,7 +82,14 @@ class RosBridgeActor(Actor):
         return [build(RosInput, d) for d in self.raw_inputs], [build(RosOutput, d) for d in self.raw_outputs]
 
     def on_start(self) -> None:
+        from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
         from embagents.ros.node import RosBridgeCore
+
+        # A killed predecessor could not unlink its DDS segment and ports; their names say they are
+        # not some other participant's half-made files, so they need no minimum age.
+        if self.predecessor_dds_files:
+            clean_zombie_fastdds_segments(min_age=0, names=self.predecessor_dds_files)
+        self.dds_files: set[str] = set()
 
         ins, outs = self._declarations()
         self.forwarded_in = 0
@@ -102,6 +111,8 @@ class RosBridgeActor(Actor):
             participant_id=pid,
             on_matched=lambda topic, n: ctx.call_soon_threadsafe(lambda: self._matched(topic, n)),
         )
+        self.dds_files = mapped_fastdds_files()
+        ctx.changed()
         for o in outs:
             ctx.subscribe(o.topic, lambda msg, t=o.topic: self._to_ros(t, msg), queue_size=o.qos.depth, keep="all")
         if expected:
@@ -129,13 +140,18 @@ class RosBridgeActor(Actor):
             ", ".join(missing), REDISCOVER_AFTER, attempt, REDISCOVER_TRIES,
         )
         self.core.restart()
+        from embagents.ros.fastdds_shm import mapped_fastdds_files
+
+        self.dds_files = mapped_fastdds_files()
+        self.context.changed()
         self.context.call_later(REDISCOVER_AFTER, lambda: self._rediscover(expected, attempt + 1))
 
     def snapshot(self) -> dict[str, Any]:
-        return {"peer_ros_topics": sorted(self.peers)}
+        return {"peer_ros_topics": sorted(self.peers), "dds_files": sorted(self.dds_files)}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.peer_ros_topics = frozenset(state.get("peer_ros_topics", ()))
+        self.predecessor_dds_files = frozenset(state.get("dds_files", ()))
 
     def _publish_in(self, topic: str, msg: Any) -> None:
         self.context.publish(topic, msg)

@@ -22,14 +22,10 @@ Example::
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import logging
 import os
-import re
 import tempfile
 import threading
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -45,9 +41,10 @@ from rclpy.task import Future
 
 from embagents.msgs import StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
+from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
 from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, ros_type_for
 
-__all__ = ["RosBridgeCore", "clean_zombie_fastdds_segments", "configure_fastdds_shm", "qos_profile"]
+__all__ = ["RosBridgeCore", "configure_fastdds_shm", "qos_profile"]
 
 log = logging.getLogger("embagents.ros")
 
@@ -362,50 +359,6 @@ def _teardown(context: Context, node: Node | None, executor: SingleThreadedExecu
             step()
         except Exception:
             log.debug("ROS teardown step failed", exc_info=True)
-
-
-_SEGMENT = re.compile(r"^fastdds_(?:[0-9a-z]{16}|port\d{1,5})$")
-
-
-def clean_zombie_fastdds_segments(shm_dir: str = "/dev/shm", min_age: float = 10.0) -> list[str]:
-    """Remove Fast DDS segments and ports whose owner process is gone; return their paths.
-
-    Each DDS participant maps a ~0.5 MB ``fastdds_<16 hex>`` segment and
-    listens on ``fastdds_port<N>`` ports (with a ``sem.fastdds_port<N>_mutex``),
-    holding an flock on each one's ``_el`` (or, for a shared port, ``_sl``)
-    file while alive. A SIGKILLed process cannot unlink them, so every
-    supervisor restart of the bridge would leak some. Same rule as ``fastdds
-    shm clean``, plus ``min_age`` so one being created right now (lock not
-    yet taken) is never touched.
-    """
-    removed: list[str] = []
-    try:
-        names = set(os.listdir(shm_dir))
-    except OSError:
-        return removed
-    now = time.time()
-    for name in sorted(names):
-        if not _SEGMENT.match(name):
-            continue
-        locks = [os.path.join(shm_dir, name + s) for s in ("_el", "_sl") if name + s in names]
-        if not locks:
-            continue  # no lock file: not ours to judge (the tool skips these too)
-        seg = os.path.join(shm_dir, name)
-        try:
-            if any(now - os.stat(lock).st_mtime < min_age for lock in locks):
-                continue
-            with contextlib.ExitStack() as held:  # every lock stays taken until all are unlinked
-                for lock in locks:
-                    fd = held.enter_context(open(lock, "ab"))  # noqa: SIM115
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # fails while an owner lives
-                for path in (seg, *locks):
-                    os.unlink(path)
-        except OSError:
-            continue
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(os.path.join(shm_dir, f"sem.{name}_mutex"))  # ports only
-        removed.append(seg)
-    return removed
 
 
 _SHM_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>

@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 
 from embagents.bench.cases_ros_recovery import ECHO_SYSTEM  # noqa: E402
+from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files  # noqa: E402
 
 DOMAIN_ID = 101 + os.getpid() % 100
 
@@ -174,10 +175,15 @@ def test_killing_the_bridge_mid_stream_recovers(tmp_path: Path, ros_env: dict[st
         status = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(sup.pid)],
                                 capture_output=True, text=True, timeout=30)
         bridge = next(r for r in json.loads(status.stdout)["rows"] if r["name"] == "_ros_bridge")
+        dead_files = mapped_fastdds_files(bridge["pid"])
         killed_at = time.monotonic()
         os.kill(bridge["pid"], signal.SIGKILL)
         arrivals = json.loads(peer.stdout.readline())
         assert any(t > killed_at + 0.5 for t in arrivals), "the flow never recovered"
+        # The next incarnation removed what the killed one could not (its DDS segment, its ports):
+        # of the files it mapped, none is left without a live owner.
+        assert dead_files
+        assert clean_zombie_fastdds_segments(min_age=0, names=dead_files) == []
         # The outage: the longest silence on /pong around the kill (pongs come every 50 ms).
         around = [t for t in arrivals if t > killed_at - 0.2]
         recovery = max(b - a for a, b in zip(around, around[1:], strict=False))

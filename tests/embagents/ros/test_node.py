@@ -23,7 +23,8 @@ pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embag
 
 from embagents.msgs import Image, StreamingString, String, Twist  # noqa: E402
 from embagents.ros import QoS, RosInput, RosOutput  # noqa: E402
-from embagents.ros.node import RosBridgeCore, clean_zombie_fastdds_segments  # noqa: E402
+from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments  # noqa: E402
+from embagents.ros.node import RosBridgeCore  # noqa: E402
 from tests.helpers import until  # noqa: E402
 
 DOMAIN_ID = 1 + os.getpid() % 100
