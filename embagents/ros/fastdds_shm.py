@@ -49,11 +49,13 @@ def clean_zombie_fastdds_segments(
     file while alive. A SIGKILLed process cannot unlink them, so every
     supervisor restart of the bridge would leak some. Same rule as ``fastdds
     shm clean``, plus ``min_age`` so one being created right now (lock not
-    yet taken) is never touched. ``names`` (any of a segment's or port's
-    file names) limits the sweep to those: files known to be a dead
-    process's need no ``min_age``.
+    yet taken) is never touched. A port with no lock file (only writers
+    opened it: its listener is gone) is removed once no process maps it.
+    ``names`` (any of a segment's or port's file names) limits the sweep to
+    those: files known to be a dead process's need no ``min_age``.
     """
     removed: list[str] = []
+    orphans: list[str] = []
     try:
         present = set(os.listdir(shm_dir))
     except OSError:
@@ -64,9 +66,10 @@ def clean_zombie_fastdds_segments(
         if not _SEGMENT.match(name) or (wanted is not None and name not in wanted):
             continue
         locks = [os.path.join(shm_dir, name + s) for s in ("_el", "_sl") if name + s in present]
-        if not locks:
-            continue  # no lock file: not ours to judge (the tool skips these too)
         seg = os.path.join(shm_dir, name)
+        if not locks:
+            orphans.append(seg)  # a port only writers opened (its listener is gone): judged below
+            continue
         try:
             if any(now - os.stat(lock).st_mtime < min_age for lock in locks):
                 continue
@@ -81,4 +84,24 @@ def clean_zombie_fastdds_segments(
         with contextlib.suppress(FileNotFoundError):
             os.unlink(os.path.join(shm_dir, f"sem.{name}_mutex"))  # ports only
         removed.append(seg)
+    # A port without a lock file is garbage once no process maps it any more.
+    orphans = [p for p in orphans if now - _mtime(p) >= min_age]
+    if orphans:
+        in_use = set().union(*(mapped_fastdds_files(pid) for pid in os.listdir("/proc") if pid.isdigit()))
+        for seg in orphans:
+            name = os.path.basename(seg)
+            if name in in_use:
+                continue
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(seg)
+                removed.append(seg)
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(os.path.join(shm_dir, f"sem.{name}_mutex"))
     return removed
+
+
+def _mtime(path: str) -> float:
+    try:
+        return os.stat(path).st_mtime
+    except OSError:
+        return time.time()
