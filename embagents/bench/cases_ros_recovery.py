@@ -28,7 +28,7 @@ import numpy as np
 
 from embagents.bench.registry import BenchOptions, case, shm_entries, stop_process
 
-__all__ = ["ECHO_SYSTEM", "STREAMER"]
+__all__ = ["ECHO_SYSTEM"]
 
 ECHO_SYSTEM = """
 from embagents import System
@@ -40,31 +40,7 @@ system = System([], ros=[RosInput("/ping", "std_msgs/String", topic="ping"),
                 supervision={"intensity": 100, "period": 60.0})
 """
 
-# Publishes /ping every 50 ms and prints the arrival time of each /pong; stops at EOF on stdin.
-STREAMER = r"""
-import select, sys, time, rclpy
-from std_msgs.msg import String
-rclpy.init()
-node = rclpy.create_node("recovery_streamer")
-pub = node.create_publisher(String, "/ping", 10)
-node.create_subscription(String, "/pong", lambda m: print(time.monotonic(), flush=True), 10)
-i = 0
-while not select.select([sys.stdin], [], [], 0)[0]:
-    pub.publish(String(data=str(i))); i += 1
-    t = time.monotonic() + 0.05
-    while time.monotonic() < t:
-        rclpy.spin_once(node, timeout_sec=0.01)
-"""
-
-ECHO_NODE = r"""
-import rclpy
-from std_msgs.msg import String
-rclpy.init()
-node = rclpy.create_node("recovery_echo")
-pub = node.create_publisher(String, "/pong", 10)
-node.create_subscription(String, "/ping", pub.publish, 10)
-rclpy.spin(node)
-"""
+PEER = [sys.executable, "-m", "embagents.ros.recovery_peer"]  # streamer / echo: plain rclpy processes
 
 _SETTLE = 1.0  # s of steady flow before each kill
 _IN_FLIGHT = 0.15  # s: a /pong this soon after a kill was sent before it
@@ -76,8 +52,8 @@ def _outages(env: dict[str, str], n: int, kill: Callable[[], float]) -> list[flo
 
     ``kill`` returns the monotonic time of its SIGKILL.
     """
-    streamer = subprocess.Popen([sys.executable, "-c", STREAMER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                text=True, env=env)
+    streamer = subprocess.Popen([*PEER, "streamer"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                env=env)
     arrivals: queue.Queue[float] = queue.Queue()
     assert streamer.stdout is not None and streamer.stdin is not None
     reader = threading.Thread(target=lambda: [arrivals.put(float(x)) for x in streamer.stdout or ()], daemon=True)
@@ -141,12 +117,12 @@ def _supervised(env: dict[str, str], n: int) -> list[float]:
 
 
 def _respawned(env: dict[str, str], n: int) -> list[float]:
-    procs = [subprocess.Popen([sys.executable, "-c", ECHO_NODE], env=env)]
+    procs = [subprocess.Popen([*PEER, "echo"], env=env)]
 
     def kill_and_respawn() -> float:
         k = _kill(procs[-1].pid)
         procs[-1].wait()
-        procs.append(subprocess.Popen([sys.executable, "-c", ECHO_NODE], env=env))
+        procs.append(subprocess.Popen([*PEER, "echo"], env=env))
         return k
 
     try:
