@@ -27,6 +27,7 @@ import logging
 from typing import Any, ClassVar
 
 from actors import Actor
+from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
 
 __all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActor"]
 
@@ -82,7 +83,6 @@ class RosBridgeActor(Actor):
         return [build(RosInput, d) for d in self.raw_inputs], [build(RosOutput, d) for d in self.raw_outputs]
 
     def on_start(self) -> None:
-        from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
         from embagents.ros.node import RosBridgeCore
 
         # A killed predecessor could not unlink its DDS segment and ports; their names say they are
@@ -140,8 +140,6 @@ class RosBridgeActor(Actor):
             ", ".join(missing), REDISCOVER_AFTER, attempt, REDISCOVER_TRIES,
         )
         self.core.restart()
-        from embagents.ros.fastdds_shm import mapped_fastdds_files
-
         self.dds_files = mapped_fastdds_files()
         self.context.changed()
         self.context.call_later(REDISCOVER_AFTER, lambda: self._rediscover(expected, attempt + 1))
