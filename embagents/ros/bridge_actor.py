@@ -34,7 +34,7 @@ __all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActo
 log = logging.getLogger("embagents.ros.bridge")
 BRIDGE_NAME = "_ros_bridge"
 REDISCOVER_AFTER = 0.3  # s; a live local peer matches within 0.01-0.15 s when no answer is lost
-REDISCOVER_TRIES = 3
+REDISCOVER_TRIES = 5  # a lost answer is ~1 in 4-8 tries here: 5 in a row is rare
 
 
 class RosBridgeActor(Actor):

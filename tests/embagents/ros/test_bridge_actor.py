@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 
 from embagents.bench.cases_ros_recovery import ECHO_SYSTEM  # noqa: E402
+from embagents.ros.bridge_actor import REDISCOVER_TRIES  # noqa: E402
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files  # noqa: E402
 
 DOMAIN_ID = 101 + os.getpid() % 100
@@ -230,7 +231,7 @@ def test_a_restarted_bridge_looks_again_for_the_peers_it_had(tmp_path: Path, ros
         sup.send_signal(signal.SIGTERM)
         sup.wait(timeout=30)
     log = "".join(seen)
-    for attempt in (1, 2, 3):
-        assert f"new DDS participant ({attempt} of 3)" in log, log
+    for attempt in range(1, REDISCOVER_TRIES + 1):
+        assert f"new DDS participant ({attempt} of {REDISCOVER_TRIES})" in log, log
     assert "no ROS peer seen again on /ping, /pong" in log, log
     assert sup.returncode == 0
