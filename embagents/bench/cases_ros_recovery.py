@@ -28,7 +28,7 @@ import numpy as np
 
 from embagents.bench.registry import BenchOptions, case, shm_entries, stop_process
 
-__all__ = ["ECHO_SYSTEM"]
+__all__ = ["ECHO_SYSTEM", "bridge_pid"]
 
 ECHO_SYSTEM = """
 from embagents import System
@@ -89,7 +89,8 @@ def _kill(pid: int) -> float:
     return t
 
 
-def _bridge_pid(sup: subprocess.Popen, env: dict[str, str]) -> int:
+def bridge_pid(sup: subprocess.Popen, env: dict[str, str] | None = None) -> int:
+    """The pid of the ROS bridge of the ``embagents supervise`` process ``sup`` (asks ``embagents status``)."""
     st = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(sup.pid)],
                         capture_output=True, text=True, timeout=30, env=env)
     if st.returncode != 0:
@@ -106,7 +107,7 @@ def _supervised(env: dict[str, str], n: int) -> list[float]:
         sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", path],
                                stdout=log, stderr=subprocess.STDOUT, env=env)
         try:
-            return _outages(env, n, lambda: _kill(_bridge_pid(sup, env)))
+            return _outages(env, n, lambda: _kill(bridge_pid(sup, env)))
         except RuntimeError as exc:
             log.seek(0)
             raise RuntimeError(f"{exc}; embagents supervise said: {log.read()[-1500:]}") from None

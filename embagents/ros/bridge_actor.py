@@ -24,7 +24,7 @@ participant gets a new immediate answer), up to ``REDISCOVER_TRIES`` times.
 from __future__ import annotations
 
 import logging
-from typing import Any, ClassVar
+from typing import Any
 
 from actors import Actor
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
@@ -45,10 +45,6 @@ class RosBridgeActor(Actor):
     Its snapshot is the ROS topics that have peers (see the module docstring).
     """
 
-    # Restored from the last incarnation's snapshot:
-    peer_ros_topics: ClassVar[frozenset[str]] = frozenset()
-    predecessor_dds_files: ClassVar[frozenset[str]] = frozenset()  # its Fast DDS files in /dev/shm
-
     def __init__(
         self,
         system_path: str | None = None,
@@ -60,6 +56,9 @@ class RosBridgeActor(Actor):
         self.node_name = node_name
         self.raw_inputs = inputs or []
         self.raw_outputs = outputs or []
+        # Set by restore() from the last incarnation's snapshot:
+        self.peer_ros_topics: frozenset[str] = frozenset()
+        self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
     def _declarations(self) -> tuple[list[Any], list[Any]]:
         from embagents.ros.spec import QoS, RosInput, RosOutput

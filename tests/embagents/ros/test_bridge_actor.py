@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 
-from embagents.bench.cases_ros_recovery import ECHO_SYSTEM  # noqa: E402
+from embagents.bench.cases_ros_recovery import ECHO_SYSTEM, bridge_pid  # noqa: E402
 from embagents.ros.bridge_actor import REDISCOVER_TRIES  # noqa: E402
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files  # noqa: E402
 
@@ -173,12 +173,10 @@ def test_killing_the_bridge_mid_stream_recovers(tmp_path: Path, ros_env: dict[st
     try:
         assert peer.stdout is not None
         assert peer.stdout.readline().strip() == "FLOWING"
-        status = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(sup.pid)],
-                                capture_output=True, text=True, timeout=30)
-        bridge = next(r for r in json.loads(status.stdout)["rows"] if r["name"] == "_ros_bridge")
-        dead_files = mapped_fastdds_files(bridge["pid"])
+        pid = bridge_pid(sup)
+        dead_files = mapped_fastdds_files(pid)
         killed_at = time.monotonic()
-        os.kill(bridge["pid"], signal.SIGKILL)
+        os.kill(pid, signal.SIGKILL)
         arrivals = json.loads(peer.stdout.readline())
         assert any(t > killed_at + 0.5 for t in arrivals), "the flow never recovered"
         # The next incarnation removed what the killed one could not (its DDS segment, its ports):
@@ -201,7 +199,6 @@ def test_killing_the_bridge_mid_stream_recovers(tmp_path: Path, ros_env: dict[st
 
 
 def test_a_restarted_bridge_looks_again_for_the_peers_it_had(tmp_path: Path, ros_env: dict[str, str]) -> None:
-    import json
     import queue
     import threading
 
@@ -220,10 +217,7 @@ def test_a_restarted_bridge_looks_again_for_the_peers_it_had(tmp_path: Path, ros
         # lost reply, so its next incarnation looks for a peer that does not answer.
         peer.kill()
         peer.wait()
-        status = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(sup.pid)],
-                                capture_output=True, text=True, timeout=30)
-        bridge = next(r for r in json.loads(status.stdout)["rows"] if r["name"] == "_ros_bridge")
-        os.kill(bridge["pid"], signal.SIGKILL)
+        os.kill(bridge_pid(sup), signal.SIGKILL)
         while not any("waiting for their periodic announcements" in x for x in seen):
             seen.append(lines.get(timeout=30))
     finally:
