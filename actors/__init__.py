@@ -31,7 +31,8 @@ __all__ = [
 ]
 
 from actors.actor import Actor, ActorContext  # noqa: E402
+from actors.private import UnsafeFolder, check_folder, private_dir, private_file  # noqa: E402
 from actors.ref import ActorRef  # noqa: E402
 from actors.system import ActorSystem  # noqa: E402
 
-__all__ += ["Actor", "ActorContext", "ActorRef", "ActorSystem"]
+__all__ += ["Actor", "ActorContext", "ActorRef", "ActorSystem", "UnsafeFolder", "check_folder", "private_dir", "private_file"]

@@ -21,7 +21,6 @@ import os
 import secrets
 import shutil
 import signal
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -38,6 +37,7 @@ from actors.errors import ActorError
 from actors.forkserver import ForkServer
 from actors.host import ActorHost
 from actors.loop import Loop
+from actors.private import check_folder, private_dir
 from actors.ref import ActorRef
 from actors.runtime import Runtime, current, set_current, shm_prefix
 from actors.shm import sweep
@@ -66,12 +66,13 @@ def class_path(cls: type) -> str:
 
 
 def _run_base() -> str:
-    # ipc paths are limited to ~107 bytes: keep the run directory short.
-    return os.environ.get("EMBAGENTS_RUN_BASE") or tempfile.gettempdir()
+    # ipc paths are limited to ~107 bytes: $EMBAGENTS_RUN_BASE can shorten a long $XDG_RUNTIME_DIR.
+    override = os.environ.get("EMBAGENTS_RUN_BASE")
+    return check_folder(override) if override else private_dir()
 
 
 class ActorSystem:
-    """Owns a run: its directory (0700), fork server, processes and registry.
+    """Owns a run: its directory (0700, in :func:`actors.private.private_dir`), fork server, processes and registry.
 
     One per process at a time. ``spawn`` starts actors; ``shutdown`` stops
     them in reverse order and removes everything the run left behind.
@@ -82,8 +83,8 @@ class ActorSystem:
             if not current().closed:
                 raise ActorError("an ActorSystem is already running in this process; shut it down first")
         self.run_id = secrets.token_hex(4)
-        self.run_dir = os.path.join(_run_base(), f"ea-{self.run_id}")
-        os.makedirs(self.run_dir, mode=0o700)
+        self.run_dir = os.path.join(_run_base(), f"run-{self.run_id}")
+        os.mkdir(self.run_dir, 0o700)  # fails if it exists: never adopt a folder someone else made
         self.log_level = log_level
         # Fork the server first: before this process opens sockets of its own.
         self.forkserver = ForkServer(self.run_dir, shm_prefix(self.run_id), child_main)

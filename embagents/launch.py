@@ -153,9 +153,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         return run_system(args.system)
     except Exception as exc:  # a clear one-line error, not a traceback, for bad input
+        from actors import UnsafeFolder
         from embagents.system import SystemFileError
 
-        if isinstance(exc, (SystemFileError, FileNotFoundError, ValueError)):
+        if isinstance(exc, (SystemFileError, FileNotFoundError, ValueError, UnsafeFolder)):
             print(f"embagents supervise: {exc}", file=sys.stderr)
             return 1
         raise

@@ -1,7 +1,8 @@
 """Talking to a live run from another terminal: what ``embagents status|restart|stop`` use.
 
-:func:`find_runs` lists the runs announced in ``/tmp/embagents-<uid>/runs``
-(dropping announcements whose process is gone); :func:`request` sends one
+:func:`find_runs` lists the runs announced in :func:`supervisor.control.runs_dir`
+(dropping announcements whose process is gone; a folder that is not private
+to this user is refused with :class:`actors.UnsafeFolder`); :func:`request` sends one
 control request (see :mod:`supervisor.control`) and returns the answer;
 :func:`format_status_table` renders status rows. :func:`main` is a small
 command line over them (``python -m supervisor.client status --json``).
@@ -30,6 +31,7 @@ from typing import Any
 import msgpack
 import zmq
 
+from actors import UnsafeFolder, check_folder
 from supervisor.control import control_endpoint, runs_dir
 
 __all__ = ["ControlError", "find_runs", "format_status_table", "main", "pick_run", "request"]
@@ -70,6 +72,7 @@ def find_runs() -> list[dict[str, Any]]:
             with contextlib.suppress(OSError):
                 os.unlink(path)  # its root died without cleaning up (SIGKILL)
             continue
+        check_folder(info["run_dir"], create=False)  # its control socket must be this user's alone
         runs.append(info)
     runs.sort(key=lambda r: r.get("started", 0))
     return runs
@@ -185,7 +188,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             request(run["run_dir"], {"cmd": "stop"}, args.timeout)
             print(f"stopping run {run['run_id']}")
-    except ControlError as exc:
+    except (ControlError, UnsafeFolder) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0

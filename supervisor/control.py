@@ -14,8 +14,10 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
 - ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
   reverse order).
 
-While the endpoint is up, ``/tmp/embagents-<uid>/runs/<run_id>.json``
-(``$EMBAGENTS_RUNS_DIR`` overrides the folder) holds ``run_id``,
+While the endpoint is up, ``<private>/runs/<run_id>.json`` (``<private>`` is
+:func:`actors.private_dir`: ``$XDG_RUNTIME_DIR/embagents`` or
+``/tmp/embagents-<uid>``, checked at every use; ``$EMBAGENTS_RUNS_DIR``
+overrides the folder, checked the same way) holds ``run_id``,
 ``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint`` and
 ``started``; it is removed on close.
 
@@ -32,6 +34,7 @@ import contextlib
 import json
 import logging
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -41,7 +44,7 @@ import msgpack
 import pykka
 import zmq
 
-from actors import ActorRef, ActorSystem, wire
+from actors import ActorRef, ActorSystem, check_folder, private_dir, wire
 from supervisor.rootio import on_root
 from supervisor.tree import Tree
 
@@ -51,8 +54,9 @@ log = logging.getLogger("supervisor.control")
 
 
 def runs_dir() -> str:
-    """Where live runs announce themselves (created 0700)."""
-    return os.environ.get("EMBAGENTS_RUNS_DIR") or f"/tmp/embagents-{os.getuid()}/runs"
+    """Where live runs announce themselves (0700; :class:`actors.UnsafeFolder` if it is not private)."""
+    override = os.environ.get("EMBAGENTS_RUNS_DIR")
+    return check_folder(override) if override else private_dir("runs")
 
 
 def control_endpoint(run_dir: str) -> str:
@@ -95,7 +99,6 @@ class ControlServer:
         self._announce()
 
     def _announce(self) -> None:
-        os.makedirs(runs_dir(), mode=0o700, exist_ok=True)
         info = {
             "run_id": self.system.run_id,
             "run_dir": self.system.run_dir,
@@ -104,8 +107,8 @@ class ControlServer:
             "endpoint": self.endpoint,
             "started": self.started,
         }
-        tmp = f"{self.discovery}.tmp"
-        with open(tmp, "w") as f:
+        fd, tmp = tempfile.mkstemp(prefix=".announce-", dir=runs_dir())  # a reader never sees half a file
+        with os.fdopen(fd, "w") as f:
             json.dump(info, f)
         os.replace(tmp, self.discovery)
 

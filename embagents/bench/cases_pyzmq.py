@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from actors import private_dir
 from embagents.bench.registry import (
     BenchOptions,
     Case,
@@ -117,8 +118,7 @@ def peer_main(mode: str, endpoint: str, extra: str) -> None:
 @contextlib.contextmanager
 def peer(mode: str, extra: str = "") -> Iterator[tuple[zmq.Context, str]]:
     """Start the peer process; yield (a context, the ipc endpoint); always stop it."""
-    d = tempfile.mkdtemp(prefix="eabench-")
-    os.chmod(d, 0o700)
+    d = tempfile.mkdtemp(prefix="eabench-", dir=private_dir())  # 0700, unpredictable
     endpoint = f"ipc://{d}/peer"
     if extra == "back":
         extra = f"ipc://{d}/back"

@@ -27,6 +27,7 @@ import sys
 import tempfile
 from typing import Any
 
+from actors import private_dir
 from embagents.bench.registry import (
     FRAME_1080P,
     OWNED_SHM_NAMES,
@@ -56,7 +57,7 @@ def domain_id() -> int:
 
 def _peer(role: str, prefix: str, *extra: str) -> tuple[subprocess.Popen, Any]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    err = tempfile.TemporaryFile()
+    err = tempfile.TemporaryFile(dir=private_dir())
     proc = subprocess.Popen(
         [sys.executable, "-m", "embagents.ros.bench_peer", role, "--prefix", prefix, *extra],
         stdout=subprocess.PIPE, stderr=err, env=env, text=True,

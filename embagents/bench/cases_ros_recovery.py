@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from actors import private_dir
 from embagents.bench.registry import BenchOptions, case, shm_entries, stop_process
 
 __all__ = ["ECHO_SYSTEM", "bridge_pid"]
@@ -99,7 +100,7 @@ def bridge_pid(sup: subprocess.Popen, env: dict[str, str] | None = None) -> int:
 
 
 def _supervised(env: dict[str, str], n: int) -> list[float]:
-    with tempfile.TemporaryDirectory(prefix="embagents-bench-") as d:
+    with tempfile.TemporaryDirectory(prefix="embagents-bench-", dir=private_dir()) as d:
         path = os.path.join(d, "system.py")
         with open(path, "w") as f:
             f.write(ECHO_SYSTEM)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -39,6 +38,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
+from actors import private_file
 from embagents.msgs import StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
@@ -394,6 +394,9 @@ _SHM_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
 """
 
 
+_profile: str | None = None  # the profile file configure_fastdds_shm wrote for this process
+
+
 def configure_fastdds_shm(segment_mb: int = 64, participant_id: int | None = None) -> str | None:
     """Give this process's DDS participants a ``segment_mb`` shared-memory segment.
 
@@ -405,25 +408,24 @@ def configure_fastdds_shm(segment_mb: int = 64, participant_id: int | None = Non
     ``FASTDDS_DEFAULT_PROFILES_FILE``, read once per process when the first
     participant is created: call it before the first ``start``. Returns the
     profile's path, or None when the user already set that variable (theirs
-    wins). Segment pages are only backed by memory as they are written.
+    wins). The profile is a :func:`actors.private_file`: only this user can
+    read it, and it is removed when the run (or, outside a run, this process)
+    ends. Segment pages are only backed by memory as they are written.
 
     ``participant_id`` pins the DDS participant id (0-119). A restarted
     bridge must not reuse its killed predecessor's id: that id's shared-memory
     port is still held by the dead process, and Fast DDS only recovers it
     after its port watchdog times out (measured: ~3 s without data).
     """
-    if os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE"):
-        return None
+    global _profile
+    given = os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")
+    if given and (given != _profile or os.path.exists(given)):
+        return None  # the user's, or ours and still there (a run that ended took it away: write anew)
     if not isinstance(segment_mb, int) or segment_mb < 1:
         raise ValueError(f"segment_mb must be a positive int, got {segment_mb!r}")
-    size = segment_mb * 1024 * 1024
-    # One file per size and user, rewritten atomically: restarts reuse it, nothing piles up.
-    pid_tag = "" if participant_id is None else f"-p{participant_id}"
-    path = os.path.join(tempfile.gettempdir(), f"embagents-fastdds-v3-{segment_mb}mb{pid_tag}-{os.getuid()}.xml")
-    tmp = f"{path}.{os.getpid()}"
-    with open(tmp, "w") as f:
-        pid_xml = "" if participant_id is None else f"\n        <participantID>{int(participant_id)}</participantID>"
-        f.write(_SHM_PROFILE.format(size=size, participant_id=pid_xml))
-    os.replace(tmp, path)
+    pid_xml = "" if participant_id is None else f"\n        <participantID>{int(participant_id)}</participantID>"
+    profile = _SHM_PROFILE.format(size=segment_mb * 1024 * 1024, participant_id=pid_xml)
+    # A private, unpredictable file: in the run directory (goes with the run), else removed at exit.
+    path = _profile = private_file("fastdds", ".xml", profile.encode())
     os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = path
     return path

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import json
 import os
+import pwd
 
 import pytest
 
-from actors import ActorSystem
+from actors import ActorSystem, UnsafeFolder
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 from supervisor.client import ControlError, find_runs, format_status_table, main, pick_run, request
 from supervisor.control import ControlServer, runs_dir
@@ -77,3 +78,19 @@ def test_main_status_json_restart_and_stop(system: ActorSystem, capsys: pytest.C
     finally:
         control.close()
     assert main(["status"]) == 1
+
+
+def test_status_refuses_an_announcement_folder_another_user_owns(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Another user could plant an announcement pointing at a socket of theirs.
+    runs = tmp_path / "planted"
+    runs.mkdir(mode=0o777)
+    os.chmod(runs, 0o777)
+    os.chown(runs, pwd.getpwnam("nobody").pw_uid, -1)
+    monkeypatch.setenv("EMBAGENTS_RUNS_DIR", str(runs))
+    assert main(["status"]) == 1
+    err = capsys.readouterr().err
+    assert f"refusing to use {runs}" in err and "belongs to uid" in err and f"rm -rf {runs}" in err
+    with pytest.raises(UnsafeFolder):
+        find_runs()

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import glob
 import os
+import re
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -167,13 +170,20 @@ def test_killing_the_bridge_mid_stream_recovers(tmp_path: Path, ros_env: dict[st
 
     path = tmp_path / "system.py"
     path.write_text(textwrap.dedent(ECHO_SYSTEM))
+    xdg = tmp_path / "xdg"
+    xdg.mkdir(mode=0o700)
+    env = {**ros_env, "XDG_RUNTIME_DIR": str(xdg)}  # every file of the run goes under it
     sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ros_env)
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     peer = subprocess.Popen([sys.executable, "-c", STREAMER, "20"], stdout=subprocess.PIPE, text=True, env=ros_env)
     try:
         assert peer.stdout is not None
         assert peer.stdout.readline().strip() == "FLOWING"
-        pid = bridge_pid(sup)
+        pid = bridge_pid(sup, env)
+        # The bridge's Fast DDS profile: an mkstemp file (0600) in the private run directory.
+        [profile] = glob.glob(f"{xdg}/embagents/run-*/fastdds-{pid}-*.xml")
+        assert re.fullmatch(rf"{xdg}/embagents/run-[0-9a-f]{{8}}/fastdds-{pid}-[a-z0-9_]{{8}}\.xml", profile)
+        assert os.stat(profile).st_mode & 0o777 == 0o600
         dead_files = mapped_fastdds_files(pid)
         killed_at = time.monotonic()
         os.kill(pid, signal.SIGKILL)
@@ -196,7 +206,10 @@ def test_killing_the_bridge_mid_stream_recovers(tmp_path: Path, ros_env: dict[st
         sup.send_signal(signal.SIGTERM)
         log, _ = sup.communicate(timeout=30)
     assert sup.returncode == 0, log
-
+    # The run took its files with it (the killed bridge's profile too); none were ever put in /tmp.
+    assert not os.path.exists(profile)
+    assert sorted(os.listdir(xdg / "embagents")) == ["runs"] and os.listdir(xdg / "embagents" / "runs") == []
+    assert not glob.glob(os.path.join(tempfile.gettempdir(), "*fastdds*.xml*"))
 
 def test_a_restarted_bridge_looks_again_for_the_peers_it_had(tmp_path: Path, ros_env: dict[str, str]) -> None:
     import queue
