@@ -8,8 +8,10 @@ loop costs nothing (no busy polling).
 Example::
 
     >>> loop = Loop()
-    >>> loop.call_later(0.01, loop.stop)
-    >>> loop.run()
+    >>> timer = loop.call_later(0.01, loop.stop)
+    >>> loop.run()          # returns when the timer stops it (no ``until`` given)
+    False
+    >>> loop.close()
 """
 
 from __future__ import annotations
