@@ -14,8 +14,6 @@ from typing import Any
 import msgpack
 import zmq
 
-from actors.app import app_name
-from actors.extension import load_extension
 from actors.host import ActorHost, load_class
 from actors.loop import Loop
 from actors.runtime import Runtime, set_current
@@ -62,7 +60,7 @@ def child_main(spec: dict[str, Any]) -> None:
     with contextlib.suppress(Exception):
         import setproctitle  # type: ignore[import-not-found]
 
-        setproctitle.setproctitle(f"{app_name()}:{name}")
+        setproctitle.setproctitle(f"embagents:{name}")
     if spec.get("nice"):
         os.nice(int(spec["nice"]))
     if spec.get("cpu_affinity"):
@@ -75,11 +73,11 @@ def child_main(spec: dict[str, Any]) -> None:
     try:
         cls = load_class(spec["cls"])
         actor = cls(*spec.get("args", ()), **spec.get("kwargs", {}))
-        extensions = [(load_extension(path), dict(config)) for path, config in spec.get("extensions", ())]
         host = ActorHost(
-            rt, loop, name, actor, heartbeat=spec.get("heartbeat"), poison_limit=spec.get("poison_limit", 3),
-            extensions=extensions,
+            rt, loop, name, actor, heartbeat=spec.get("heartbeat"), poison_limit=spec.get("poison_limit", 3)
         )
+        for path in spec.get("hooks", ()):
+            load_class(path)(host, spec)  # type: ignore[call-arg]
         # SIGTERM asks for a clean stop; the wakeup socket interrupts a blocked poll.
         rsock, wsock = socket.socketpair()
         rsock.setblocking(False)
@@ -95,7 +93,7 @@ def child_main(spec: dict[str, Any]) -> None:
         host.start()
         _notify(rt, ["ready", name, os.getpid(), host.incarnation])
         host.serve()
-    except BaseException as exc:  # the one sender of the "failed" note: on_start, extensions, a told message
+    except BaseException as exc:
         text = traceback.format_exc()
         logging.getLogger("actors").error("actor crashed: %s\n%s", exc, text)
         with contextlib.suppress(Exception):
@@ -106,7 +104,7 @@ def child_main(spec: dict[str, Any]) -> None:
             rt.ctx.destroy(linger=500)  # lets the note above leave before we exit
         os._exit(1)
     try:
-        host.stop()
+        host.actor.on_stop()
     finally:
         host.close()
         rt.close()

@@ -8,10 +8,8 @@ loop costs nothing (no busy polling).
 Example::
 
     >>> loop = Loop()
-    >>> timer = loop.call_later(0.01, loop.stop)
-    >>> loop.run()          # returns when the timer stops it (no ``until`` given)
-    False
-    >>> loop.close()
+    >>> loop.call_later(0.01, loop.stop)
+    >>> loop.run()
 """
 
 from __future__ import annotations

@@ -21,9 +21,7 @@ Example::
 
 from __future__ import annotations
 
-import contextlib
 import importlib.util
-import io
 import itertools
 import os
 import sys
@@ -190,25 +188,6 @@ def _source_line(path: str, line: int | None) -> str:
         return ""
 
 
-def _exception_line(exc: BaseException) -> str:
-    """Python's own last line for ``exc``, with its "Did you mean: 'LLM'?" hint.
-
-    Python 3.10 and 3.11 add that hint only when the interpreter prints a traceback
-    (3.12's traceback module adds it too), so it is taken from the interpreter's own printing.
-    """
-    line = f"{type(exc).__name__}: {exc}"
-    if isinstance(exc, (NameError, AttributeError)):
-        python = traceback.format_exception_only(type(exc), exc)[-1].strip()
-        if "Did you mean" not in python:
-            printed = io.StringIO()
-            with contextlib.redirect_stderr(printed):
-                sys.__excepthook__(type(exc), exc, exc.__traceback__)
-            python = printed.getvalue().rstrip().rpartition("\n")[2]
-        if python.startswith(line) and "Did you mean" in python:
-            line = python
-    return line
-
-
 def _import(path: str) -> Any:
     module_name = f"_embagents_system_{next(_module_ids)}"
     spec = importlib.util.spec_from_file_location(module_name, path)
@@ -227,24 +206,11 @@ def _import(path: str) -> Any:
             raise
         line = _line_in(path, exc)
         code = _source_line(path, line)
-        shown = f"\n    {code}" if code else ""  # the source line on its own, as Python shows it
+        shown = f" ({code})" if code else ""
         if isinstance(exc, ComponentError):
-            raise SystemFileError(path, f"invalid component:\n{exc}{shown}", line, exc) from exc
-        raise SystemFileError(path, f"{_exception_line(exc)}{shown}", line, exc) from exc
+            raise SystemFileError(path, f"invalid component{shown}:\n{exc}", line, exc) from exc
+        raise SystemFileError(path, f"{type(exc).__name__}: {exc}{shown}", line, exc) from exc
     return module
-
-
-def _suggest_system_file(folder: str) -> str:
-    """"pass one of its system files: ..." naming the .py files there that build a System."""
-    found = []
-    for name in sorted(os.listdir(folder)):
-        if name.endswith(".py"):
-            with contextlib.suppress(OSError, UnicodeDecodeError), open(os.path.join(folder, name), encoding="utf-8") as f:
-                if "System(" in f.read():
-                    found.append(os.path.join(folder, name))
-    if not found:
-        return "pass the .py file that defines `system = System(...)`"
-    return f"pass one of its system files, e.g. `{found[0]}`" + (f" (or: {', '.join(found[1:])})" if found[1:] else "")
 
 
 def load_system(path: str | os.PathLike[str], *, lenient: bool = False) -> System:
@@ -254,10 +220,7 @@ def load_system(path: str | os.PathLike[str], *, lenient: bool = False) -> Syste
     problems (they are kept in each component's ``problems``), so a check can
     report every problem of the file. Any error is a :class:`SystemFileError`.
     """
-    given = os.fspath(path)
-    path = os.path.abspath(given)
-    if os.path.isdir(path):
-        raise SystemFileError(path, f"is a directory, not a system file; {_suggest_system_file(given)}")
+    path = os.path.abspath(os.fspath(path))
     if not os.path.isfile(path):
         raise SystemFileError(path, "no such file")
     if lenient:

@@ -26,7 +26,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
-from actors import Actor, HostExtension, extension_spec, wire
+from actors import Actor, wire
 from supervisor.backoff import Backoff
 
 __all__ = [
@@ -97,9 +97,6 @@ class ChildSpec:
     - ``lifecycle``: state to bring a fresh actor to ("inactive", "active").
     - ``snapshot_interval``: least seconds between two snapshots (0: after
       every message).
-    - ``extensions``: more :class:`actors.HostExtension` subclasses to run in
-      the actor's process, each a class or ``(class, config dict)``; they run
-      after the supervisor's own (snapshots, lifecycle).
     """
 
     id: str
@@ -118,7 +115,7 @@ class ChildSpec:
     poison_limit: int = 3
     lifecycle: str | None = None
     snapshot_interval: float = 0.0
-    extensions: Sequence[Any] = ()
+    hooks: Sequence[str] = ()
 
     def __post_init__(self) -> None:
         wire.check_name(self.id)
@@ -160,7 +157,7 @@ class ChildSpec:
             raise TypeError(f"child {self.id!r}: backoff must be a supervisor.Backoff, not {self.backoff!r}")
         if self.cpu_affinity is not None:
             self.cpu_affinity = [int(c) for c in self.cpu_affinity]
-        self.extensions = tuple(_normalize_extension(self.id, e) for e in self.extensions)
+        self.hooks = tuple(self.hooks)
 
     @property
     def kind(self) -> str:
@@ -196,15 +193,6 @@ class ChildSpec:
         elif extra:
             raise ValueError(f"child {self.id!r} is a supervisor: start_child takes no arguments for it")
         return replace(self, id=name, start=start)
-
-
-def _normalize_extension(cid: str, ext: Any) -> tuple[type[HostExtension], dict[str, Any]]:
-    cls, config = ext if isinstance(ext, tuple) and len(ext) == 2 else (ext, {})
-    try:
-        extension_spec(cls, config)  # a class at module top level, config a mapping
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"child {cid!r}: extensions takes HostExtension classes or (class, config) pairs: {exc}") from None
-    return cls, dict(config)
 
 
 def _normalize_start(cid: str, start: Any) -> ActorStart | Command | SupervisorSpec:

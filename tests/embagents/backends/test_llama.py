@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip(
-    "llama_cpp", reason="llama-cpp-python not installed (pip install 'embagents[llm]')"
+    "llama_cpp", reason="llama-cpp-python not installed (pip install 'embagents[local]')"
 )
 
 from embagents.backends.llama import (  # noqa: E402
