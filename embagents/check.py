@@ -8,7 +8,8 @@ component it is about. Levels:
   among its inputs, bad config, bad fallback...), two components with one
   name, one topic name used with two message types, an event or fallback
   action naming a component that is not in the system (or a method, client
-  or config key it does not have), ROS bridge wiring the bridge refuses.
+  or config key it does not have), ROS bridge wiring the bridge refuses, a
+  model whose local file is not there (or that the system does not declare).
 - **warning** (it may run, but look): an input topic nothing in the system
   publishes. It may come from outside (another system, a test harness): say
   so with ``System(external=[topic])`` and the warning goes away.
@@ -39,6 +40,7 @@ from embagents.components.component import Component
 from embagents.components.model_component import ModelComponent
 from embagents.config import ConfigError, apply_config
 from embagents.events import Action
+from embagents.models import models_of
 from embagents.system import System, SystemFileError, load_system
 
 __all__ = ["Problem", "check_file", "check_system", "errors"]
@@ -217,9 +219,19 @@ def _event_problems(system: System) -> list[Problem]:
     return out
 
 
+def _model_problems(system: System) -> list[Problem]:
+    try:
+        models = models_of(system)
+    except ValueError as exc:
+        return [Problem(None, "undeclared-model", str(exc))]
+    return [Problem(None, "model-file", f"model {m.name!r}: {why}")
+            for m in models if (why := m.file_problem()) is not None]
+
+
 def check_system(system: System) -> list[Problem]:
     """Every problem of ``system`` (errors and warnings; see the module docstring)."""
     problems = _component_problems(system)
+    problems += _model_problems(system)
     ros_provided, ros_outputs, ros_problems = _ros_declarations(system)
     problems += ros_problems
     problems += _topic_problems(system, ros_provided, ros_outputs)

@@ -42,6 +42,7 @@ def _check_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _check(args: argparse.Namespace) -> int:
     from embagents.check import check_file, errors
+    from embagents.system import counted
 
     system, problems = check_file(args.system)
     for p in problems:
@@ -49,11 +50,11 @@ def _check(args: argparse.Namespace) -> int:
     bad = errors(problems)
     if bad:
         warned = len(problems) - len(bad)
-        print(f"{len(bad)} error(s)" + (f", {warned} warning(s)" if warned else ""), file=sys.stderr)
+        print(counted(len(bad), "error") + (f", {counted(warned, 'warning')}" if warned else ""), file=sys.stderr)
         return 1
     assert system is not None  # no errors means it loaded
-    summary = f"OK: {len(system.components)} components, {len(system.topics)} topics"
-    print(summary + (f" ({len(problems)} warning(s))" if problems else ""))
+    summary = f"OK: {counted(len(system.components), 'component')}, {counted(len(system.topics), 'topic')}"
+    print(summary + (f" ({counted(len(problems), 'warning')})" if problems else ""))
     return 0
 
 

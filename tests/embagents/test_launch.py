@@ -129,3 +129,51 @@ def test_a_malformed_system_file_gets_a_clear_error(tmp_path: Path, content: str
         [sys.executable, "-m", "embagents.cli", "supervise", str(path)], capture_output=True, text=True, timeout=60
     )
     assert proc.returncode == 1 and needle in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _supervise_once(path: str, **env: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", path],
+                          capture_output=True, text=True, timeout=60, env={**os.environ, **env})
+
+
+def test_every_components_problems_are_reported_as_check_reports_them(tmp_path: Path) -> None:
+    path = tmp_path / "bad.py"
+    path.write_text(textwrap.dedent('''
+        from embagents.components import LLM
+        from embagents.models import LlamaModel, LocalModelClient
+        from embagents.msgs import Image, StreamingString
+        from embagents.system import System
+        from embagents.topic import Topic
+        m = LlamaModel(name="m", local_model_path="/nonexistent/model.gguf")
+        cam, out = Topic("cam", Image), Topic("o", StreamingString)
+        system = System([LLM(name="first", inputs=[cam], outputs=[out], model_client=LocalModelClient(m)),
+                         LLM(name="second", inputs=[cam], outputs=[out], model_client=LocalModelClient(m))],
+                        models=[m], external=[cam])
+    '''))
+    proc = _supervise_once(str(path))
+    check = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(path)],
+                           capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    reported = [line for line in proc.stderr.splitlines() if line.startswith("error: [")]
+    assert reported == [line for line in check.stdout.splitlines() if line.startswith("error: [")]
+    for who in ("component 'first'", "component 'second'", "model 'm'"):
+        assert any(who in line for line in reported), (who, reported)
+    assert proc.stderr.rstrip().endswith(f"{path}: {len(reported)} errors; not starting")
+
+
+def test_a_directory_gets_a_system_file_to_pass(tmp_path: Path) -> None:
+    proc = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", "examples"], capture_output=True,
+                          text=True, timeout=60, cwd=Path(__file__).parents[2])
+    assert proc.returncode == 1
+    assert "/examples: is a directory, not a system file; pass one of its system files, e.g. `examples/chat.py` (or: " \
+        in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_an_unreachable_model_hub_is_one_line(tmp_path: Path) -> None:
+    pytest.importorskip("huggingface_hub", reason="huggingface_hub not installed")
+    proc = _supervise_once(_write(tmp_path, "Qwen/Qwen3-0.6B-GGUF"), HF_ENDPOINT="http://127.0.0.1:9",
+                           HF_HOME=str(tmp_path / "hf"))
+    assert proc.returncode == 1, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("embagents supervise: Cannot reach the Hugging Face hub to fetch 'Qwen/Qwen3-0.6B-GGUF")
+    assert "Traceback" not in proc.stderr and "Retrying" not in proc.stderr

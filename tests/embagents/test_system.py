@@ -159,3 +159,25 @@ def test_system_exit_in_the_file_is_reported(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(SystemFileError, match="no such file"):
         load_system(tmp_path / "nope.py")
+
+
+def test_a_directory_is_named_as_one_with_a_system_file_to_pass(tmp_path):
+    write(tmp_path, "system = System([Component(name='a')])\n", name="robot.py")
+    (tmp_path / "helpers.py").write_text("x = 1\n")
+    with pytest.raises(SystemFileError) as err:
+        load_system(tmp_path)
+    assert str(err.value) == (f"{tmp_path}: is a directory, not a system file; "
+                              f"pass one of its system files, e.g. `{tmp_path / 'robot.py'}`")
+
+
+def test_a_misspelt_name_keeps_pythons_did_you_mean_and_shows_the_line_as_source(tmp_path):
+    path = write(tmp_path, """
+        from embagents.components import LLM
+        llm = LMM(name="talker",
+                  inputs=[text])
+    """)
+    with pytest.raises(SystemFileError) as err:
+        load_system(path)
+    first, source = str(err.value).split("\n")
+    assert first == f"{path}:9: NameError: name 'LMM' is not defined. Did you mean: 'LLM'?"
+    assert source == '    llm = LMM(name="talker",'

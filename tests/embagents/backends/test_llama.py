@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip(
-    "llama_cpp", reason="llama-cpp-python not installed (pip install 'embagents[local]')"
+    "llama_cpp", reason="llama-cpp-python not installed (pip install 'embagents[llm]')"
 )
 
 from embagents.backends.llama import (  # noqa: E402
