@@ -100,7 +100,7 @@ def request(run_dir: str, msg: dict[str, Any], timeout: float = 5.0) -> dict[str
     Raises :class:`ControlError` if there is no answer within ``timeout``
     seconds or the run answered ``ok: false``.
     """
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
     s = ctx.socket(zmq.REQ)
     s.setsockopt(zmq.LINGER, 0)
     try:
@@ -189,6 +189,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             request(run["run_dir"], {"cmd": "stop"}, args.timeout)
             print(f"stopping run {run['run_id']}")
     except (ControlError, UnsafeFolder) as exc:
+        if getattr(args, "json", False):  # a script reading stdout gets JSON either way
+            print(json.dumps({"ok": False, "error": str(exc)}))
         print(f"error: {exc}", file=sys.stderr)
         return 1
     return 0

@@ -70,3 +70,12 @@ def test_status_without_a_run_says_how_to_start_one(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--run", "no-such-run"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1 and "no-such-run" in out.stderr
+
+
+def test_status_json_without_a_run_is_a_json_error_on_stdout(tmp_path: Path) -> None:
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json"], capture_output=True, text=True,
+                         timeout=60, env={**os.environ, "EMBAGENTS_RUNS_DIR": str(tmp_path / "runs")})
+    assert out.returncode == 1
+    reply = json.loads(out.stdout)
+    assert reply["ok"] is False and "no live embagents run found" in reply["error"]
+    assert "embagents supervise system.py" in reply["error"]
