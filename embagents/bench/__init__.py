@@ -13,7 +13,8 @@ Cases (each a row of the report and of the JSON file):
 
 The printed report ends with the side-by-side ratios and a PASS/FAIL
 table for the project's bars. A run takes about a minute (under 3 on 2
-cores); ``quick`` takes a few seconds per case family.
+cores); ``quick`` takes a few seconds per case family and is a smoke test
+(every case runs, nothing is graded: its few iterations are noise).
 
 New cases register themselves with :func:`embagents.bench.registry.case`
 (import the module below so it is part of every run).
@@ -105,7 +106,7 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
         status = row.get("status")
         if status == "ok":
             rows.append({k: v for k, v in row.items() if k not in _ROW_DROP})
-            _log(f"bench: {c.name}: p50 {row['p50_us']} us, p99 {row['p99_us']} us ({row['seconds']} s)")
+            _log(f"bench: {c.name}: p50 {row['p50_us']:.1f} us, p99 {row['p99_us']:.1f} us ({row['seconds']:.1f} s)")
         elif status == "skipped":
             skipped.append({"name": c.name, "transport": c.transport, "note": row["note"]})
             _log(f"bench: {c.name}: {row['note']}")
@@ -118,7 +119,7 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
     annotate(rows)
     doc: dict[str, Any] = {
         "cases": rows,
-        "bars": evaluate(rows),
+        "bars": evaluate(rows, grade=not quick),  # a quick run is a smoke test: no verdicts
         "skipped": skipped,
         "errors": errors,
         "shm_leftovers": leftovers,
@@ -148,7 +149,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ['ask', 'idle']
     """
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON to FILE")
-    parser.add_argument("--quick", action="store_true", help="few iterations, 2 s idle window (a smoke run)")
+    parser.add_argument("--quick", action="store_true", help="a smoke test: few iterations, 2 s idle window, no PASS/FAIL verdicts")
     parser.add_argument(
         "--only", nargs="+", metavar="NAME",
         help="run only cases matching NAME (a case name, glob, substring, transport or kind)",

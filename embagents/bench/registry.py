@@ -228,7 +228,7 @@ def run_rounds(cases: list[Case], opts: BenchOptions, log: Callable[[str], None]
                 continue
             row = run_case(c, opts)
             runs[c.name].append(row)
-            log(f"bench: {c.name} round {r + 1}/{ROUNDS}: " + (f"p50 {row['p50_us']} us" if row["status"] == "ok" else row["status"]))
+            log(f"bench: {c.name} round {r + 1}/{ROUNDS}: " + (f"p50 {row['p50_us']:.1f} us" if row["status"] == "ok" else row["status"]))
     out = {}
     for name, rows in runs.items():
         bad = [row for row in rows if row["status"] != "ok"]

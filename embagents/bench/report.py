@@ -67,8 +67,8 @@ def _bar(name: str, value: float | None, op: str, target: float, unit: str) -> d
     return {"name": name, "value": value, "op": op, "target": target, "unit": unit, "pass": ok}
 
 
-def evaluate(rows: list[Row]) -> list[dict[str, Any]]:
-    """The issue's bars, each with its measured value and ``pass`` (None if not measured)."""
+def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
+    """The issue's bars, each with its measured value and ``pass`` (None if not measured or not ``grade``d)."""
     bars = []
     for size in SIZES:
         ours, raw = _find(rows, "embagents", "ask", size), _find(rows, "pyzmq", "ask", size)
@@ -111,6 +111,9 @@ def evaluate(rows: list[Row]) -> list[dict[str, Any]]:
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))
+    if not grade:
+        for b in bars:
+            b["pass"] = None
     return bars
 
 
@@ -189,9 +192,12 @@ def format_report(doc: dict[str, Any]) -> str:
         bar_rows = []
         for b in doc["bars"]:
             target = f"{b['op']} {_num(float(b['target']), 2 if float(b['target']) < 1 else 1)} {b['unit']}"
-            verdict = "n/a" if b["pass"] is None else ("PASS" if b["pass"] else "FAIL")
+            verdict = ("not graded" if doc.get("quick") else "n/a") if b["pass"] is None else ("PASS" if b["pass"] else "FAIL")
             bar_rows.append([b["name"], _num(b["value"], 2), target, verdict])
         out.append(table(["bar", "measured", "target", "result"], bar_rows, "lrrl"))
+    if doc.get("quick"):
+        out.append("quick run: a smoke test (every case ran, few iterations), not a measurement: the bars are "
+                   "not graded. Run `embagents bench` without --quick to grade them.")
     for s in doc.get("skipped", []):
         out.append(f"note: {s['name']}: {s['note']}")
     for e in doc.get("errors", []):
