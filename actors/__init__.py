@@ -31,8 +31,12 @@ __all__ = [
 ]
 
 from actors.actor import Actor, ActorContext  # noqa: E402
+from actors.extension import HostExtension, extension_spec, load_extension  # noqa: E402
+from actors.host import ActorHost  # noqa: E402
+from actors.journal import Journal  # noqa: E402
 from actors.private import UnsafeFolder, check_folder, private_dir, private_file  # noqa: E402
 from actors.ref import ActorRef  # noqa: E402
-from actors.system import ActorSystem  # noqa: E402
+from actors.system import ActorSystem, ProcessInfo  # noqa: E402
 
 __all__ += ["Actor", "ActorContext", "ActorRef", "ActorSystem", "UnsafeFolder", "check_folder", "private_dir", "private_file"]
+__all__ += ["ActorHost", "HostExtension", "Journal", "ProcessInfo", "extension_spec", "load_extension"]

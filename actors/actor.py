@@ -19,9 +19,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from actors.ref import ActorRef
+
+if TYPE_CHECKING:
+    from actors.extension import HostExtension
+    from actors.host import ActorHost
 
 __all__ = ["Actor", "ActorContext"]
 
@@ -29,7 +33,7 @@ __all__ = ["Actor", "ActorContext"]
 class ActorContext:
     """What the runtime offers an actor: its name, refs, topics, stopping."""
 
-    def __init__(self, name: str, host: Any) -> None:
+    def __init__(self, name: str, host: ActorHost) -> None:
         self.name = name
         self._host = host
 
@@ -72,14 +76,13 @@ class ActorContext:
         """Serve another socket (or fd) on this actor's loop."""
         self._host.loop.add(sock, handler)
 
-    def extension(self, name: str) -> Any:
-        """What a spec hook attached to this actor's host under ``name`` (None if nothing)."""
-        return getattr(self._host, name, None)
+    def extension(self, name: str) -> HostExtension | None:
+        """The host extension named ``name`` (e.g. the supervisor's "lifecycle"), or None."""
+        return self._host.extension(name)
 
     def changed(self) -> None:
         """Say that state worth keeping changed outside a mailbox message (a topic step)."""
-        for fn in self._host.change_listeners:
-            fn()
+        self._host.state_changed()
 
     def beat(self) -> None:
         """Tell the supervisor we are alive during long work (see heartbeat)."""

@@ -14,6 +14,8 @@ from typing import Any
 import msgpack
 import zmq
 
+from actors.app import app_name
+from actors.extension import load_extension
 from actors.host import ActorHost, load_class
 from actors.loop import Loop
 from actors.runtime import Runtime, set_current
@@ -58,9 +60,9 @@ def child_main(spec: dict[str, Any]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     configure_logging(name, spec.get("log_level", logging.INFO))
     with contextlib.suppress(Exception):
-        import setproctitle  # type: ignore[import-not-found]
+        import setproctitle
 
-        setproctitle.setproctitle(f"embagents:{name}")
+        setproctitle.setproctitle(f"{app_name()}:{name}")
     if spec.get("nice"):
         os.nice(int(spec["nice"]))
     if spec.get("cpu_affinity"):
@@ -73,17 +75,17 @@ def child_main(spec: dict[str, Any]) -> None:
     try:
         cls = load_class(spec["cls"])
         actor = cls(*spec.get("args", ()), **spec.get("kwargs", {}))
+        extensions = [(load_extension(path), dict(config)) for path, config in spec.get("extensions", ())]
         host = ActorHost(
-            rt, loop, name, actor, heartbeat=spec.get("heartbeat"), poison_limit=spec.get("poison_limit", 3)
+            rt, loop, name, actor, heartbeat=spec.get("heartbeat"), poison_limit=spec.get("poison_limit", 3),
+            extensions=extensions,
         )
-        for path in spec.get("hooks", ()):
-            load_class(path)(host, spec)  # type: ignore[call-arg]
         # SIGTERM asks for a clean stop; the wakeup socket interrupts a blocked poll.
         rsock, wsock = socket.socketpair()
         rsock.setblocking(False)
         wsock.setblocking(False)
         signal.set_wakeup_fd(wsock.fileno())
-        signal.signal(signal.SIGTERM, lambda *_: host.request_stop())  # type: ignore[union-attr]
+        signal.signal(signal.SIGTERM, lambda *_: host.request_stop())
 
         def drain() -> None:
             with contextlib.suppress(BlockingIOError):
@@ -93,7 +95,7 @@ def child_main(spec: dict[str, Any]) -> None:
         host.start()
         _notify(rt, ["ready", name, os.getpid(), host.incarnation])
         host.serve()
-    except BaseException as exc:
+    except BaseException as exc:  # the one sender of the "failed" note: on_start, extensions, a told message
         text = traceback.format_exc()
         logging.getLogger("actors").error("actor crashed: %s\n%s", exc, text)
         with contextlib.suppress(Exception):
@@ -104,7 +106,7 @@ def child_main(spec: dict[str, Any]) -> None:
             rt.ctx.destroy(linger=500)  # lets the note above leave before we exit
         os._exit(1)
     try:
-        host.actor.on_stop()
+        host.stop()
     finally:
         host.close()
         rt.close()

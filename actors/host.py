@@ -1,23 +1,32 @@
-"""Runs one actor: its mailbox, topics, heartbeat and hooks, in the current thread.
+"""Runs one actor: its mailbox, topics, heartbeat and extensions, in the current thread.
 
 In an actor process the host owns the main thread; the same class hosts an
-attached actor's IO in a thread of the spawning process.
+attached actor's IO in a thread of the spawning process. Its life:
+``start()`` (extensions' ``before_start``, ``on_start``, extensions'
+``after_start``), ``serve()`` until a stop is requested, ``stop()``
+(``on_stop``, extensions' ``after_stop``), ``close()``. See
+:mod:`actors.extension` for the order of the extension hooks.
+
+Example::
+
+    >>> host = ActorHost(rt, Loop(), "echo", Echo(), extensions=[(Snapshots, {})])  # doctest: +SKIP
+    >>> host.start(); host.serve(); host.stop(); host.close()                      # doctest: +SKIP
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import msgpack
 
 from actors import wire
 from actors.actor import Actor, ActorContext
+from actors.extension import HostExtension, observes_messages, resolve
 from actors.journal import Journal
 from actors.loop import Loop
 from actors.mailbox import Mailbox
@@ -30,19 +39,11 @@ log = logging.getLogger("actors.host")
 
 
 def load_class(path: str) -> type[Actor]:
-    """Import ``module:QualName``; a clear error if it cannot be found."""
-    mod_name, _, qual = path.partition(":")
-    try:
-        mod = sys.modules.get(mod_name) or importlib.import_module(mod_name)
-        obj: Any = mod
-        for part in qual.split("."):
-            obj = getattr(obj, part)
-    except (ImportError, AttributeError) as exc:
-        raise ImportError(
-            f"cannot load actor class {path!r}: {exc}; define actor classes at module top level "
-            "(and import them before the ActorSystem starts)"
-        ) from exc
-    return obj
+    """Import ``module:QualName`` and check it is an Actor subclass; a clear error if not."""
+    cls = resolve(path, "actor class")
+    if not (isinstance(cls, type) and issubclass(cls, Actor)):
+        raise TypeError(f"{path!r} is {cls!r}, not an actors.Actor subclass")
+    return cls
 
 
 class ActorHost:
@@ -57,6 +58,7 @@ class ActorHost:
         *,
         heartbeat: float | None = 1.0,
         poison_limit: int = 3,
+        extensions: Sequence[tuple[type[HostExtension], dict[str, Any]]] = (),
     ) -> None:
         self.rt = rt
         self.loop = loop
@@ -66,8 +68,10 @@ class ActorHost:
         self.journal.on_restart()
         rt.beat = self.journal.beat
         self.incarnation = self.journal.incarnation
+        # Only extensions that watch messages cost anything per message.
+        observed = any(observes_messages(cls) for cls, _ in extensions)
         self.mailbox = Mailbox(
-            rt, name, rt.endpoint(name), self._dispatch, self.journal,
+            rt, name, rt.endpoint(name), self._observed_dispatch if observed else self._dispatch, self.journal,
             poison_limit=poison_limit, dead_letter=self._dead_letter,
             seen_path=os.path.join(rt.run_dir, f"{name}.seen"),
         )
@@ -79,15 +83,24 @@ class ActorHost:
             "stop": self._ctrl_stop,
             "stats": self.stats,
         }
-        self.change_listeners: list[Callable[[], None]] = []  # e.g. the supervisor's snapshotter
         self.stop_requested = False
-        self.exit_reason = "normal"
         actor.context = ActorContext(name, self)
         loop.add(self.mailbox.sock, self.mailbox.on_readable)
         loop.after_poll.append(self._after_poll)
         if heartbeat:
             loop.max_wait = heartbeat / 4
         self.journal.beat()
+        self.extensions: list[HostExtension] = [cls(self, config) for cls, config in extensions]
+        self._observers = [e.after_message for e in self.extensions if observes_messages(type(e))]
+        for ext in self.extensions:
+            self.ctrl_handlers.update(ext.controls())
+
+    def extension(self, name: str) -> HostExtension | None:
+        """The extension called ``name``, or None."""
+        for ext in self.extensions:
+            if ext.name == name:
+                return ext
+        return None
 
     # -- dispatch -----------------------------------------------------------
     def _dispatch(self, kind: int, body: Any) -> Any:
@@ -103,6 +116,22 @@ class ActorHost:
             if kind == wire.TELL:
                 self.actor.on_failure(*sys.exc_info())
             raise
+
+    def _observed_dispatch(self, kind: int, body: Any) -> Any:
+        try:
+            result = self._dispatch(kind, body)
+        except Exception:
+            for fn in self._observers:
+                fn(kind, False)
+            raise
+        for fn in self._observers:
+            fn(kind, True)
+        return result
+
+    def state_changed(self) -> None:
+        """The actor's state changed outside a message: tell the extensions."""
+        for ext in self.extensions:
+            ext.state_changed()
 
     def _after_poll(self) -> None:
         self.journal.beat()
@@ -147,13 +176,26 @@ class ActorHost:
 
     # -- life ---------------------------------------------------------------
     def start(self) -> None:
+        """Extensions' ``before_start``, the actor's ``on_start``, extensions' ``after_start``."""
+        for ext in self.extensions:
+            ext.before_start()
         self.actor.on_start()
+        for ext in self.extensions:
+            ext.after_start()
 
     def serve(self) -> None:
         """Handle messages until a stop is requested; a told message that raises propagates."""
         self.mailbox.on_readable()  # messages may have queued before we polled
         while not self.stop_requested:
             self.loop.run()
+
+    def stop(self) -> None:
+        """The actor's ``on_stop``, then extensions' ``after_stop`` in reverse order (also if it raised)."""
+        try:
+            self.actor.on_stop()
+        finally:
+            for ext in reversed(self.extensions):
+                ext.after_stop()
 
     def close(self) -> None:
         for sub in self.subscriptions:

@@ -3,8 +3,8 @@
 Example::
 
     >>> ref = system.ref("echo")                        # doctest: +SKIP
-    >>> ref.tell({"cmd": "blink"})                      # fire and forget
-    >>> ref.ask("ping", timeout=1.0).get()              # a pykka Future
+    >>> ref.tell({"cmd": "blink"})                      # doctest: +SKIP
+    >>> ref.ask("ping", timeout=1.0).get()              # doctest: +SKIP
     'pong'
 """
 
@@ -98,6 +98,14 @@ class ActorRef:
         and ``pykka.Timeout`` after ``timeout`` seconds.
         """
         return self._ask(wire.ASK, message, timeout)
+
+    def control(self, cmd: str, *args: Any, timeout: float | None = None) -> pykka.Future:
+        """Send control command ``cmd`` (answered by the actor's host, not ``on_receive``); a future of its answer.
+
+        A control command takes its turn in the mailbox like any message. The host answers "ping", "stop" and "stats"; host
+        extensions add theirs (the supervisor's "lifecycle").
+        """
+        return self._ask(wire.CTRL, [cmd, list(args)], timeout)
 
     def _ask(self, kind: int, message: Any, timeout: float | None) -> pykka.Future:
         rt = _rt.current()

@@ -174,6 +174,11 @@ class ActorSystem:
         return info
 
     def make_spec(self, cls: type[Actor], name: str, args: tuple[Any, ...], kwargs: dict[str, Any], **opts: Any) -> dict[str, Any]:
+        """The process spec ``start_process`` takes: msgpack-able data the fork server hands the child.
+
+        ``opts``: ``heartbeat``, ``poison_limit``, ``nice``, ``cpu_affinity`` and
+        ``extensions`` (a list of :func:`actors.extension.extension_spec` pairs).
+        """
         return {
             "name": name,
             "cls": class_path(cls),
@@ -186,8 +191,8 @@ class ActorSystem:
             "poison_limit": opts.get("poison_limit", 3),
             "nice": opts.get("nice"),
             "cpu_affinity": opts.get("cpu_affinity"),
-            "hooks": list(opts.get("hooks", ())),
-            "extra": opts.get("extra", {}),
+            # [["module:Class", config], ...] (actors.extension.extension_spec): data, never pickle
+            "extensions": [list(e) for e in opts.get("extensions", ())],
         }
 
     def spawn(
@@ -282,7 +287,8 @@ class ActorSystem:
             self.forkserver.send(["kill", info.pid, int(sig)])
 
     def ctrl(self, name: str, cmd: str, *args: Any, timeout: float = 5.0) -> Any:
-        return ActorRef(name)._ask(wire.CTRL, [cmd, list(args)], timeout).get()
+        """Run control command ``cmd`` in actor ``name`` (e.g. "ping", "stats") and return its answer."""
+        return ActorRef(name).control(cmd, *args, timeout=timeout).get()
 
     def stop(self, name: str, timeout: float = 5.0, *, unregister: bool = True) -> int | None:
         """Stop ``name`` cleanly (its ``on_stop`` runs), killing it after ``timeout``."""

@@ -8,6 +8,7 @@ decode them) and re-exports what a ``system.py`` uses::
     'text_in'
 """
 
+from actors.app import set_app_name
 from embagents.components import LLM, Component, Health, HealthStatus, LLMConfig, ModelComponent
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
@@ -26,6 +27,9 @@ from embagents.msgs import (
 )
 from embagents.system import System, load_system
 from embagents.topic import Topic
+
+# The actors and the supervisor name processes, folders and variables after the app using them.
+set_app_name("embagents")
 
 __all__ = [
     "LLM",

@@ -32,6 +32,7 @@ from typing import Any
 
 import attrs
 
+from embagents.msgs import HealthStatus
 from embagents.topic import Topic
 
 __all__ = [
@@ -517,8 +518,6 @@ class Fallback:
         ``status`` is a ``HealthStatus`` (or its name or value); ``component``
         fills actions declared without one.
         """
-        from embagents.components.component import HealthStatus  # cycle: component imports us
-
         status = HealthStatus.parse(status)
         if status is HealthStatus.HEALTHY:
             self.reset()

@@ -14,6 +14,9 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
+import enum
+
 import attrs
 import numpy as np
 
@@ -24,6 +27,8 @@ __all__ = [
     "Audio",
     "CompressedImage",
     "Detections",
+    "Health",
+    "HealthStatus",
     "Image",
     "JointState",
     "Odometry",
@@ -188,7 +193,47 @@ class JointState:
     stamp: float = 0.0
 
 
+class HealthStatus(enum.IntEnum):
+    """How a component is doing; failures drive :class:`~embagents.events.Fallback` rules."""
+
+    HEALTHY = 0
+    ALGORITHM_FAILURE = 1  # a step raised or its result is unusable; the process is fine
+    COMPONENT_FAILURE = 2  # the component itself is broken (crashed, hung, lost its model)
+    SYSTEM_FAILURE = 3  # something outside it is broken (a device, the network)
+
+    @classmethod
+    def parse(cls, value: object) -> HealthStatus:
+        """A status from itself, its value or its name (any case).
+
+        >>> HealthStatus.parse("algorithm_failure")
+        <HealthStatus.ALGORITHM_FAILURE: 1>
+        """
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, str) and value.upper() in cls.__members__:
+            return cls[value.upper()]
+        if isinstance(value, int) and not isinstance(value, bool):
+            with contextlib.suppress(ValueError):
+                return cls(value)
+        raise ValueError(f"unknown health status {value!r}; known: {', '.join(cls.__members__)}")
+
+
+@message("embagents/Health")
+@attrs.define
+class Health:
+    """A component's health report (published by the runtime, read by fallbacks)."""
+
+    component: str = ""
+    status: HealthStatus = attrs.field(default=HealthStatus.HEALTHY, converter=HealthStatus.parse)
+    text: str = ""
+    stamp: float = 0.0
+
+
+
 MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
-    for cls in (String, StreamingString, Image, CompressedImage, Audio, Detections, Twist, Odometry, OccupancyGrid, JointState)
+    for cls in (
+        String, StreamingString, Image, CompressedImage, Audio, Detections, Twist, Odometry, OccupancyGrid, JointState,
+        Health,
+    )
 }

@@ -44,7 +44,7 @@ import msgpack
 import pykka
 import zmq
 
-from actors import ActorRef, ActorSystem, check_folder, private_dir, wire
+from actors import ActorRef, ActorSystem, check_folder, private_dir
 from supervisor.rootio import on_root
 from supervisor.tree import Tree
 
@@ -66,7 +66,7 @@ def control_endpoint(run_dir: str) -> str:
 def _ctrl_async(name: str, cmd: str, timeout: float) -> pykka.Future:
     # ActorSystem.ctrl() blocks per call; one future per actor lets a status
     # request ask all of them at once (a hung actor costs one timeout, not one each).
-    return ActorRef(name)._ask(wire.CTRL, [cmd, []], timeout)
+    return ActorRef(name).control(cmd, timeout=timeout)
 
 
 class ControlServer:

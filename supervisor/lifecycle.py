@@ -22,7 +22,8 @@ The state is kept in the actor's journal, which outlives its process. A
 new incarnation replays the transitions from ``unconfigured`` to the state
 its predecessor was in (configure, then activate) after ``on_start`` and
 before it reports ready; a fresh actor (or one that had been finalized)
-goes to its spec's ``lifecycle`` target instead. The journal records that
+goes to its spec's ``lifecycle`` target instead. :class:`Lifecycle` is the
+host extension (:mod:`actors.extension`) that does this in the actor's process. The journal records that
 goal until the replay is done, so an actor whose ``on_configure`` keeps
 failing fails to start (and its supervisor's intensity decides) rather than
 coming up unconfigured.
@@ -37,10 +38,12 @@ Example::
 
 from __future__ import annotations
 
+import enum
 import logging
+from collections.abc import Callable, Mapping
 from typing import Any
 
-from actors import ActorSystem
+from actors import Actor, ActorHost, ActorSystem, HostExtension
 
 __all__ = [
     "ACTIVE",
@@ -50,7 +53,8 @@ __all__ = [
     "UNCONFIGURED",
     "Lifecycle",
     "LifecycleError",
-    "install",
+    "LifecycleState",
+    "current",
     "state",
     "state_name",
     "transition",
@@ -58,12 +62,23 @@ __all__ = [
 
 log = logging.getLogger("supervisor.lifecycle")
 
-NEW, UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 0, 1, 2, 3, 4
-_NAMES = {NEW: "unconfigured", UNCONFIGURED: "unconfigured", INACTIVE: "inactive", ACTIVE: "active", FINALIZED: "finalized"}
+
+class LifecycleState(enum.IntEnum):
+    """A lifecycle state, as the journal keeps it (one byte; NEW: never set)."""
+
+    NEW = 0
+    UNCONFIGURED = 1
+    INACTIVE = 2
+    ACTIVE = 3
+    FINALIZED = 4
+
+
+NEW, UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = LifecycleState
+_NAMES: dict[int, str] = {NEW: "unconfigured", UNCONFIGURED: "unconfigured", INACTIVE: "inactive", ACTIVE: "active", FINALIZED: "finalized"}
 _BY_NAME = {"unconfigured": UNCONFIGURED, "inactive": INACTIVE, "active": ACTIVE}
 
 #: transition -> (states it may start from, state it leads to, hook name)
-TRANSITIONS: dict[str, tuple[tuple[int, ...], int, str]] = {
+TRANSITIONS: dict[str, tuple[tuple[LifecycleState, ...], LifecycleState, str]] = {
     "configure": ((UNCONFIGURED,), INACTIVE, "on_configure"),
     "activate": ((INACTIVE,), ACTIVE, "on_activate"),
     "deactivate": ((ACTIVE,), INACTIVE, "on_deactivate"),
@@ -81,17 +96,30 @@ def state_name(code: int) -> str:
     return _NAMES.get(code, f"unknown({code})")
 
 
-class Lifecycle:
-    """The lifecycle of one actor, in its process."""
+class Lifecycle(HostExtension):
+    """The lifecycle of one actor, in its process (a host extension; config: ``{"target": state name}``)."""
 
-    def __init__(self, host: Any, goal: int) -> None:
-        self.host = host
-        self.state = UNCONFIGURED
-        self.goal = goal
+    name = "lifecycle"
+
+    def __init__(self, host: ActorHost, config: Mapping[str, Any]) -> None:
+        super().__init__(host, config)
+        target = config.get("target") or "unconfigured"
+        if target not in _BY_NAME:
+            raise LifecycleError(f"lifecycle target must be one of {', '.join(_BY_NAME)}, not {target!r}")
+        previous = host.journal.state()
+        self.state: LifecycleState = UNCONFIGURED
+        # A restarted actor returns to where its predecessor was; a fresh (or finalized) one to its target.
+        self.goal = LifecycleState(previous) if previous in (UNCONFIGURED, INACTIVE, ACTIVE) else _BY_NAME[target]
 
     @property
-    def name(self) -> str:
+    def state_name(self) -> str:
         return _NAMES[self.state]
+
+    def controls(self) -> Mapping[str, Callable[..., Any]]:
+        return {"lifecycle": self.transition, "lifecycle_state": lambda: self.state_name}
+
+    def after_start(self) -> None:
+        self.replay()
 
     def transition(self, name: str) -> str:
         """Run transition ``name``; returns the new state's name."""
@@ -99,7 +127,7 @@ class Lifecycle:
         self.host.journal.set_state(self.state)
         if self.state == FINALIZED:
             self.host.request_stop()
-        return self.name
+        return self.state_name
 
     def _apply(self, name: str) -> None:
         try:
@@ -107,10 +135,10 @@ class Lifecycle:
         except KeyError:
             raise LifecycleError(f"unknown transition {name!r}; one of: {', '.join(TRANSITIONS)}") from None
         if self.state not in sources:
-            raise LifecycleError(f"cannot {name} actor {self.host.name!r}: it is {self.name}")
+            raise LifecycleError(f"cannot {name} actor {self.host.name!r}: it is {self.state_name}")
         fn = getattr(self.host.actor, hook, None)
         if fn is not None and fn() is False:
-            raise LifecycleError(f"{hook}() of actor {self.host.name!r} returned False; it stays {self.name}")
+            raise LifecycleError(f"{hook}() of actor {self.host.name!r} returned False; it stays {self.state_name}")
         self.state = target
 
     def replay(self) -> None:
@@ -119,32 +147,13 @@ class Lifecycle:
             self._apply(t)
         self.host.journal.set_state(self.state)
         if self.goal != UNCONFIGURED:
-            log.info("[%s] lifecycle restored to %s", self.host.name, self.name)
+            log.info("[%s] lifecycle restored to %s", self.host.name, self.state_name)
 
 
-def install(host: Any, spec: dict[str, Any]) -> None:
-    """Spec hook (runs in the actor process before ``on_start``): lifecycle control commands."""
-    cfg = spec.get("extra", {}).get("supervisor", {})
-    previous = host.journal.state()
-    target = _BY_NAME.get(cfg.get("lifecycle") or "unconfigured", UNCONFIGURED)
-    goal = previous if previous in (UNCONFIGURED, INACTIVE, ACTIVE) else target
-    lc = Lifecycle(host, goal)
-    host.lifecycle = lc
-    host.ctrl_handlers["lifecycle"] = lc.transition
-    host.ctrl_handlers["lifecycle_state"] = lambda: lc.name
-    started = host.start
-
-    def start() -> None:
-        started()
-        lc.replay()
-
-    host.start = start
-
-
-def current(actor: Any) -> str:
+def current(actor: Actor) -> str:
     """The lifecycle state of ``actor``, from inside its own process (e.g. in a handler)."""
-    lc = getattr(getattr(actor.context, "_host", None), "lifecycle", None)
-    return "unconfigured" if lc is None else lc.name
+    lc = actor.context.extension(Lifecycle.name)
+    return lc.state_name if isinstance(lc, Lifecycle) else "unconfigured"
 
 
 def transition(system: ActorSystem, name: str, what: str, timeout: float = 10.0) -> str:

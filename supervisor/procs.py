@@ -10,7 +10,9 @@ polite request: SIGTERM, on which an actor runs ``on_stop``) and ``kill()``
 
 Exits come from the fork server's SIGCHLD path through
 ``system.exit_listeners`` (no polling); "ready" comes from the actor's own
-note to the root once ``on_start`` (and the lifecycle replay) is done.
+note to the root once ``on_start`` (and the lifecycle replay) is done; a
+failed start, or a told message that raised, ends the process with status 1
+after its "failed" note (:func:`actors.child.child_main` sends both).
 
 Example::
 
@@ -28,13 +30,14 @@ import time
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
+from actors import extension_spec
 from supervisor.aio import Future
 from supervisor.exits import Exit, classify
-from supervisor.rootio import start_process
+from supervisor.lifecycle import Lifecycle
+from supervisor.snapshot import Snapshots, keeps_snapshots
 
 if TYPE_CHECKING:
-    from actors.journal import Journal
-    from actors.system import ProcessInfo
+    from actors import Journal, ProcessInfo
     from supervisor.spec import ChildSpec
     from supervisor.tree import Tree
 
@@ -125,11 +128,13 @@ class ActorProcess(Incarnation):
     def process_spec(self) -> dict[str, Any]:
         s = self.spec
         st = s.start
-        hooks = list(s.hooks)
-        if callable(getattr(st.cls, "snapshot", None)) and callable(getattr(st.cls, "restore", None)):
-            hooks.append("supervisor.snapshot:install")
-        # failfast last: it wraps the handlers the others installed.
-        hooks += ["supervisor.lifecycle:install", "supervisor.failfast:install"]
+        # Extension hooks run in this order (actors.extension): the snapshot is restored
+        # before on_start, the lifecycle replayed after it; the child's own come last.
+        extensions = []
+        if keeps_snapshots(st.cls):
+            extensions.append(extension_spec(Snapshots, {"interval": s.snapshot_interval}))
+        extensions.append(extension_spec(Lifecycle, {"target": s.lifecycle}))
+        extensions += [extension_spec(cls, config) for cls, config in s.extensions]
         return self.tree.system.make_spec(
             st.cls,
             self.name,
@@ -139,14 +144,7 @@ class ActorProcess(Incarnation):
             poison_limit=s.poison_limit,
             nice=s.nice,
             cpu_affinity=list(s.cpu_affinity) if s.cpu_affinity else None,
-            hooks=hooks,
-            extra={
-                "supervisor": {
-                    "path": self.path,
-                    "lifecycle": s.lifecycle,
-                    "snapshot_interval": s.snapshot_interval,
-                }
-            },
+            extensions=extensions,
         )
 
     def start(self) -> None:
@@ -155,7 +153,7 @@ class ActorProcess(Incarnation):
         self.expected_incarnation = self.journal.incarnation + 1
         self.tree.procs[self.name] = self
         self.started_at = time.monotonic()
-        self.info = start_process(self.tree.system, spec)
+        self.info = self.tree.system.start_process(spec)
 
     # -- called by the tree's listeners -------------------------------------
     def on_note(self, kind: str, pid: int, rest: list[Any]) -> None:

@@ -12,14 +12,12 @@ Example::
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from actors import ActorSystem
-from actors.system import ProcessInfo
 
-__all__ = ["in_root", "on_root", "start_process"]
+__all__ = ["in_root", "on_root"]
 
 T = TypeVar("T")
 
@@ -31,26 +29,4 @@ def in_root(system: ActorSystem) -> bool:
 
 def on_root(system: ActorSystem, fn: Callable[[], T]) -> T:
     """Run ``fn`` on the root IO thread and return its result (inline if already there)."""
-    if in_root(system):
-        return fn()
     return system.rt.on_client(fn)
-
-
-def start_process(system: ActorSystem, spec: dict[str, Any]) -> ProcessInfo:
-    """``system.start_process(spec)``, callable from the root IO thread itself.
-
-    ``ActorSystem.start_process`` hands its work to the IO thread through
-    ``Runtime.on_client`` and waits, which deadlocks when called from that
-    thread. Until ``on_client`` runs inline on its own thread, this does the
-    same steps here. (Reported upstream; see the supervisor README notes.)
-    """
-    if not in_root(system):
-        return system.start_process(spec)
-    name = spec["name"]
-    info = ProcessInfo(name, spec)
-    token = next(system._tokens)
-    system.procs[name] = info
-    system._spawning[token] = info
-    info.started_at = time.monotonic()
-    system.forkserver.send(["spawn", token, spec])
-    return info

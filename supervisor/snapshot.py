@@ -30,13 +30,12 @@ import contextlib
 import logging
 import os
 import time
+from collections.abc import Mapping
 from typing import Any
 
-from actors import wire
-from actors.codec import Codec
-from actors.errors import CodecError
+from actors import ActorHost, Codec, CodecError, HostExtension, wire
 
-__all__ = ["Snapshotter", "install", "read"]
+__all__ = ["Snapshots", "keeps_snapshots", "read"]
 
 log = logging.getLogger("supervisor.snapshot")
 
@@ -49,18 +48,43 @@ def read(path: str) -> Any:
         return _codec.decode(f.read())
 
 
-class Snapshotter:
-    """Writes one actor's snapshots, throttled to ``interval`` seconds."""
+class Snapshots(HostExtension):
+    """Restores an actor before ``on_start`` and writes its snapshots, at most one per ``interval`` s.
 
-    def __init__(self, host: Any, interval: float) -> None:
-        self.host = host
-        self.actor = host.actor
-        self.interval = interval
+    A host extension (config: ``{"interval": seconds}``); the supervisor adds
+    it to actors whose class defines ``snapshot()`` and ``restore(state)``.
+    """
+
+    name = "snapshots"
+
+    def __init__(self, host: ActorHost, config: Mapping[str, Any]) -> None:
+        super().__init__(host, config)
+        actor = host.actor
+        if not keeps_snapshots(type(actor)):
+            raise TypeError(f"{type(actor).__qualname__} needs snapshot() and restore(state) methods to keep snapshots")
+        self.actor: Any = actor
+        self.interval = float(config.get("interval") or 0.0)
         self.path = os.path.join(host.rt.run_dir, f"{host.name}.snap")
         self.dirty = False
         self.last = 0.0
         self.timer: int | None = None
         self.written = 0
+
+    def before_start(self) -> None:
+        self.restore()
+
+    def after_message(self, kind: int, ok: bool) -> None:
+        # An ask that raised may have changed the state; a tell that raised crashes the
+        # actor and is delivered again, so its half-done effects must not persist.
+        if kind == wire.ASK or (ok and kind == wire.TELL):
+            self.changed()
+
+    def state_changed(self) -> None:
+        self.changed()
+
+    def after_stop(self) -> None:
+        if self.dirty:
+            self.write()
 
     def restore(self) -> bool:
         try:
@@ -101,39 +125,6 @@ class Snapshotter:
         self.written += 1
 
 
-def install(host: Any, spec: dict[str, Any]) -> None:
-    """Spec hook (in the actor process, before ``on_start``): restore, then snapshot after messages."""
-    actor = host.actor
-    if not (callable(getattr(actor, "snapshot", None)) and callable(getattr(actor, "restore", None))):
-        return
-    cfg = spec.get("extra", {}).get("supervisor", {})
-    snap = Snapshotter(host, float(cfg.get("snapshot_interval") or 0.0))
-    host.snapshotter = snap
-    host.change_listeners.append(snap.changed)  # state changed outside a mailbox message
-    snap.restore()
-    inner = host.mailbox.handler
-
-    def handler(kind: int, body: Any) -> Any:
-        try:
-            result = inner(kind, body)
-        except Exception:
-            # An ask that raised may have changed the state; a tell that raised crashes
-            # the actor and is delivered again, so its half-done effects must not persist.
-            if kind == wire.ASK:
-                snap.changed()
-            raise
-        if kind != wire.CTRL:
-            snap.changed()
-        return result
-
-    host.mailbox.handler = handler
-    stop = actor.on_stop
-
-    def on_stop() -> None:
-        try:
-            stop()
-        finally:
-            if snap.dirty:
-                snap.write()
-
-    actor.on_stop = on_stop
+def keeps_snapshots(cls: type) -> bool:
+    """True if actor class ``cls`` defines ``snapshot()`` and ``restore(state)``."""
+    return callable(getattr(cls, "snapshot", None)) and callable(getattr(cls, "restore", None))

@@ -26,8 +26,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
-from actors import Actor, wire
+from actors import Actor, HostExtension, extension_spec, wire
 from supervisor.backoff import Backoff
+from supervisor.states import StrEnum
 
 __all__ = [
     "LIFECYCLE_TARGETS",
@@ -36,11 +37,32 @@ __all__ = [
     "ActorStart",
     "ChildSpec",
     "Command",
+    "Restart",
+    "Strategy",
     "SupervisorSpec",
 ]
 
-STRATEGIES = ("one_for_one", "one_for_all", "rest_for_one", "simple_one_for_one")
-RESTART_TYPES = ("permanent", "transient", "temporary")
+
+
+class Strategy(StrEnum):
+    """Which children a restart involves (see :mod:`supervisor.supervisor`)."""
+
+    ONE_FOR_ONE = "one_for_one"
+    ONE_FOR_ALL = "one_for_all"
+    REST_FOR_ONE = "rest_for_one"
+    SIMPLE_ONE_FOR_ONE = "simple_one_for_one"
+
+
+class Restart(StrEnum):
+    """When a child that exited is restarted: always, after an abnormal exit, never."""
+
+    PERMANENT = "permanent"
+    TRANSIENT = "transient"
+    TEMPORARY = "temporary"
+
+
+STRATEGIES = tuple(s.value for s in Strategy)
+RESTART_TYPES = tuple(r.value for r in Restart)
 LIFECYCLE_TARGETS = ("unconfigured", "inactive", "active")
 
 
@@ -97,11 +119,14 @@ class ChildSpec:
     - ``lifecycle``: state to bring a fresh actor to ("inactive", "active").
     - ``snapshot_interval``: least seconds between two snapshots (0: after
       every message).
+    - ``extensions``: more :class:`actors.HostExtension` subclasses to run in
+      the actor's process, each a class or ``(class, config dict)``; they run
+      after the supervisor's own (snapshots, lifecycle).
     """
 
     id: str
     start: Any
-    restart: str = "permanent"
+    restart: Restart | str = Restart.PERMANENT
     shutdown: float | str | None = None
     type: str | None = None
     heartbeat: float | None = None
@@ -115,7 +140,7 @@ class ChildSpec:
     poison_limit: int = 3
     lifecycle: str | None = None
     snapshot_interval: float = 0.0
-    hooks: Sequence[str] = ()
+    extensions: Sequence[Any] = ()
 
     def __post_init__(self) -> None:
         wire.check_name(self.id)
@@ -130,6 +155,7 @@ class ChildSpec:
             )
         if self.restart not in RESTART_TYPES:
             raise ValueError(f"child {self.id!r}: restart must be one of {', '.join(RESTART_TYPES)}, not {self.restart!r}")
+        self.restart = Restart(self.restart)
         if self.shutdown is None:
             self.shutdown = "infinity" if self.type == "supervisor" else 5.0
         if isinstance(self.shutdown, str):
@@ -157,7 +183,7 @@ class ChildSpec:
             raise TypeError(f"child {self.id!r}: backoff must be a supervisor.Backoff, not {self.backoff!r}")
         if self.cpu_affinity is not None:
             self.cpu_affinity = [int(c) for c in self.cpu_affinity]
-        self.hooks = tuple(self.hooks)
+        self.extensions = tuple(_normalize_extension(self.id, e) for e in self.extensions)
 
     @property
     def kind(self) -> str:
@@ -195,6 +221,15 @@ class ChildSpec:
         return replace(self, id=name, start=start)
 
 
+def _normalize_extension(cid: str, ext: Any) -> tuple[type[HostExtension], dict[str, Any]]:
+    cls, config = ext if isinstance(ext, tuple) and len(ext) == 2 else (ext, {})
+    try:
+        extension_spec(cls, config)  # a class at module top level, config a mapping
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"child {cid!r}: extensions takes HostExtension classes or (class, config) pairs: {exc}") from None
+    return cls, dict(config)
+
+
 def _normalize_start(cid: str, start: Any) -> ActorStart | Command | SupervisorSpec:
     if isinstance(start, (Command, SupervisorSpec)):
         return start
@@ -229,13 +264,14 @@ class SupervisorSpec:
     """
 
     children: list[ChildSpec] = field(default_factory=list)
-    strategy: str = "one_for_one"
+    strategy: Strategy | str = Strategy.ONE_FOR_ONE
     intensity: int = 1
     period: float = 5.0
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, not {self.strategy!r}")
+        self.strategy = Strategy(self.strategy)
         if not isinstance(self.intensity, int) or self.intensity < 0:
             raise ValueError(f"intensity must be an integer >= 0, not {self.intensity!r}")
         if not self.period > 0:

@@ -34,19 +34,16 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import copy
-import enum
 import logging
 import re
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
-import attrs
-
-from actors.codec import message
 from embagents.config import BaseComponentConfig, ConfigError, apply_config
 from embagents.events import Event, Fallback
-from embagents.topic import Topic, add_message_type
+from embagents.msgs import Health, HealthStatus
+from embagents.topic import Topic
 
 __all__ = [
     "UNSET",
@@ -75,45 +72,6 @@ class _Unset:
 
 #: Default of ``trigger``: the component class chooses (:meth:`Component.default_trigger`).
 UNSET: Any = _Unset()
-
-
-class HealthStatus(enum.IntEnum):
-    """How a component is doing; failures drive :class:`~embagents.events.Fallback` rules."""
-
-    HEALTHY = 0
-    ALGORITHM_FAILURE = 1  # a step raised or its result is unusable; the process is fine
-    COMPONENT_FAILURE = 2  # the component itself is broken (crashed, hung, lost its model)
-    SYSTEM_FAILURE = 3  # something outside it is broken (a device, the network)
-
-    @classmethod
-    def parse(cls, value: object) -> HealthStatus:
-        """A status from itself, its value or its name (any case).
-
-        >>> HealthStatus.parse("algorithm_failure")
-        <HealthStatus.ALGORITHM_FAILURE: 1>
-        """
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, str) and value.upper() in cls.__members__:
-            return cls[value.upper()]
-        if isinstance(value, int) and not isinstance(value, bool):
-            with contextlib.suppress(ValueError):
-                return cls(value)
-        raise ValueError(f"unknown health status {value!r}; known: {', '.join(cls.__members__)}")
-
-
-@message("embagents/Health")
-@attrs.define
-class Health:
-    """A component's health report (published by the runtime, read by fallbacks)."""
-
-    component: str = ""
-    status: HealthStatus = attrs.field(default=HealthStatus.HEALTHY, converter=HealthStatus.parse)
-    text: str = ""
-    stamp: float = 0.0
-
-
-add_message_type(Health)
 
 
 class ComponentError(ValueError):
