@@ -87,6 +87,6 @@ def serve(
         Tree.of(system).close()
         if own:
             system.shutdown()
-        for signum, handler in old.items():
+        for sig, handler in old.items():
             with contextlib.suppress(ValueError, TypeError):
-                signal.signal(signum, handler)
+                signal.signal(sig, handler)
