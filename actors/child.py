@@ -60,7 +60,7 @@ def child_main(spec: dict[str, Any]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     configure_logging(name, spec.get("log_level", logging.INFO))
     with contextlib.suppress(Exception):
-        import setproctitle  # type: ignore[import-not-found]
+        import setproctitle
 
         setproctitle.setproctitle(f"{app_name()}:{name}")
     if spec.get("nice"):
@@ -85,7 +85,7 @@ def child_main(spec: dict[str, Any]) -> None:
         rsock.setblocking(False)
         wsock.setblocking(False)
         signal.set_wakeup_fd(wsock.fileno())
-        signal.signal(signal.SIGTERM, lambda *_: host.request_stop())  # type: ignore[union-attr]
+        signal.signal(signal.SIGTERM, lambda *_: host.request_stop())
 
         def drain() -> None:
             with contextlib.suppress(BlockingIOError):

@@ -61,7 +61,8 @@ def register(cls: T, name: str | None = None) -> T:
     ``name`` is the stable wire name (default ``module.QualName``); both ends
     must register the class under the same name.
     """
-    if not attrs.has(cls):
+    is_attrs = attrs.has(cls)  # kept apart: attrs.has would narrow cls and lose T
+    if not is_attrs:
         raise TypeError(f"{cls.__qualname__} must be an attrs class (decorate it with @attrs.define)")
     wire = name or f"{cls.__module__}.{cls.__qualname__}"
     other = _by_name.get(wire)
@@ -225,7 +226,8 @@ class Codec:
         enc = self._state()[0]
         enc.owner_prefix = owner_prefix
         enc.sink = self.sink if shm else None
-        enc.segments = segments = []
+        segments: list[Any] = []
+        enc.segments = segments
         try:
             data = enc.packer.pack(obj)
         except BaseException:

@@ -39,7 +39,7 @@ _MAX = 1 << 20
 
 
 try:  # resolved once at import: dlopen in a freshly forked child of a threaded parent is unsafe
-    _prctl = ctypes.CDLL(None, use_errno=True).prctl
+    _prctl: Any = ctypes.CDLL(None, use_errno=True).prctl
 except (OSError, AttributeError):  # not Linux: the EOF path still cleans up
     _prctl = None
 
@@ -94,14 +94,14 @@ def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: C
 
     while True:
         try:
-            ready, _, _ = select.select([sock, rfd], [], [])
+            ready, _, _ = select.select([sock.fileno(), rfd], [], [])
         except InterruptedError:
             continue
         if rfd in ready:
             with contextlib.suppress(BlockingIOError):
                 os.read(rfd, 4096)
             reap()
-        if sock in ready:
+        if sock.fileno() in ready:
             try:
                 data = sock.recv(_MAX)
             except OSError:
@@ -161,7 +161,7 @@ class ForkServer:
             parent.close()
             code = 0
             try:
-                logging.shutdown = lambda *a, **k: None  # type: ignore[assignment]
+                logging.shutdown = lambda *a, **k: None
                 _serve(child, run_dir, shm_run_prefix, child_main)
             except BaseException:
                 traceback.print_exc()
@@ -187,7 +187,7 @@ class ForkServer:
                     select.select([], [self.sock], [], 1.0)
 
     def recv_all(self) -> list[list[Any]]:
-        out = []
+        out: list[list[Any]] = []
         while True:
             try:
                 data = self.sock.recv(_MAX)

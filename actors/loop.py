@@ -114,11 +114,12 @@ class Loop:
         poller = self._poller
         if only is not None:
             key = tuple(id(s) for s in only)
-            poller = self._restricted.get(key)
-            if poller is None:
-                poller = self._restricted[key] = zmq.Poller()
+            restricted = self._restricted.get(key)
+            if restricted is None:
+                restricted = self._restricted[key] = zmq.Poller()
                 for s in only:
-                    poller.register(s, zmq.POLLIN)
+                    restricted.register(s, zmq.POLLIN)
+            poller = restricted
         self._stopping = False
         # zmq_poll on the Poller's own item list: Poller.poll() only adds argument checks.
         items, handlers, hooks = poller.sockets, self._handlers, self.after_poll

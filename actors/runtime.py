@@ -118,6 +118,7 @@ class Runtime:
                 t.start()
                 ready.wait()
                 self._client_thread = t
+            assert self._client is not None  # set by main() before ready
             return self._client
 
     def on_client(self, fn: Callable[[], Any]) -> Any:

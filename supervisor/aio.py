@@ -27,6 +27,7 @@ Example::
 
 from __future__ import annotations
 
+import functools
 import weakref
 from collections import deque
 from collections.abc import Callable, Coroutine, Generator
@@ -125,7 +126,7 @@ class Future(Generic[T]):
     def _schedule(self) -> None:
         cbs, self._callbacks = self._callbacks, []
         for fn in cbs:
-            soon(self.loop, lambda fn=fn: fn(self))
+            soon(self.loop, functools.partial(fn, self))
 
     def __await__(self) -> Generator[Future[T], None, T]:
         if not self._done:

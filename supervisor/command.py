@@ -25,9 +25,9 @@ import logging
 import os
 import signal
 import subprocess
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from supervisor.exits import Exit
+from supervisor.exits import Exit, Reason
 from supervisor.procs import Incarnation
 
 if TYPE_CHECKING:
@@ -40,7 +40,7 @@ _PR_SET_PDEATHSIG = 1
 try:
     # Resolved now: after fork() in a threaded root, dlopen() could deadlock on a lock some
     # other thread held (actors.forkserver.set_pdeathsig opens libc on every call).
-    _prctl = ctypes.CDLL(None, use_errno=True).prctl
+    _prctl: Any = ctypes.CDLL(None, use_errno=True).prctl
 except (OSError, AttributeError):  # pragma: no cover - not Linux
     _prctl = None
 
@@ -133,7 +133,7 @@ class CommandProcess(Incarnation):
                 preexec_fn=lambda: _preexec(root, nice, cpus),
             )
         except (OSError, subprocess.SubprocessError) as exc:
-            self.cause = Exit("error", None, f"cannot start {cmd.argv[0]!r}: {exc}")
+            self.cause = Exit(Reason.ERROR, None, f"cannot start {cmd.argv[0]!r}: {exc}")
             self._finish(None)
             return
         log = logging.getLogger(f"supervisor.child.{self.name}")

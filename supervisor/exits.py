@@ -13,8 +13,10 @@ Only the "normal" reasons spare a transient child its restart.
 
 Example::
 
-    >>> classify(0), classify(-15).reason, classify(-11).detail
-    (Exit(reason='normal', code=0, detail='exit code 0'), 'shutdown', 'killed by SIGSEGV')
+    >>> classify(0)
+    Exit(reason=<Reason.NORMAL: 'normal'>, code=0, detail='exit code 0')
+    >>> classify(-15).reason == "shutdown", str(classify(-11))
+    (True, 'error (killed by SIGSEGV)')
 """
 
 from __future__ import annotations
@@ -22,23 +24,37 @@ from __future__ import annotations
 import signal
 from dataclasses import dataclass
 
-__all__ = ["Exit", "classify"]
+from supervisor.states import StrEnum
+
+__all__ = ["Exit", "Reason", "classify"]
+
+
+class Reason(StrEnum):
+    """Why a child ended (the table above)."""
+
+    NORMAL = "normal"
+    SHUTDOWN = "shutdown"
+    KILLED = "killed"
+    ERROR = "error"
 
 
 @dataclass(frozen=True)
 class Exit:
     """How one incarnation of a child ended."""
 
-    reason: str  # normal | shutdown | killed | error
+    reason: Reason
     code: int | None = None
     detail: str = ""
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "reason", Reason(self.reason))  # a plain string is checked
+
     @property
     def normal(self) -> bool:
-        return self.reason in ("normal", "shutdown")
+        return self.reason in (Reason.NORMAL, Reason.SHUTDOWN)
 
     def __str__(self) -> str:
-        return f"{self.reason} ({self.detail})" if self.detail else self.reason
+        return f"{self.reason} ({self.detail})" if self.detail else str(self.reason)
 
 
 def _signame(sig: int) -> str:
@@ -54,15 +70,15 @@ def classify(code: int | None, failure: str | None = None, *, requested: bool = 
     ``requested``: its supervisor asked it to stop, so a clean end is "shutdown".
     """
     if code is None:
-        return Exit("error", None, failure or "unknown exit")
+        return Exit(Reason.ERROR, None, failure or "unknown exit")
     if code < 0:
         detail = f"killed by {_signame(-code)}"
         if requested and -code in (signal.SIGTERM, signal.SIGKILL):
-            return Exit("shutdown" if -code == signal.SIGTERM else "killed", code, detail)
+            return Exit(Reason.SHUTDOWN if -code == signal.SIGTERM else Reason.KILLED, code, detail)
         if -code == signal.SIGTERM:
-            return Exit("shutdown", code, detail)
-        return Exit("killed" if -code == signal.SIGKILL else "error", code, detail)
+            return Exit(Reason.SHUTDOWN, code, detail)
+        return Exit(Reason.KILLED if -code == signal.SIGKILL else Reason.ERROR, code, detail)
     if code == 0:
-        return Exit("shutdown" if requested else "normal", 0, "exit code 0")
+        return Exit(Reason.SHUTDOWN if requested else Reason.NORMAL, 0, "exit code 0")
     detail = f"exit code {code}" + (f": {failure}" if failure else "")
-    return Exit("error", code, detail)
+    return Exit(Reason.ERROR, code, detail)

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import psutil
 
-from supervisor.exits import Exit
+from supervisor.exits import Exit, Reason
 
 if TYPE_CHECKING:
     from actors.journal import Journal
@@ -59,7 +59,7 @@ def watch_heartbeat(tree: Tree, inc: Incarnation, journal: Journal, deadline: fl
             "hang_detected", supervisor=inc.path, child=inc.name, pid=inc.pid,
             silent_for=round(silent, 3), deadline=deadline,
         )
-        inc.kill(Exit("error", None, f"hang: no heartbeat for {silent:.2f} s (deadline {deadline} s)"))
+        inc.kill(Exit(Reason.ERROR, None, f"hang: no heartbeat for {silent:.2f} s (deadline {deadline} s)"))
 
     check()
 
@@ -126,7 +126,7 @@ class ResourceMonitor:
         self.tree.events.emit(
             "limit_exceeded", supervisor=inc.path, child=inc.name, pid=inc.pid, limit=limit, value=value, max=cap
         )
-        inc.kill(Exit("error", None, f"limit: {detail}"))
+        inc.kill(Exit(Reason.ERROR, None, f"limit: {detail}"))
         self.watched.pop(id(inc), None)
 
     def close(self) -> None:

@@ -38,6 +38,7 @@ Example::
 
 from __future__ import annotations
 
+import enum
 import logging
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -52,6 +53,7 @@ __all__ = [
     "UNCONFIGURED",
     "Lifecycle",
     "LifecycleError",
+    "LifecycleState",
     "current",
     "state",
     "state_name",
@@ -60,12 +62,23 @@ __all__ = [
 
 log = logging.getLogger("supervisor.lifecycle")
 
-NEW, UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 0, 1, 2, 3, 4
-_NAMES = {NEW: "unconfigured", UNCONFIGURED: "unconfigured", INACTIVE: "inactive", ACTIVE: "active", FINALIZED: "finalized"}
+
+class LifecycleState(enum.IntEnum):
+    """A lifecycle state, as the journal keeps it (one byte; NEW: never set)."""
+
+    NEW = 0
+    UNCONFIGURED = 1
+    INACTIVE = 2
+    ACTIVE = 3
+    FINALIZED = 4
+
+
+NEW, UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = LifecycleState
+_NAMES: dict[int, str] = {NEW: "unconfigured", UNCONFIGURED: "unconfigured", INACTIVE: "inactive", ACTIVE: "active", FINALIZED: "finalized"}
 _BY_NAME = {"unconfigured": UNCONFIGURED, "inactive": INACTIVE, "active": ACTIVE}
 
 #: transition -> (states it may start from, state it leads to, hook name)
-TRANSITIONS: dict[str, tuple[tuple[int, ...], int, str]] = {
+TRANSITIONS: dict[str, tuple[tuple[LifecycleState, ...], LifecycleState, str]] = {
     "configure": ((UNCONFIGURED,), INACTIVE, "on_configure"),
     "activate": ((INACTIVE,), ACTIVE, "on_activate"),
     "deactivate": ((ACTIVE,), INACTIVE, "on_deactivate"),
@@ -94,9 +107,9 @@ class Lifecycle(HostExtension):
         if target not in _BY_NAME:
             raise LifecycleError(f"lifecycle target must be one of {', '.join(_BY_NAME)}, not {target!r}")
         previous = host.journal.state()
-        self.state = UNCONFIGURED
+        self.state: LifecycleState = UNCONFIGURED
         # A restarted actor returns to where its predecessor was; a fresh (or finalized) one to its target.
-        self.goal = previous if previous in (UNCONFIGURED, INACTIVE, ACTIVE) else _BY_NAME[target]
+        self.goal = LifecycleState(previous) if previous in (UNCONFIGURED, INACTIVE, ACTIVE) else _BY_NAME[target]
 
     @property
     def state_name(self) -> str:

@@ -87,6 +87,6 @@ def serve(
         Tree.of(system).close()
         if own:
             system.shutdown()
-        for sig, handler in old.items():
+        for signum, handler in old.items():
             with contextlib.suppress(ValueError, TypeError):
-                signal.signal(sig, handler)
+                signal.signal(signum, handler)

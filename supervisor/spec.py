@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 
 from actors import Actor, HostExtension, extension_spec, wire
 from supervisor.backoff import Backoff
+from supervisor.states import StrEnum
 
 __all__ = [
     "LIFECYCLE_TARGETS",
@@ -36,11 +37,32 @@ __all__ = [
     "ActorStart",
     "ChildSpec",
     "Command",
+    "Restart",
+    "Strategy",
     "SupervisorSpec",
 ]
 
-STRATEGIES = ("one_for_one", "one_for_all", "rest_for_one", "simple_one_for_one")
-RESTART_TYPES = ("permanent", "transient", "temporary")
+
+
+class Strategy(StrEnum):
+    """Which children a restart involves (see :mod:`supervisor.supervisor`)."""
+
+    ONE_FOR_ONE = "one_for_one"
+    ONE_FOR_ALL = "one_for_all"
+    REST_FOR_ONE = "rest_for_one"
+    SIMPLE_ONE_FOR_ONE = "simple_one_for_one"
+
+
+class Restart(StrEnum):
+    """When a child that exited is restarted: always, after an abnormal exit, never."""
+
+    PERMANENT = "permanent"
+    TRANSIENT = "transient"
+    TEMPORARY = "temporary"
+
+
+STRATEGIES = tuple(s.value for s in Strategy)
+RESTART_TYPES = tuple(r.value for r in Restart)
 LIFECYCLE_TARGETS = ("unconfigured", "inactive", "active")
 
 
@@ -104,7 +126,7 @@ class ChildSpec:
 
     id: str
     start: Any
-    restart: str = "permanent"
+    restart: Restart | str = Restart.PERMANENT
     shutdown: float | str | None = None
     type: str | None = None
     heartbeat: float | None = None
@@ -133,6 +155,7 @@ class ChildSpec:
             )
         if self.restart not in RESTART_TYPES:
             raise ValueError(f"child {self.id!r}: restart must be one of {', '.join(RESTART_TYPES)}, not {self.restart!r}")
+        self.restart = Restart(self.restart)
         if self.shutdown is None:
             self.shutdown = "infinity" if self.type == "supervisor" else 5.0
         if isinstance(self.shutdown, str):
@@ -241,13 +264,14 @@ class SupervisorSpec:
     """
 
     children: list[ChildSpec] = field(default_factory=list)
-    strategy: str = "one_for_one"
+    strategy: Strategy | str = Strategy.ONE_FOR_ONE
     intensity: int = 1
     period: float = 5.0
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, not {self.strategy!r}")
+        self.strategy = Strategy(self.strategy)
         if not isinstance(self.intensity, int) or self.intensity < 0:
             raise ValueError(f"intensity must be an integer >= 0, not {self.intensity!r}")
         if not self.period > 0:

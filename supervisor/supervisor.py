@@ -81,6 +81,7 @@ Example::
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import os
@@ -95,12 +96,13 @@ from supervisor import lifecycle
 from supervisor.aio import Cancelled, Future, Task, wait_for
 from supervisor.command import CommandProcess
 from supervisor.errors import StartError, SupervisorError
-from supervisor.exits import Exit
+from supervisor.exits import Exit, Reason
 from supervisor.health import watch_heartbeat
 from supervisor.intensity import RestartIntensity
 from supervisor.procs import ActorProcess, Incarnation
 from supervisor.rootio import in_root, on_root
 from supervisor.spec import ChildSpec, SupervisorSpec
+from supervisor.states import ChildStatus, SupervisorState
 from supervisor.tree import Tree
 
 __all__ = ["ChildInfo", "Supervisor", "SupervisorProcess", "start_supervisor"]
@@ -132,7 +134,7 @@ class Child:
     def __init__(self, spec: ChildSpec) -> None:
         self.spec = spec
         self.inc: Incarnation | None = None
-        self.status = "stopped"  # starting | running | restarting | stopped
+        self.status = ChildStatus.STOPPED
         self.restarts = 0
         self.backoff_n = 0
         self.timer: int | None = None
@@ -154,12 +156,12 @@ class Supervisor:
         self.spec = spec
         self.name = name
         self.parent = parent
-        self.path = f"{parent.path}/{name}" if parent is not None else name
+        self.path: str = f"{parent.path}/{name}" if parent is not None else name
         self.simple = spec.strategy == "simple_one_for_one"
         self.template = spec.children[0] if self.simple else None
         self.children: list[Child] = [] if self.simple else [Child(c) for c in spec.children]
         self.intensity = RestartIntensity(spec.intensity, spec.period)
-        self.state = "new"  # new | starting | running | stopping | stopped
+        self.state = SupervisorState.NEW
         self.exited: Future[Exit] = Future(self.loop)
         self.started_at = time.monotonic()
         self._jobs: deque[tuple[Job, Future[Any], bool]] = deque()
@@ -238,7 +240,7 @@ class Supervisor:
 
     @property
     def running(self) -> bool:
-        return self.state in ("starting", "running")
+        return self.state in (SupervisorState.STARTING, SupervisorState.RUNNING)
 
     def _call(self, job: Job, timeout: float | None = None) -> Any:
         if in_root(self.system):
@@ -251,7 +253,7 @@ class Supervisor:
 
         def post() -> None:
             fut = self._post(job)
-            fut.add_done_callback(lambda f: (box.append(f), done.set()))
+            fut.add_done_callback(lambda f: _settle(box, done, f))
 
         self.loop.call_soon_threadsafe(post)
         if not done.wait(timeout):
@@ -264,7 +266,7 @@ class Supervisor:
     # == jobs: one at a time, in order (root IO thread) =====================
     def _post(self, job: Job, internal: bool = False) -> Future[Any]:
         fut: Future[Any] = Future(self.loop)
-        if self.state in ("stopping", "stopped"):
+        if self.state in (SupervisorState.STOPPING, SupervisorState.STOPPED):
             fut.set_exception(SupervisorError("shutdown", f"supervisor {self.path} is shutting down"))
             return fut
         self._jobs.append((job, fut, internal))
@@ -272,7 +274,7 @@ class Supervisor:
         return fut
 
     def _pump(self) -> None:
-        if self._task is not None or not self._jobs or self.state in ("stopping", "stopped"):
+        if self._task is not None or not self._jobs or self.state in (SupervisorState.STOPPING, SupervisorState.STOPPED):
             return
         job, fut, internal = self._jobs.popleft()
         task = self._task = Task(self.loop, job())
@@ -294,7 +296,7 @@ class Supervisor:
     # == starting ============================================================
     def _begin(self) -> Future[bool]:
         """Claim the children's names and start them in order (the init job)."""
-        self.state = "starting"
+        self.state = SupervisorState.STARTING
         claimed = []
         try:
             for c in self.children:
@@ -303,8 +305,8 @@ class Supervisor:
         except SupervisorError as exc:
             for cid in claimed:
                 self.tree.release(cid)
-            self.state = "stopped"
-            self.exited.set_result(Exit("error", None, str(exc)))
+            self.state = SupervisorState.STOPPED
+            self.exited.set_result(Exit(Reason.ERROR, None, str(exc)))
             fut: Future[bool] = Future(self.loop)
             fut.set_exception(StartError(f"supervisor {self.path} cannot start: {exc}", str(exc)))
             return fut
@@ -315,9 +317,9 @@ class Supervisor:
             if not await self._start(c, restart=False):
                 detail = f"failed to start child {c.id!r}: {c.last_exit}"
                 await self._terminate_all()
-                self._finish(Exit("error", None, detail))
+                self._finish(Exit(Reason.ERROR, None, detail))
                 return False
-        self.state = "running"
+        self.state = SupervisorState.RUNNING
         return True
 
     def _incarnation(self, c: Child) -> Incarnation:
@@ -331,13 +333,13 @@ class Supervisor:
     async def _start(self, c: Child, restart: bool) -> bool:
         """Start one incarnation of ``c`` and wait until it is ready; False if it failed."""
         inc = self._incarnation(c)
-        c.inc, c.status = inc, "starting"
+        c.inc, c.status = inc, ChildStatus.STARTING
         inc.exited.add_done_callback(lambda _: self._on_exit(c, inc))
         inc.start()
         timeout = None if c.spec.type == "supervisor" else c.spec.start_timeout
         in_time = await wait_for(self.loop, inc.ready, timeout)
         if in_time and inc.ready.result():
-            c.status = "running"
+            c.status = ChildStatus.RUNNING
             ev = self._event_fields(c, inc)
             if restart:
                 c.restarts += 1
@@ -349,10 +351,10 @@ class Supervisor:
             self._watch(c, inc)
             return True
         if not in_time:
-            inc.kill(Exit("error", None, f"not ready within {timeout} s"))
+            inc.kill(Exit(Reason.ERROR, None, f"not ready within {timeout} s"))
         ex = await inc.exited
         if c.inc is inc:
-            c.inc, c.status = None, "stopped"
+            c.inc, c.status = None, ChildStatus.STOPPED
         c.last_exit = ex
         c.down_since = c.down_since or time.monotonic()
         self.tree.events.emit(
@@ -371,15 +373,15 @@ class Supervisor:
 
     # == exits and restarts ==================================================
     def _on_exit(self, c: Child, inc: Incarnation) -> None:
-        if inc.stopping or c.inc is not inc or self.state in ("stopping", "stopped"):
+        if inc.stopping or c.inc is not inc or self.state in (SupervisorState.STOPPING, SupervisorState.STOPPED):
             return  # a stop we asked for, or a start that fails (its job handles it)
         self._post(lambda: self._handle_exit(c, inc), internal=True)
 
     async def _handle_exit(self, c: Child, inc: Incarnation) -> None:
-        if c.inc is not inc or self.state != "running":
+        if c.inc is not inc or self.state != SupervisorState.RUNNING:
             return  # a restart of siblings has already replaced it
         ex = inc.exited.result()
-        c.inc, c.status, c.last_exit = None, "stopped", ex
+        c.inc, c.status, c.last_exit = None, ChildStatus.STOPPED, ex
         c.down_since = time.monotonic()
         up = c.down_since - (inc.ready_at or inc.started_at)
         if c.spec.backoff is not None and up >= c.spec.backoff.reset_window:
@@ -418,7 +420,7 @@ class Supervisor:
                 self._remove(o)  # OTP: a temporary child killed by a sibling's restart is dropped
         group = [o for o in group if o in self.children]
         for o in group:
-            o.status = "restarting"
+            o.status = ChildStatus.RESTARTING
             o.down_since = o.down_since or time.monotonic()
         delay = 0.0
         if c.spec.backoff is not None:
@@ -431,26 +433,26 @@ class Supervisor:
 
         def fire() -> None:
             c.timer = None
-            if self.state == "running":
+            if self.state == SupervisorState.RUNNING:
                 self._post(lambda: self._start_group(group), internal=True)
 
         c.timer = self.loop.call_later(delay, fire)
 
     async def _start_group(self, group: list[Child]) -> None:
         for i, o in enumerate(group):
-            if o not in self.children or o.status != "restarting":
+            if o not in self.children or o.status != ChildStatus.RESTARTING:
                 continue  # terminated or deleted meanwhile
             if not await self._start(o, restart=True):
-                o.status = "restarting"
+                o.status = ChildStatus.RESTARTING
                 for rest in group[i + 1:]:
-                    if rest.status == "restarting":
-                        rest.status = "stopped"  # OTP: undefined until the retry starts them
+                    if rest.status == ChildStatus.RESTARTING:
+                        rest.status = ChildStatus.STOPPED  # OTP: undefined until the retry starts them
                 # Retry after whatever else is queued, through the intensity accounting.
-                self._post(lambda o=o: self._try_again(o), internal=True)
+                self._post(functools.partial(self._try_again, o), internal=True)
                 return
 
     async def _try_again(self, c: Child) -> None:
-        if self.state != "running" or c not in self.children or c.status != "restarting":
+        if self.state != SupervisorState.RUNNING or c not in self.children or c.status != ChildStatus.RESTARTING:
             return
         if not self.intensity.add():
             await self._give_up(c)
@@ -464,11 +466,11 @@ class Supervisor:
         )
         if c in self.children and (c.spec.restart == "temporary" or self.simple):
             self._remove(c)
-        self.state = "stopping"
+        self.state = SupervisorState.STOPPING
         await self._terminate_all()
         if self.parent is not None:
             self.tree.events.emit("escalated", supervisor=self.path, parent=self.parent.path)
-        self._finish(Exit("shutdown", None, "reached max restart intensity"))
+        self._finish(Exit(Reason.SHUTDOWN, None, "reached max restart intensity"))
 
     # == stopping ============================================================
     async def _terminate(self, c: Child) -> Exit | None:
@@ -476,8 +478,8 @@ class Supervisor:
         self._cancel_timer(c)
         inc = c.inc
         if inc is None:
-            if c.status == "restarting":
-                c.status = "stopped"
+            if c.status == ChildStatus.RESTARTING:
+                c.status = ChildStatus.STOPPED
             return None
         inc.stopping = True
         mode = c.spec.shutdown
@@ -486,14 +488,14 @@ class Supervisor:
                 inc.kill()
             else:
                 inc.stop()
-                if mode != "infinity" and not await wait_for(self.loop, inc.exited, float(mode)):
+                if isinstance(mode, float) and not await wait_for(self.loop, inc.exited, mode):
                     log.warning("%s/%s did not stop within %s s: killing it", self.path, c.id, mode)
                     inc.kill()
         ex = await inc.exited
         if c.inc is inc:
-            c.inc, c.status = None, "stopped"
+            c.inc, c.status = None, ChildStatus.STOPPED
         self.tree.events.emit("stopped", **self._event_fields(c, inc), reason=ex.reason, detail=ex.detail)
-        expected = ex.reason == "shutdown" or (ex.reason == "killed" and mode == "brutal_kill")
+        expected = ex.reason == Reason.SHUTDOWN or (ex.reason == Reason.KILLED and mode == "brutal_kill")
         if not expected and not (ex.normal and c.spec.restart != "permanent"):
             log.warning("%s/%s: shutdown error: it ended with %s", self.path, c.id, ex)
         return ex
@@ -510,26 +512,26 @@ class Supervisor:
                 if c.inc is not None:
                     await self._terminate(c)
         for c in self.children:
-            c.status = "stopped"
+            c.status = ChildStatus.STOPPED
 
     def _shutdown(self) -> Future[Exit]:
         """Stop everything in reverse order, whatever the supervisor was doing (IO thread)."""
-        if self.state in ("stopping", "stopped"):
+        if self.state in (SupervisorState.STOPPING, SupervisorState.STOPPED):
             return self.exited
-        self.state = "stopping"
+        self.state = SupervisorState.STOPPING
         self._drop_jobs()
         self._stopper = Task(self.loop, self._shutdown_job())
         return self.exited
 
     async def _shutdown_job(self) -> None:
         await self._terminate_all()
-        self._finish(Exit("shutdown", None, "requested"))
+        self._finish(Exit(Reason.SHUTDOWN, None, "requested"))
 
     def _kill(self) -> None:
         """Kill every process below this supervisor at once (its parent's brutal kill)."""
-        if self.state == "stopped":
+        if self.state == SupervisorState.STOPPED:
             return
-        self.state = "stopping"
+        self.state = SupervisorState.STOPPING
         self._drop_jobs()
         if self._stopper is not None:  # a clean shutdown that took too long: overtaken
             self._stopper.cancel()
@@ -545,8 +547,8 @@ class Supervisor:
             for inc in incs:
                 await inc.exited
             for c in self.children:
-                c.inc, c.status = None, "stopped"
-            self._finish(Exit("killed", None, "killed by its supervisor"))
+                c.inc, c.status = None, ChildStatus.STOPPED
+            self._finish(Exit(Reason.KILLED, None, "killed by its supervisor"))
 
         Task(self.loop, reap())
 
@@ -559,7 +561,7 @@ class Supervisor:
             task.cancel()
 
     def _finish(self, ex: Exit) -> None:
-        self.state = "stopped"
+        self.state = SupervisorState.STOPPED
         self._drop_jobs(cancel_running=False)  # the running job may be the one finishing us
         for c in self.children:
             self._cancel_timer(c)
@@ -626,7 +628,7 @@ class Supervisor:
     async def _terminate_child(self, child_id: str) -> None:
         c = self._need(child_id)
         await self._terminate(c)
-        c.status = "stopped"
+        c.status = ChildStatus.STOPPED
         if c.spec.restart == "temporary" or self.simple:
             self._remove(c)
 
@@ -634,7 +636,7 @@ class Supervisor:
         if self.simple:
             raise SupervisorError("simple_one_for_one", "restart_child is not for simple_one_for_one children")
         c = self._need(child_id)
-        if c.status == "restarting":
+        if c.status == ChildStatus.RESTARTING:
             raise SupervisorError("restarting", f"child {child_id!r} is restarting already")
         if c.inc is not None:
             raise SupervisorError("running", f"child {child_id!r} is running; terminate_child it first")
@@ -646,7 +648,7 @@ class Supervisor:
         if self.simple:
             raise SupervisorError("simple_one_for_one", "delete_child is not for simple_one_for_one children")
         c = self._need(child_id)
-        if c.status == "restarting":
+        if c.status == ChildStatus.RESTARTING:
             raise SupervisorError("restarting", f"child {child_id!r} is restarting")
         if c.inc is not None:
             raise SupervisorError("running", f"child {child_id!r} is running; terminate_child it first")
@@ -656,10 +658,10 @@ class Supervisor:
         c = self._need(child_id)
         if c.inc is not None:
             await self._terminate(c)
-        c.status = "restarting"
+        c.status = ChildStatus.RESTARTING
         c.down_since = time.monotonic()
         if not await self._start(c, restart=True):
-            c.status = "restarting"
+            c.status = ChildStatus.RESTARTING
             self._post(lambda: self._try_again(c), internal=True)
             raise StartError(f"child {child_id!r} failed to start: {c.last_exit}", str(c.last_exit))
         return c.inc.pid if c.inc is not None else None
@@ -669,9 +671,9 @@ class Supervisor:
         out = []
         for c in self.children:
             pid: int | str | None
-            if c.status == "restarting":
+            if c.status == ChildStatus.RESTARTING:
                 pid = "restarting"
-            elif c.inc is not None and c.status == "running":
+            elif c.inc is not None and c.status == ChildStatus.RUNNING:
                 pid = c.inc.pid
             else:
                 pid = None
@@ -680,7 +682,7 @@ class Supervisor:
 
     def _count_children(self) -> dict[str, int]:
         sups = sum(1 for c in self.children if c.spec.type == "supervisor")
-        active = sum(1 for c in self.children if c.inc is not None and c.status == "running")
+        active = sum(1 for c in self.children if c.inc is not None and c.status == ChildStatus.RUNNING)
         return {"specs": len(self.children), "active": active, "supervisors": sups, "workers": len(self.children) - sups}
 
     def _locate(self, name: str) -> tuple[Supervisor, Child] | None:
@@ -700,7 +702,7 @@ class Supervisor:
         rows: list[dict[str, Any]] = []
         for c in self.children:
             inc = c.inc
-            running = inc is not None and c.status == "running"
+            running = inc is not None and c.status == ChildStatus.RUNNING
             row: dict[str, Any] = {
                 "name": c.id,
                 "supervisor": self.path,
@@ -744,8 +746,8 @@ class SupervisorProcess(Incarnation):
         ready.add_done_callback(lambda f: self._set_ready() if f.exception() is None and f.result() else None)
 
     def _ended(self, ex: Exit) -> None:
-        if self.stopping and ex.reason == "shutdown":
-            ex = Exit("shutdown", None, ex.detail)
+        if self.stopping and ex.reason == Reason.SHUTDOWN:
+            ex = Exit(Reason.SHUTDOWN, None, ex.detail)
         self.ready.set_result(False)
         self.exited.set_result(ex)
 
@@ -779,7 +781,7 @@ def start_supervisor(
         sup = Supervisor(tree, spec, name)
         tree.roots.append(sup)
         box.append(sup)
-        sup._begin().add_done_callback(lambda f: (box.append(f), done.set()))
+        sup._begin().add_done_callback(lambda f: _settle(box, done, f))
 
     on_root(system, go)
     if not done.wait(timeout):
@@ -791,3 +793,9 @@ def start_supervisor(
         ex = on_root(system, lambda: sup.exited.result() if sup.exited.done() else None)
         raise StartError(f"supervisor {name!r} failed to start: {ex}", str(ex))
     return sup
+
+
+def _settle(box: list[Any], done: threading.Event, fut: Any) -> None:
+    """Hand a finished future to a thread waiting on ``done``."""
+    box.append(fut)
+    done.set()

@@ -1,0 +1,48 @@
+"""The supervisor's named values as enumerations that still are strings.
+
+Each member is a ``str`` (``ChildStatus.RUNNING == "running"``), so
+comparisons with plain strings, JSON and msgpack keep working, while type
+checkers and readers see a closed set of values.
+
+Example::
+
+    >>> ChildStatus.RUNNING == "running", f"{ChildStatus.RUNNING}"
+    (True, 'running')
+    >>> ChildStatus("stopped") is ChildStatus.STOPPED
+    True
+"""
+
+from __future__ import annotations
+
+import enum
+
+__all__ = ["ChildStatus", "StrEnum", "SupervisorState"]
+
+
+class StrEnum(str, enum.Enum):
+    """A ``str`` enumeration whose ``str()`` and format are its value (``enum.StrEnum`` needs 3.11)."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
+
+class ChildStatus(StrEnum):
+    """Where a child of a supervisor is."""
+
+    STARTING = "starting"
+    RUNNING = "running"
+    RESTARTING = "restarting"
+    STOPPED = "stopped"
+
+
+class SupervisorState(StrEnum):
+    """Where a supervisor is."""
+
+    NEW = "new"
+    STARTING = "starting"
+    RUNNING = "running"
+    STOPPING = "stopping"
+    STOPPED = "stopped"
