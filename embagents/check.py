@@ -9,7 +9,8 @@ component it is about. Levels:
   name, one topic name used with two message types, an event or fallback
   action naming a component that is not in the system (or a method, client
   or config key it does not have), ROS bridge wiring the bridge refuses, a
-  model whose local file is not there (or that the system does not declare).
+  model whose local file is not there (or that the system does not declare),
+  a supervision policy the supervision tree refuses (checked by building it).
 - **warning** (it may run, but look): an input topic nothing in the system
   publishes. It may come from outside (another system, a test harness): say
   so with ``System(external=[topic])`` and the warning goes away.
@@ -228,10 +229,23 @@ def _model_problems(system: System) -> list[Problem]:
             for m in models if (why := m.file_problem()) is not None]
 
 
+def _supervision_problems(system: System) -> list[Problem]:
+    # One truth: build the very tree `embagents supervise` runs (supervisor.spec's rules).
+    from embagents.launch import build_spec
+
+    try:
+        build_spec(system, "system.py")
+    except (ValueError, TypeError) as exc:
+        return [Problem(None, "supervision", f"supervision={system.supervision!r}: {exc}")]
+    return []
+
+
 def check_system(system: System) -> list[Problem]:
     """Every problem of ``system`` (errors and warnings; see the module docstring)."""
     problems = _component_problems(system)
     problems += _model_problems(system)
+    if not errors(problems):  # else the tree would repeat them (duplicate names, undeclared models)
+        problems += _supervision_problems(system)
     ros_provided, ros_outputs, ros_problems = _ros_declarations(system)
     problems += ros_problems
     problems += _topic_problems(system, ros_provided, ros_outputs)

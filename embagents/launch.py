@@ -39,15 +39,21 @@ HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0
 
 
-def build_spec(system: Any, path: str, resolved: dict[str, str]) -> Any:
-    """The supervision tree of a System: model actors, the ROS bridge, components, events."""
+def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -> Any:
+    """The supervision tree of a System: model actors, the ROS bridge, components, events.
+
+    ``resolved`` maps each model's name to its local file (``Model.resolve()``).
+    Without it (``embagents check``) each model's name stands in for its file:
+    the tree is built, so every rule of ``supervisor.spec`` is applied, and
+    nothing is downloaded. Raises ``ValueError`` / ``TypeError`` naming the rule.
+    """
     from supervisor import ChildSpec, SupervisorSpec
 
     children = []
     for m in models_of(system):
         opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
         # A model beats per token; a long prompt evaluation is work, not a hang.
-        children.append(ChildSpec(m.name, (LlamaModelActor, (resolved[m.name], opts, m.warmup)),
+        children.append(ChildSpec(m.name, (LlamaModelActor, ((resolved or {}).get(m.name, m.name), opts, m.warmup)),
                                   heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
     if system.ros:
         from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor

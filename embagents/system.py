@@ -35,9 +35,8 @@ from embagents.components.component import Component, ComponentError, lenient_co
 from embagents.events import Action, Event
 from embagents.topic import Topic
 
-__all__ = ["SUPERVISION_DEFAULTS", "STRATEGIES", "System", "SystemFileError", "counted", "load_system"]
+__all__ = ["SUPERVISION_DEFAULTS", "System", "SystemFileError", "counted", "load_system"]
 
-STRATEGIES = ("one_for_one", "one_for_all", "rest_for_one", "simple_one_for_one")
 #: Supervision policy of the system's root supervisor (OTP's meaning of each key).
 SUPERVISION_DEFAULTS: dict[str, Any] = {"strategy": "one_for_one", "intensity": 3, "period": 5.0}
 
@@ -61,6 +60,8 @@ class SystemFileError(Exception):
 
 
 def _supervision(value: Mapping[str, Any] | None) -> dict[str, Any]:
+    # Only the shape here: the values (and whether they fit this system's children) are checked
+    # by building the supervision tree itself, in `embagents check` (one truth: supervisor.spec).
     if value is None or value == ():
         return dict(SUPERVISION_DEFAULTS)
     if not isinstance(value, Mapping):
@@ -68,16 +69,7 @@ def _supervision(value: Mapping[str, Any] | None) -> dict[str, Any]:
     unknown = sorted(set(value) - set(SUPERVISION_DEFAULTS))
     if unknown:
         raise ValueError(f"unknown supervision key(s) {', '.join(map(repr, unknown))}; valid: {', '.join(SUPERVISION_DEFAULTS)}")
-    out = {**SUPERVISION_DEFAULTS, **value}
-    if out["strategy"] not in STRATEGIES:
-        raise ValueError(f"supervision strategy must be one of {', '.join(STRATEGIES)}; got {out['strategy']!r}")
-    intensity, period = out["intensity"], out["period"]
-    if isinstance(intensity, bool) or not isinstance(intensity, int) or intensity < 0:
-        raise ValueError(f"supervision intensity (max restarts within period) must be an int >= 0, got {intensity!r}")
-    if isinstance(period, bool) or not isinstance(period, (int, float)) or period <= 0:
-        raise ValueError(f"supervision period must be seconds > 0, got {period!r}")
-    out["period"] = float(period)
-    return out
+    return {**SUPERVISION_DEFAULTS, **value}
 
 
 def _events(events: Mapping[Event, Any] | Iterable[tuple[Event, Any]]) -> list[tuple[Event, tuple[Action, ...]]]:
@@ -106,7 +98,8 @@ class System:
     - ``ros``: ``RosInput`` / ``RosOutput`` declarations of the ROS bridge (carried).
     - ``external``: topics published from outside (a test harness, another system);
       they count as provided in checks.
-    - ``supervision``: ``{"strategy", "intensity", "period"}``, defaults in :data:`SUPERVISION_DEFAULTS`.
+    - ``supervision``: ``{"strategy", "intensity", "period"}`` of the root supervisor, defaults in
+      :data:`SUPERVISION_DEFAULTS`; checked by building the supervision tree (``embagents check``).
 
     Construction checks only types; wiring problems are reported by
     :func:`embagents.check.check_system` (all of them at once).

@@ -272,9 +272,9 @@ class SupervisorSpec:
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, not {self.strategy!r}")
         self.strategy = Strategy(self.strategy)
-        if not isinstance(self.intensity, int) or self.intensity < 0:
-            raise ValueError(f"intensity must be an integer >= 0, not {self.intensity!r}")
-        if not self.period > 0:
+        if isinstance(self.intensity, bool) or not isinstance(self.intensity, int) or self.intensity < 0:
+            raise ValueError(f"intensity must be an integer >= 0 (most restarts within period), not {self.intensity!r}")
+        if isinstance(self.period, bool) or not isinstance(self.period, (int, float)) or not self.period > 0:
             raise ValueError(f"period must be > 0 seconds, not {self.period!r}")
         self.children = list(self.children)
         for c in self.children:
@@ -285,4 +285,8 @@ class SupervisorSpec:
         if dup:
             raise ValueError(f"duplicate child ids: {', '.join(sorted(dup))}; every child needs its own id")
         if self.strategy == "simple_one_for_one" and len(self.children) != 1:
-            raise ValueError("simple_one_for_one takes exactly one child spec (the template of its children)")
+            raise ValueError(
+                f"simple_one_for_one takes exactly one child spec (the template of the children start_child "
+                f"adds), got {len(self.children)}" + (f" ({', '.join(ids)})" if ids else "")
+                + "; for a fixed set of children use one_for_one, one_for_all or rest_for_one"
+            )

@@ -100,6 +100,35 @@ def test_duplicate_names_anywhere_in_the_list(tmp_path):
     assert p.component == "camera" and "'camera' is used by 2 components (#1 Camera, #3 LLM)" in p.message
 
 
+def test_two_components_under_simple_one_for_one_fail_the_check_as_they_would_fail_supervise(tmp_path, capsys):
+    # `check` builds the tree `supervise` runs: what one refuses, the other does.
+    from embagents.launch import build_spec
+    from embagents.system import load_system
+
+    body = GOOD.replace("System([camera, detector, llm])",
+                        'System([camera, detector], supervision={"strategy": "simple_one_for_one"})')
+    p = only(check(tmp_path, body), "supervision")
+    assert "simple_one_for_one takes exactly one child spec" in p.message and "got 2 (camera, detector)" in p.message
+    assert "use one_for_one, one_for_all or rest_for_one" in p.message and p.level == "error"
+    path = str(tmp_path / "system.py")
+    assert main(["check", path]) == 1
+    with pytest.raises(ValueError, match="exactly one child spec"):
+        build_spec(load_system(path), path)
+
+
+@pytest.mark.parametrize(("policy", "needle"), [
+    ("{'strategy': 'all_for_none'}", "strategy must be one of one_for_one"),
+    ("{'intensity': -1}", "intensity must be an integer >= 0"),
+    ("{'intensity': True}", "intensity must be an integer >= 0"),
+    ("{'period': 0}", "period must be > 0 seconds"),
+    ("{'period': '5'}", "period must be > 0 seconds"),
+])
+def test_bad_supervision_values_are_check_problems(tmp_path, policy, needle):
+    p = only(check(tmp_path, GOOD.replace("System([camera, detector, llm])",
+                                          f"System([camera, detector, llm], supervision={policy})")), "supervision")
+    assert needle in p.message and policy.strip("{}") in p.message
+
+
 def test_unknown_topic_is_a_warning_and_external_silences_it(tmp_path, capsys):
     body = GOOD.replace("system = System([camera, detector, llm])", "system = System([detector, llm])")
     p = only(check(tmp_path, body), "unknown-topic")

@@ -56,14 +56,12 @@ def test_supervision_defaults_and_validation():
     assert System([]).supervision == SUPERVISION_DEFAULTS
     sup = System([], supervision={"strategy": "rest_for_one", "period": 10}).supervision
     assert sup == {"strategy": "rest_for_one", "intensity": 3, "period": 10.0}
-    with pytest.raises(ValueError, match="strategy must be one of one_for_one"):
-        System([], supervision={"strategy": "all_for_none"})
     with pytest.raises(ValueError, match="unknown supervision key\\(s\\) 'retries'; valid: strategy"):
         System([], supervision={"retries": 3})
-    with pytest.raises(ValueError, match="intensity"):
-        System([], supervision={"intensity": -1})
-    with pytest.raises(ValueError, match="period"):
-        System([], supervision={"period": 0})
+    with pytest.raises(TypeError, match="supervision must be a dict"):
+        System([], supervision=["one_for_all"])
+    # The values are the supervision tree's to judge (`embagents check` builds it; see test_check).
+    assert System([], supervision={"intensity": -1}).supervision["intensity"] == -1
 
 
 def test_topics_and_component_lookup():
