@@ -13,6 +13,8 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
   now (``Supervisor.bounce``); ``{"ok", "pid"}``.
 - ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
   reverse order).
+- any command the layer above adds with :meth:`ControlServer.add_command`
+  (``embagents supervise`` adds ``publish``: a message on a topic of the system).
 
 While the endpoint is up, ``<private>/runs/<run_id>.json`` (``<private>`` is
 :func:`actors.private_dir`: ``$XDG_RUNTIME_DIR/embagents`` or
@@ -89,6 +91,7 @@ class ControlServer:
         self._t0 = time.monotonic()
         self._prev: dict[str, tuple[int, int, float]] = {}  # name -> (incarnation, handled, when)
         self._closed = threading.Event()
+        self._commands: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {}
         self.endpoint = control_endpoint(system.run_dir)
         self.sock = system.rt.ctx.socket(zmq.ROUTER)
         self.sock.setsockopt(zmq.LINGER, 200)
@@ -140,6 +143,15 @@ class ControlServer:
                 self._stop_run()
         self.sock.close()
 
+    def add_command(self, cmd: str, handler: Callable[[dict[str, Any]], dict[str, Any]]) -> None:
+        """Serve ``{"cmd": cmd, ...}`` with ``handler(request) -> answer`` (on the control thread).
+
+        An exception in ``handler`` is answered as ``{"ok": False, "error": ...}``.
+        """
+        if cmd in ("status", "restart", "stop") or cmd in self._commands:
+            raise ValueError(f"control command {cmd!r} is already served")
+        self._commands[cmd] = handler
+
     def handle(self, msg: dict[str, Any]) -> dict[str, Any]:
         cmd = msg.get("cmd")
         if cmd == "status":
@@ -161,7 +173,10 @@ class ControlServer:
             return {"ok": True, "pid": found.bounce(name)}
         if cmd == "stop":
             return {"ok": True, "stopping": True}
-        return {"ok": False, "error": f"unknown command {cmd!r}; one of: status, restart, stop"}
+        if isinstance(cmd, str) and cmd in self._commands:
+            return self._commands[cmd](msg)
+        known = ", ".join(["status", "restart", "stop", *self._commands])
+        return {"ok": False, "error": f"unknown command {cmd!r}; one of: {known}"}
 
     def _locate(self, name: str) -> Any:
         for root in self.tree.roots:

@@ -6,6 +6,8 @@ import json
 import os
 import threading
 
+import pytest
+
 from actors import ActorSystem
 from supervisor import ChildSpec, Command, SupervisorSpec, start_supervisor
 from supervisor.client import request
@@ -54,6 +56,20 @@ def test_restart_by_name_anywhere_in_the_tree(system: ActorSystem, events: Event
         bad = request_error(system, {"cmd": "restart", "name": "nobody"})
         assert "no child named 'nobody'" in bad
         assert "unknown command" in request_error(system, {"cmd": "dance"})
+    finally:
+        control.close()
+
+
+def test_a_command_added_by_the_layer_above_is_served_and_listed(system: ActorSystem) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    try:
+        control.add_command("echo", lambda msg: {"ok": True, "said": msg["text"]})
+        assert request(system.run_dir, {"cmd": "echo", "text": "hi"})["said"] == "hi"
+        assert "one of: status, restart, stop, echo" in request_error(system, {"cmd": "dance"})
+        assert "KeyError" in request_error(system, {"cmd": "echo"})  # a failing handler is an answer
+        with pytest.raises(ValueError, match="already served"):
+            control.add_command("status", lambda msg: {"ok": True})
     finally:
         control.close()
 
