@@ -14,7 +14,6 @@ removes the run's segments and directory: no orphans, no leaks.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import glob
 import logging
 import os
@@ -30,24 +29,12 @@ from typing import Any
 
 import msgpack
 
+from actors.pdeathsig import die_with_parent
 from actors.shm import sweep
 
-__all__ = ["ForkServer", "set_pdeathsig"]
+__all__ = ["ForkServer"]
 
-_PR_SET_PDEATHSIG = 1
 _MAX = 1 << 20
-
-
-try:  # resolved once at import: dlopen in a freshly forked child of a threaded parent is unsafe
-    _prctl: Any = ctypes.CDLL(None, use_errno=True).prctl
-except (OSError, AttributeError):  # not Linux: the EOF path still cleans up
-    _prctl = None
-
-
-def set_pdeathsig(sig: int = signal.SIGKILL) -> None:
-    """Ask the kernel to send ``sig`` to this process when its parent dies."""
-    if _prctl is not None:
-        _prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
 
 
 def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
@@ -61,10 +48,10 @@ def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
 
 
 def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: Callable[[dict[str, Any]], None]) -> None:
-    keep = {0, 1, 2, sock.fileno()}
+    server_pid = os.getpid()
+    # Keep only stdio and our socket: an inherited fd must not outlive the root through us.
     os.closerange(3, sock.fileno())
     os.closerange(sock.fileno() + 1, 4096)
-    del keep
     # Streams a test runner swapped in may sit on fds we just closed.
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
@@ -119,7 +106,7 @@ def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: C
                     sock.close()
                     signal.signal(signal.SIGCHLD, signal.SIG_DFL)
                     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-                    set_pdeathsig(signal.SIGKILL)
+                    die_with_parent(server_pid)
                     code = 0
                     try:
                         child_main(spec)

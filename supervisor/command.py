@@ -20,13 +20,12 @@ Example::
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import os
-import signal
 import subprocess
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from actors import die_with_parent
 from supervisor.exits import Exit, Reason
 from supervisor.procs import Incarnation
 
@@ -36,21 +35,9 @@ if TYPE_CHECKING:
 
 __all__ = ["CommandProcess"]
 
-_PR_SET_PDEATHSIG = 1
-try:
-    # Resolved now: after fork() in a threaded root, dlopen() could deadlock on a lock some
-    # other thread held (actors.forkserver.set_pdeathsig opens libc on every call).
-    _prctl: Any = ctypes.CDLL(None, use_errno=True).prctl
-except (OSError, AttributeError):  # pragma: no cover - not Linux
-    _prctl = None
-
-
 def _preexec(root_pid: int, nice: int | None, cpus: list[int] | None) -> None:
     """Runs in the forked child before exec: only async-signal-safe-ish syscalls here."""
-    if _prctl is not None:
-        _prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-    if os.getppid() != root_pid:  # the root died before prctl took effect
-        os._exit(1)
+    die_with_parent(root_pid)
     if nice:
         os.nice(nice)
     if cpus:
