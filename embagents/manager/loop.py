@@ -3,7 +3,9 @@
 For users who think in main loops (the ROS Base style): the loop waits for
 its handshake rules, then ticks at ``rate_hz``, running every handler in
 registration order on each tick. Deadlines are absolute (tick *n* is due at
-``start + n / rate_hz``), so the rate does not drift; between ticks the loop
+``start + n / rate_hz``), so the rate does not drift; a tick that overran is
+followed at once by the next, with whole missed periods skipped (the rule of
+:mod:`embagents.rate`, shared with components' rate triggers); between ticks the loop
 sleeps on an event, so it costs no CPU and :meth:`Manager.stop` wakes it at
 once from any thread or a signal handler.
 
@@ -35,6 +37,7 @@ from embagents.manager.attached import Attachments, R
 from embagents.manager.handler import Handler, as_handler
 from embagents.manager.handshake import HandshakeRule, wait_for_handshake
 from embagents.manager.state import State
+from embagents.rate import next_deadline
 
 __all__ = ["ErrorPolicy", "Manager"]
 
@@ -333,14 +336,11 @@ class Manager:
             self.tick += 1
             if not self._run_handlers(handlers):
                 break
-            deadline += self.period
             now = time.monotonic()
-            if now > deadline:
+            deadline, overran = next_deadline(deadline, self.period, now)  # the rate rule: embagents.rate
+            if overran:
                 self.overruns += 1
                 window_overruns += 1
-                # Run the late tick at once, but skip whole missed periods
-                # instead of bursting through them; the phase is kept.
-                deadline += math.floor((now - deadline) / self.period) * self.period
             if max_ticks is not None and ticks >= max_ticks:
                 break
             self._sleep(deadline - now)

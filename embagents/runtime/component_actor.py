@@ -4,7 +4,8 @@ The System was loaded in the root before the fork server started, so the
 component object is already in this process's memory: the actor finds it
 by name, wires its input topics to subscriptions, its outputs to
 publishers, and drives its trigger (topics, an event, or a rate in Hz on
-absolute deadlines).
+absolute deadlines, by the rule of :mod:`embagents.rate`: a late tick runs at
+once, whole missed periods are skipped).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import time
 from typing import Any
 
 from actors import Actor
+from embagents.rate import next_deadline
 
 __all__ = ["ComponentActor", "loaded_system", "remember_system"]
 
@@ -100,10 +102,8 @@ class ComponentActor(Actor):
         if self.component.execute():
             self.context.changed()
         now = time.monotonic()
-        self._next += self._period
-        if self._next < now:  # overran: skip missed ticks, keep the phase
-            self._next += ((now - self._next) // self._period + 1) * self._period
-        self._timer = self.context.call_later(self._next - now, self._tick)
+        self._next, _ = next_deadline(self._next, self._period, now)  # late: at once, missed periods skipped
+        self._timer = self.context.call_later(max(0.0, self._next - now), self._tick)
 
     def on_receive(self, message: Any) -> Any:
         comp = self.component
