@@ -1,34 +1,10 @@
 """actors: processes with mailboxes, topics and shared memory over ZeroMQ."""
 
+from actors import errors
 from actors.codec import Codec, message, register
-from actors.errors import (
-    ActorCrashed,
-    ActorError,
-    ActorNotFound,
-    CodecError,
-    CorruptFrame,
-    MessageTooLarge,
-    RemoteError,
-    StaleFrame,
-    Timeout,
-    UnregisteredType,
-)
+from actors.errors import *  # noqa: F403 - every error class is public
 
-__all__ = [
-    "ActorCrashed",
-    "ActorError",
-    "ActorNotFound",
-    "Codec",
-    "CodecError",
-    "CorruptFrame",
-    "MessageTooLarge",
-    "RemoteError",
-    "StaleFrame",
-    "Timeout",
-    "UnregisteredType",
-    "message",
-    "register",
-]
+__all__ = ["Codec", "message", "register", *errors.__all__]
 
 from actors.actor import Actor, ActorContext  # noqa: E402
 from actors.extension import HostExtension, extension_spec, load_extension  # noqa: E402

@@ -19,15 +19,25 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from types import TracebackType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from actors.ref import ActorRef
 
 if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
     from actors.extension import HostExtension
     from actors.host import ActorHost
 
 __all__ = ["Actor", "ActorContext"]
+
+
+class SubscribeOptions(TypedDict, total=False):
+    """The options of :class:`actors.topics.Subscription` (its defaults: 10, "latest", any type)."""
+
+    queue_size: int
+    keep: str  # "latest" or "all"
+    msg_type: type | None
 
 
 class ActorContext:
@@ -45,16 +55,9 @@ class ActorContext:
     def publish(self, topic: str, message: Any) -> None:
         self._host.publisher(topic).publish(message)
 
-    def subscribe(
-        self,
-        topic: str,
-        callback: Callable[[Any], None],
-        *,
-        queue_size: int = 10,
-        keep: str = "latest",
-        msg_type: type | None = None,
-    ) -> None:
-        self._host.subscribe(topic, callback, queue_size=queue_size, keep=keep, msg_type=msg_type)
+    def subscribe(self, topic: str, callback: Callable[[Any], None], **options: Unpack[SubscribeOptions]) -> None:
+        """Call ``callback(message)`` on this actor's thread for each message on ``topic``."""
+        self._host.subscribe(topic, callback, **options)
 
     def call_later(self, delay: float, fn: Callable[[], None]) -> int:
         """Run ``fn`` on this actor's thread after ``delay`` seconds (timers, rates)."""

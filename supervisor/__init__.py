@@ -14,8 +14,9 @@ Example::
 from supervisor.backoff import Backoff, backoff_delay
 from supervisor.errors import StartError, SupervisorError
 from supervisor.events import TOPIC as EVENTS_TOPIC
-from supervisor.exits import Exit
-from supervisor.spec import ChildSpec, Command, SupervisorSpec
+from supervisor.exits import Exit, Reason
+from supervisor.spec import ChildSpec, Command, Restart, Strategy, SupervisorSpec
+from supervisor.states import ChildStatus, SupervisorState
 from supervisor.supervisor import ChildInfo, Supervisor, start_supervisor
 from supervisor.tree import Tree
 
@@ -24,12 +25,17 @@ __all__ = [
     "Backoff",
     "ChildInfo",
     "ChildSpec",
+    "ChildStatus",
     "Command",
     "Exit",
+    "Reason",
+    "Restart",
     "StartError",
+    "Strategy",
     "Supervisor",
     "SupervisorError",
     "SupervisorSpec",
+    "SupervisorState",
     "Tree",
     "backoff_delay",
     "start_supervisor",

@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 from actors import Actor, HostExtension, extension_spec, wire
 from supervisor.backoff import Backoff
@@ -43,6 +43,8 @@ __all__ = [
 ]
 
 
+_C = TypeVar("_C")
+
 
 class Strategy(StrEnum):
     """Which children a restart involves (see :mod:`supervisor.supervisor`)."""
@@ -52,6 +54,18 @@ class Strategy(StrEnum):
     REST_FOR_ONE = "rest_for_one"
     SIMPLE_ONE_FOR_ONE = "simple_one_for_one"
 
+    def involves(self, children: Sequence[_C], failed: _C) -> list[_C]:
+        """The children (in start order) that the restart of ``failed`` stops and starts again.
+
+        >>> Strategy.REST_FOR_ONE.involves(["a", "b", "c"], "b")
+        ['b', 'c']
+        """
+        if self is Strategy.ONE_FOR_ALL:
+            return list(children)
+        if self is Strategy.REST_FOR_ONE:
+            return list(children[list(children).index(failed):])
+        return [failed]
+
 
 class Restart(StrEnum):
     """When a child that exited is restarted: always, after an abnormal exit, never."""
@@ -59,6 +73,10 @@ class Restart(StrEnum):
     PERMANENT = "permanent"
     TRANSIENT = "transient"
     TEMPORARY = "temporary"
+
+    def restarts(self, normal_exit: bool) -> bool:
+        """Whether a child of this type that exited (normally or not) is restarted."""
+        return self is Restart.PERMANENT or (self is Restart.TRANSIENT and not normal_exit)
 
 
 STRATEGIES = tuple(s.value for s in Strategy)

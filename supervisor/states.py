@@ -32,9 +32,13 @@ class StrEnum(str, enum.Enum):
 class ChildStatus(StrEnum):
     """Where a child of a supervisor is."""
 
+    #: Its incarnation was started and is not ready yet.
     STARTING = "starting"
+    #: Its incarnation is ready and serving.
     RUNNING = "running"
+    #: It exited and waits for its restart (a backoff delay, or a sibling's restart).
     RESTARTING = "restarting"
+    #: No incarnation: never started, terminated, or given up on.
     STOPPED = "stopped"
 
 

@@ -101,7 +101,7 @@ from supervisor.health import watch_heartbeat
 from supervisor.intensity import RestartIntensity
 from supervisor.procs import ActorProcess, Incarnation
 from supervisor.rootio import in_root, on_root
-from supervisor.spec import ChildSpec, SupervisorSpec
+from supervisor.spec import ChildSpec, Restart, Strategy, SupervisorSpec
 from supervisor.states import ChildStatus, SupervisorState
 from supervisor.tree import Tree
 
@@ -390,26 +390,22 @@ class Supervisor:
             "exited" if ex.normal else "crashed",
             **self._event_fields(c, inc), phase="run", reason=ex.reason, detail=ex.detail, exit_code=ex.code,
         )
-        kind = c.spec.restart
-        if kind == "temporary" or (kind == "transient" and ex.normal):
-            if kind == "temporary" or self.simple:
+        kind = Restart(c.spec.restart)
+        if not kind.restarts(ex.normal):
+            if kind is Restart.TEMPORARY or self.simple:
                 self._remove(c)
             return
-        if not self.intensity.add():
-            await self._give_up(c)
-            return
-        await self._restart(c)
+        await self._restart_counted(c)
 
-    def _group(self, c: Child) -> list[Child]:
-        strategy = self.spec.strategy
-        if strategy == "one_for_all":
-            return list(self.children)
-        if strategy == "rest_for_one":
-            return self.children[self.children.index(c):]
-        return [c]
+    async def _restart_counted(self, c: Child) -> None:
+        """Restart ``c`` (and its group) if the restart intensity allows it; else give up."""
+        if self.intensity.add():
+            await self._restart(c)
+        else:
+            await self._give_up(c)
 
     async def _restart(self, c: Child) -> None:
-        group = self._group(c)
+        group = Strategy(self.spec.strategy).involves(self.children, c)
         for o in reversed(group):
             if o is c:
                 continue
@@ -454,10 +450,7 @@ class Supervisor:
     async def _try_again(self, c: Child) -> None:
         if self.state != SupervisorState.RUNNING or c not in self.children or c.status != ChildStatus.RESTARTING:
             return
-        if not self.intensity.add():
-            await self._give_up(c)
-            return
-        await self._restart(c)
+        await self._restart_counted(c)
 
     async def _give_up(self, c: Child) -> None:
         self.tree.events.emit(
@@ -625,6 +618,15 @@ class Supervisor:
             raise SupervisorError("not_found", f"{self.path} has no child {child_id!r}")
         return c
 
+    def _need_stopped(self, child_id: str) -> Child:
+        """The child ``child_id``, which must be stopped (not running, not restarting)."""
+        c = self._need(child_id)
+        if c.status == ChildStatus.RESTARTING:
+            raise SupervisorError("restarting", f"child {child_id!r} is restarting")
+        if c.inc is not None:
+            raise SupervisorError("running", f"child {child_id!r} is running; terminate_child it first")
+        return c
+
     async def _terminate_child(self, child_id: str) -> None:
         c = self._need(child_id)
         await self._terminate(c)
@@ -635,11 +637,7 @@ class Supervisor:
     async def _restart_child(self, child_id: str) -> int | None:
         if self.simple:
             raise SupervisorError("simple_one_for_one", "restart_child is not for simple_one_for_one children")
-        c = self._need(child_id)
-        if c.status == ChildStatus.RESTARTING:
-            raise SupervisorError("restarting", f"child {child_id!r} is restarting already")
-        if c.inc is not None:
-            raise SupervisorError("running", f"child {child_id!r} is running; terminate_child it first")
+        c = self._need_stopped(child_id)
         if not await self._start(c, restart=False):
             raise StartError(f"child {child_id!r} failed to start: {c.last_exit}", str(c.last_exit))
         return c.inc.pid if c.inc is not None else None
@@ -647,12 +645,7 @@ class Supervisor:
     async def _delete_child(self, child_id: str) -> None:
         if self.simple:
             raise SupervisorError("simple_one_for_one", "delete_child is not for simple_one_for_one children")
-        c = self._need(child_id)
-        if c.status == ChildStatus.RESTARTING:
-            raise SupervisorError("restarting", f"child {child_id!r} is restarting")
-        if c.inc is not None:
-            raise SupervisorError("running", f"child {child_id!r} is running; terminate_child it first")
-        self._remove(c)
+        self._remove(self._need_stopped(child_id))
 
     async def _bounce(self, child_id: str) -> int | None:
         c = self._need(child_id)

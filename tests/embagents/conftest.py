@@ -7,7 +7,7 @@ import pytest
 
 @pytest.fixture(scope="session")
 def tiny_gguf(tmp_path_factory: pytest.TempPathFactory) -> str:
-    """Path of a ~0.5 MB random-weight llama GGUF (see embagents.modelfiles)."""
-    from embagents.modelfiles import make_tiny_llama_gguf
+    """Path of a ~0.5 MB random-weight llama GGUF (see tests/embagents/tiny_llama.py)."""
+    from tests.embagents.tiny_llama import make_tiny_llama_gguf
 
     return make_tiny_llama_gguf(str(tmp_path_factory.mktemp("models") / "tiny-llama.gguf"))
