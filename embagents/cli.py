@@ -166,9 +166,31 @@ def _control(cmd: str) -> Command:
     return Command(add, run, helps[cmd])
 
 
+def _publish_arguments(parser: argparse.ArgumentParser) -> None:
+    _run_arguments(parser)
+    parser.add_argument("topic", help="a topic of the running system, e.g. text_in")
+    parser.add_argument("text", nargs="?", help="the message's `data` field (String, StreamingString)")
+    parser.add_argument("--fields", metavar="JSON", help='other fields as a JSON object, e.g. \'{"data": "hi"}\'')
+
+
+def _publish(args: argparse.Namespace) -> int:
+    from actors import UnsafeFolder
+    from embagents.publish import publish
+    from supervisor.client import ControlError
+
+    try:
+        reply = publish(args.topic, args.text, args.fields, run=args.run, timeout=args.timeout)
+    except (ControlError, UnsafeFolder, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"published {reply['type']} on {reply['topic']} (run {reply['run_id']}, system {reply['system']})")
+    return 0
+
+
 def _register_runtime_commands() -> None:
     for cmd in ("status", "restart", "stop"):
         COMMANDS[cmd] = _control(cmd)
+    COMMANDS["publish"] = Command(_publish_arguments, _publish, "publish a message on a topic of the running system")
     COMMANDS["supervise"] = Command(_supervise_arguments, _lazy("embagents.launch", "run"), "run a system.py under supervision")
     COMMANDS["bench"] = Command(
         _bench_arguments, _lazy("embagents.bench", "run"),

@@ -23,6 +23,7 @@ from typing import Any
 from actors.child import configure_logging
 from actors.topics import Subscription
 from embagents.models import models_of
+from embagents.publish import publish_command
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.events_actor import LIFECYCLE_TOPIC, EventsActor
 from embagents.runtime.model_actor import LlamaModelActor
@@ -99,6 +100,7 @@ def run_system(path: str) -> int:
             Subscription(asys.rt, asys.loop, SYSTEM_STOP, stop_requested, queue_size=1),
             Subscription(asys.rt, asys.loop, LIFECYCLE_TOPIC, lifecycle.on_request, queue_size=100, keep="all"),
         ))
+        control.add_command("publish", publish_command(asys, system))  # `embagents publish TOPIC TEXT`
         print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
               f"{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr, flush=True)
 

@@ -1,0 +1,88 @@
+"""``embagents publish TOPIC TEXT``: a message on a topic of a running system, from another terminal.
+
+The root of ``embagents supervise`` serves a ``publish`` control command
+(:func:`publish_command`): it builds the topic's message type from the
+fields it is sent and publishes it from the root's own runtime, like any
+publisher of the run. :func:`publish` is the client side: a positional text
+becomes the ``data`` field (``String``, ``StreamingString``); other fields
+come as JSON.
+
+Example (a chat system serving with ``EMBAGENTS_KEEP_RUNNING=1``)::
+
+    $ embagents publish text_in "What is the capital of Italy?"
+    published String on text_in (run 1a2b3c, system chat)
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import Any
+
+import attrs
+
+__all__ = ["publish", "publish_command"]
+
+
+def _message(topic: Any, fields: dict[str, Any]) -> Any:
+    """``topic.msg_type(**fields)``, or ValueError naming the fields the type has."""
+    cls = topic.msg_type
+    try:
+        return cls(**fields)
+    except (TypeError, ValueError) as exc:
+        names = [f.name for f in attrs.fields(cls)] if attrs.has(cls) else []
+        raise ValueError(f"cannot make a {topic.type_name} for topic {topic.name!r} from {fields!r} ({exc}); "
+                         f"its fields: {', '.join(names) or 'unknown'}") from None
+
+
+def publish_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
+    """The root's handler of ``{"cmd": "publish", "topic": NAME, "fields": {...}}`` for ``system``."""
+    from actors.topics import Publisher
+
+    publishers: dict[str, Any] = {}  # one per topic, made on the root's IO thread when first used
+
+    def handle(req: dict[str, Any]) -> dict[str, Any]:
+        name, fields = req.get("topic"), req.get("fields") or {}
+        topics = system.topics
+        topic = topics.get(name) if isinstance(name, str) else None
+        if topic is None:
+            return {"ok": False, "error": f"system {system.name!r} has no topic {name!r}; "
+                    f"its topics: {', '.join(sorted(topics)) or 'none'}"}
+        if not isinstance(fields, dict):
+            return {"ok": False, "error": f"fields must be a JSON object, got {fields!r}"}
+        try:
+            msg = _message(topic, fields)
+        except ValueError as exc:
+            return {"ok": False, "error": str(exc)}
+
+        def send() -> None:
+            if name not in publishers:
+                publishers[name] = Publisher(asys.rt, name, topic.msg_type)
+            publishers[name].publish(msg)
+
+        asys.rt.on_client(send)
+        return {"ok": True, "topic": name, "type": topic.type_name}
+
+    return handle
+
+
+def publish(topic: str, text: str | None = None, fields: str | None = None, *, run: str | None = None,
+            timeout: float = 5.0) -> dict[str, Any]:
+    """Publish on ``topic`` of the live run ``run`` (default: the only one); returns the root's answer.
+
+    ``text`` is the ``data`` field; ``fields`` a JSON object of fields. Raises
+    ``supervisor.client.ControlError`` (no run, unknown topic, bad fields) or ``ValueError`` (bad JSON).
+    """
+    from supervisor.client import pick_run, request
+
+    values: dict[str, Any] = {}
+    if fields:
+        try:
+            values = json.loads(fields)
+        except ValueError as exc:
+            raise ValueError(f"--fields is not JSON ({exc}): pass an object such as '{{\"data\": \"hi\"}}'") from None
+    if text is not None:
+        values["data"] = text
+    found = pick_run(run)
+    reply = request(found["run_dir"], {"cmd": "publish", "topic": topic, "fields": values}, timeout)
+    return {**reply, "run_id": found.get("run_id"), "system": found.get("system")}
