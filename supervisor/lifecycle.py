@@ -109,7 +109,8 @@ class Lifecycle(HostExtension):
         previous = host.journal.state()
         self.state: LifecycleState = UNCONFIGURED
         # A restarted actor returns to where its predecessor was; a fresh (or finalized) one to its target.
-        self.goal = LifecycleState(previous) if previous in (UNCONFIGURED, INACTIVE, ACTIVE) else _BY_NAME[target]
+        self.restored = previous in (UNCONFIGURED, INACTIVE, ACTIVE)
+        self.goal = LifecycleState(previous) if self.restored else _BY_NAME[target]
 
     @property
     def state_name(self) -> str:
@@ -146,8 +147,10 @@ class Lifecycle(HostExtension):
         for t in _PATH[self.goal]:
             self._apply(t)
         self.host.journal.set_state(self.state)
-        if self.goal != UNCONFIGURED:
+        if self.restored and self.goal != UNCONFIGURED:
             log.info("[%s] lifecycle restored to %s", self.host.name, self.state_name)
+        elif self.goal != UNCONFIGURED:  # a fresh actor: nothing was restored
+            log.info("[%s] %s", self.host.name, "activated" if self.state == ACTIVE else "configured")
 
 
 def current(actor: Actor) -> str:

@@ -34,3 +34,6 @@ def test_chat_memory_survives_a_sigkill_of_the_llm() -> None:
     # The supervisor saw exactly the one SIGKILL the demo sent, and restarted that llm.
     crashes = [x for x in out.stderr.splitlines() if "crashed root/llm" in x]
     assert len(crashes) == 1 and f"pid={killed[1]}" in crashes[0] and "reason=killed" in crashes[0], out.stderr
+    # A fresh start says so; only the restart restored a lifecycle state.
+    said = [x.split("supervisor.lifecycle: ")[1] for x in out.stderr.splitlines() if "supervisor.lifecycle: " in x]
+    assert said == ["[llm] activated", "[demo] activated", "[llm] lifecycle restored to active"], out.stderr
