@@ -231,7 +231,7 @@ def _model_problems(system: System) -> list[Problem]:
 
 def _supervision_problems(system: System) -> list[Problem]:
     # One truth: build the very tree `embagents supervise` runs (supervisor.spec's rules).
-    from embagents.launch import build_spec
+    from embagents.supervision import build_spec
 
     try:
         build_spec(system, "system.py")

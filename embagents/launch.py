@@ -24,9 +24,9 @@ from actors.child import configure_logging
 from actors.topics import Subscription
 from embagents.models import models_of
 from embagents.publish import publish_command
-from embagents.runtime.component_actor import ComponentActor, remember_system
-from embagents.runtime.events_actor import LIFECYCLE_TOPIC, EventsActor
-from embagents.runtime.model_actor import LlamaModelActor
+from embagents.runtime.component_actor import remember_system
+from embagents.runtime.requests import SUPERVISOR_REQUESTS, SupervisorRequest
+from embagents.supervision import build_spec
 
 __all__ = ["SYSTEM_STOP", "add_arguments", "run", "run_system"]
 
@@ -34,41 +34,6 @@ log = logging.getLogger("embagents.supervise")
 
 #: Publish anything on this topic to stop the whole system cleanly.
 SYSTEM_STOP = "system_stop"
-EVENTS_NAME = "_events"
-#: Hang deadlines: a component's loop must beat this often; a model's, per token.
-HEARTBEAT_S = 30.0
-MODEL_HEARTBEAT_S = 120.0
-
-
-def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -> Any:
-    """The supervision tree of a System: model actors, the ROS bridge, components, events.
-
-    ``resolved`` maps each model's name to its local file (``Model.resolve()``).
-    Without it (``embagents check``) each model's name stands in for its file:
-    the tree is built, so every rule of ``supervisor.spec`` is applied, and
-    nothing is downloaded. Raises ``ValueError`` / ``TypeError`` naming the rule.
-    """
-    from supervisor import ChildSpec, SupervisorSpec
-
-    children = []
-    for m in models_of(system):
-        opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
-        # A model beats per token; a long prompt evaluation is work, not a hang.
-        children.append(ChildSpec(m.name, (LlamaModelActor, ((resolved or {}).get(m.name, m.name), opts, m.warmup)),
-                                  heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
-    if system.ros:
-        from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
-
-        children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
-    for c in system.components:
-        children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=HEARTBEAT_S,
-                                  lifecycle="active", snapshot_interval=0.5, start_timeout=120))
-    if system.events or any(getattr(c, "fallback", None) for c in system.components):
-        children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
-    sup = system.supervision
-    return SupervisorSpec(strategy=sup["strategy"], intensity=sup["intensity"], period=sup["period"], children=children)
-
-
 def run_system(path: str) -> int:
     """Run the system in ``path`` under supervision until a stop; return the exit code."""
     from embagents.check import check_system, errors
@@ -89,7 +54,7 @@ def run_system(path: str) -> int:
 
     def on_ready(sup: Any, control: Any) -> None:
         asys = sup.system
-        lifecycle = _Lifecycle(sup)
+        requests = _SupervisorRequests(sup)
 
         def stop_requested(_msg: Any) -> None:
             from supervisor.client import request
@@ -98,7 +63,7 @@ def run_system(path: str) -> int:
 
         asys.rt.on_client(lambda: (
             Subscription(asys.rt, asys.loop, SYSTEM_STOP, stop_requested, queue_size=1),
-            Subscription(asys.rt, asys.loop, LIFECYCLE_TOPIC, lifecycle.on_request, queue_size=100, keep="all"),
+            Subscription(asys.rt, asys.loop, SUPERVISOR_REQUESTS, requests.on_request, queue_size=100, keep="all"),
         ))
         control.add_command("publish", publish_command(asys, system))  # `embagents publish TOPIC TEXT`
         print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
@@ -107,19 +72,19 @@ def run_system(path: str) -> int:
     return serve(spec, system_name=system.name, on_ready=on_ready)
 
 
-class _Lifecycle:
+class _SupervisorRequests:
     """Carries out start / stop / restart / give_up requests from events and fallbacks."""
 
     def __init__(self, sup: Any) -> None:
         self.sup = sup
 
-    def on_request(self, req: dict[str, Any]) -> None:
+    def on_request(self, req: SupervisorRequest) -> None:
         # Supervisor calls block and refuse the root IO thread: use a helper thread.
         threading.Thread(target=self._do, args=(req,), daemon=True).start()
 
-    def _do(self, req: dict[str, Any]) -> None:
-        kind, name = req.get("kind"), req.get("component")
-        log.info("%s %s (%s)", kind, name, req.get("because", ""))
+    def _do(self, req: SupervisorRequest) -> None:
+        kind, name = req.kind, req.component
+        log.info("%s %s (%s)", kind, name, req.because)
         try:
             if kind in ("stop", "give_up"):
                 self.sup.terminate_child(name)

@@ -16,6 +16,7 @@ from typing import Any
 
 from actors import Actor
 from embagents.rate import next_deadline
+from embagents.runtime.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
 
 __all__ = ["ComponentActor", "loaded_system", "remember_system"]
 
@@ -107,19 +108,18 @@ class ComponentActor(Actor):
 
     def on_receive(self, message: Any) -> Any:
         comp = self.component
-        op = message.get("op") if isinstance(message, dict) else message
-        if op == "health":
+        if isinstance(message, Call):
+            return getattr(comp, message.method)(*message.args, **message.kwargs)
+        if isinstance(message, HealthQuery):
             return {"status": int(comp.health_status), "text": comp.health.text}
-        if op == "call":
-            return getattr(comp, message["method"])(*message.get("args", ()), **message.get("kwargs", {}))
-        if op == "reconfigure":
-            comp.reconfigure(message["overrides"])
+        if isinstance(message, Reconfigure):
+            comp.reconfigure(message.overrides)
             return None
-        if op == "change_model_client":
-            return comp.change_model_client(message["client"])
+        if isinstance(message, ChangeModelClient):
+            return comp.change_model_client(message.client)
         raise ValueError(
-            f"component {self.component_name!r}: unknown request {message!r}; "
-            "use 'health' or {'op': 'call'|'reconfigure'|'change_model_client', ...}"
+            f"component {self.component_name!r}: unknown request {message!r}; send one of "
+            "embagents.runtime.requests: Call, HealthQuery, Reconfigure, ChangeModelClient"
         )
 
     def snapshot(self) -> Any:

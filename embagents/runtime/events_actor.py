@@ -8,8 +8,9 @@ action runs:
 - ``publish``: publish the message on the topic;
 - ``call`` / ``reconfigure`` / ``switch_model_client``: a tell to the
   component's actor (its next incarnation gets it if it is restarting);
-- ``start`` / ``stop`` / ``restart`` / ``give_up``: a request on the
-  ``_lifecycle`` topic, carried out by the root's supervisor.
+- ``start`` / ``stop`` / ``restart`` / ``give_up``: a
+  :class:`~embagents.runtime.requests.SupervisorRequest` on the
+  ``_supervisor_requests`` topic, carried out by the root's supervisor.
 """
 
 from __future__ import annotations
@@ -20,11 +21,17 @@ from typing import Any
 
 from actors import Actor, ActorNotFound
 from embagents.runtime.component_actor import loaded_system
+from embagents.runtime.requests import (
+    SUPERVISOR_REQUESTS,
+    Call,
+    ChangeModelClient,
+    Reconfigure,
+    SupervisorRequest,
+)
 
-__all__ = ["LIFECYCLE_TOPIC", "EventsActor"]
+__all__ = ["EventsActor"]
 
 log = logging.getLogger("embagents.events")
-LIFECYCLE_TOPIC = "_lifecycle"
 HEALTH_TOPIC = "_health"
 
 
@@ -72,16 +79,13 @@ class EventsActor(Actor):
                 topic = args["topic"]
                 self.context.publish(getattr(topic, "name", topic), args["msg"])
             elif kind == "call":
-                self.context.ref(comp).tell({
-                    "op": "call", "method": args["method"],
-                    "args": list(args.get("args") or ()), "kwargs": dict(args.get("kwargs") or {}),
-                })
+                self.context.ref(comp).tell(Call(args["method"], args.get("args") or (), args.get("kwargs") or {}))
             elif kind == "reconfigure":
-                self.context.ref(comp).tell({"op": "reconfigure", "overrides": dict(args["overrides"])})
+                self.context.ref(comp).tell(Reconfigure(args["overrides"]))
             elif kind == "switch_model_client":
-                self.context.ref(comp).tell({"op": "change_model_client", "client": args["client"]})
+                self.context.ref(comp).tell(ChangeModelClient(args["client"]))
             else:  # start / stop / restart / give_up: the supervisor's business
-                self.context.publish(LIFECYCLE_TOPIC, {"kind": kind, "component": comp, "because": because})
+                self.context.publish(SUPERVISOR_REQUESTS, SupervisorRequest(kind, comp, because))
         except ActorNotFound as exc:
             log.error("action %s failed: %s", kind, exc)
 

@@ -102,7 +102,7 @@ def test_duplicate_names_anywhere_in_the_list(tmp_path):
 
 def test_two_components_under_simple_one_for_one_fail_the_check_as_they_would_fail_supervise(tmp_path, capsys):
     # `check` builds the tree `supervise` runs: what one refuses, the other does.
-    from embagents.launch import build_spec
+    from embagents.supervision import build_spec
     from embagents.system import load_system
 
     body = GOOD.replace("System([camera, detector, llm])",

@@ -13,6 +13,7 @@ import pytest
 from actors import ActorSystem
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.system import load_system
+from embagents.runtime.requests import Call, HealthQuery
 from tests.helpers import until
 
 SYSTEM = '''
@@ -97,7 +98,7 @@ def test_topic_trigger_runs_the_step_and_publishes(running: ActorSystem) -> None
 
     def got() -> list[str]:
         running.rt.on_client(lambda: pub.publish(String(data="hello")))
-        return recorder.ask({"op": "call", "method": "received"}, timeout=5).get()
+        return recorder.ask(Call("received"), timeout=5).get()
 
     assert "HELLO" in until(got)
 
@@ -105,7 +106,7 @@ def test_topic_trigger_runs_the_step_and_publishes(running: ActorSystem) -> None
 def test_rate_trigger_holds_its_rate_in_hz(running: ActorSystem) -> None:
     ticker = running.ref("ticker")
     time.sleep(1.5)
-    ticks = ticker.ask({"op": "call", "method": "tick_times"}, timeout=5).get()
+    ticks = ticker.ask(Call("tick_times"), timeout=5).get()
     assert len(ticks) >= 10
     span = ticks[-1] - ticks[0]
     rate = (len(ticks) - 1) / span
@@ -118,5 +119,5 @@ def test_unknown_request_names_the_component_and_the_options(running: ActorSyste
 
     with pytest.raises(RemoteError, match="component 'upper': unknown request"):
         running.ref("upper").ask("dance", timeout=5).get()
-    assert running.ref("upper").ask("health", timeout=5).get()["status"] == 0
+    assert running.ref("upper").ask(HealthQuery(), timeout=5).get()["status"] == 0
     assert os.path.isdir(running.run_dir)

@@ -11,6 +11,7 @@ from embagents.msgs import String
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.events_actor import EventsActor
 from embagents.system import load_system
+from embagents.runtime.requests import Call
 from tests.helpers import until
 
 SYSTEM = '''
@@ -64,8 +65,8 @@ def test_an_event_publishes_and_calls_a_component_method(tmp_path: Path) -> None
         for word in ("go", "halt", "halt"):
             asys.rt.on_client(lambda w=word: pub.publish(String(data=w)))
         sink = asys.ref("sink")
-        notes = until(lambda: len(sink.ask({"op": "call", "method": "notes"}, timeout=5).get()) >= 2 and
-                       sink.ask({"op": "call", "method": "notes"}, timeout=5).get())
+        notes = until(lambda: len(sink.ask(Call("notes"), timeout=5).get()) >= 2 and
+                       sink.ask(Call("notes"), timeout=5).get())
         assert sorted(notes) == ["alarm:halted", "called"]
         # Rising edge: the second "halt" did not fire again.
         assert [f["kind"] for f in ev.ask("fired", timeout=5).get()] == ["publish", "call"]

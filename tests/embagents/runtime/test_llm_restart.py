@@ -23,6 +23,7 @@ from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.model_actor import LlamaModelActor
 from embagents.system import load_system
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
+from embagents.runtime.requests import Call
 from tests.helpers import until
 
 SYSTEM = '''
@@ -58,7 +59,7 @@ def scenario(tiny_gguf: str, tmp_path: Path) -> None:
             llm = asys.ref("llm")
 
             def history() -> list:
-                return llm.ask({"op": "call", "method": "snapshot"}, timeout=10).get()["history"]
+                return llm.ask(Call("snapshot"), timeout=10).get()["history"]
 
             asys.rt.on_client(lambda: pub.publish(String(data="remember me")))
             before = until(lambda: len(history()) >= 2 and history(), 30)

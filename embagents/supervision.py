@@ -1,0 +1,60 @@
+"""The supervision tree that runs a System: model actors, the ROS bridge, components, events.
+
+``embagents supervise`` starts it; ``embagents check`` builds it too, so a
+system that passes the check passes every rule of :mod:`supervisor.spec`
+(one truth). Kept apart from :mod:`embagents.launch` so the check does not
+import the launcher.
+
+Example::
+
+    >>> from embagents.system import System
+    >>> spec = build_spec(System(name="empty", components=[]), "system.py")   # doctest: +SKIP
+    >>> spec.strategy                                                         # doctest: +SKIP
+    'one_for_one'
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from embagents.models import models_of
+from embagents.runtime.component_actor import ComponentActor
+from embagents.runtime.events_actor import EventsActor
+from embagents.runtime.model_actor import LlamaModelActor
+
+__all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec"]
+
+#: The events actor's name.
+EVENTS_NAME = "_events"
+#: Hang deadlines: a component's loop must beat this often; a model's, per token.
+HEARTBEAT_S = 30.0
+MODEL_HEARTBEAT_S = 120.0
+
+
+def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -> Any:
+    """The supervision tree of a System: model actors, the ROS bridge, components, events.
+
+    ``resolved`` maps each model's name to its local file (``Model.resolve()``).
+    Without it (``embagents check``) each model's name stands in for its file:
+    the tree is built, so every rule of ``supervisor.spec`` is applied, and
+    nothing is downloaded. Raises ``ValueError`` / ``TypeError`` naming the rule.
+    """
+    from supervisor import ChildSpec, SupervisorSpec
+
+    children = []
+    for m in models_of(system):
+        opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
+        # A model beats per token; a long prompt evaluation is work, not a hang.
+        children.append(ChildSpec(m.name, (LlamaModelActor, ((resolved or {}).get(m.name, m.name), opts, m.warmup)),
+                                  heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
+    if system.ros:
+        from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
+
+        children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
+    for c in system.components:
+        children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=HEARTBEAT_S,
+                                  lifecycle="active", snapshot_interval=0.5, start_timeout=120))
+    if system.events or any(getattr(c, "fallback", None) for c in system.components):
+        children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
+    sup = system.supervision
+    return SupervisorSpec(strategy=sup["strategy"], intensity=sup["intensity"], period=sup["period"], children=children)
