@@ -67,12 +67,12 @@ def test_resolve_repo_id_without_huggingface_hub(monkeypatch: pytest.MonkeyPatch
         resolve_model_path(DEFAULT_LLM_REPO)
 
 
-def test_resolve_repo_id_offline_hub_gives_clear_error(tmp_path) -> None:
-    pytest.importorskip("huggingface_hub", reason="huggingface_hub not installed")
-    # A fresh process: huggingface_hub reads HF_HUB_OFFLINE at import time.
+def _resolve_in_a_fresh_process(specs: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """Resolve each spec in a new interpreter (huggingface_hub reads its settings at import); prints ERR lines."""
     code = (
+        "import sys\n"
         "from embagents.modelfiles import resolve_model_path, HubUnreachableError\n"
-        "for spec in ['Qwen/Qwen3-0.6B-GGUF', 'Qwen/Qwen3-0.6B-GGUF:Qwen3-0.6B-Q8_0.gguf']:\n"
+        "for spec in sys.argv[1:]:\n"
         "    try:\n"
         "        resolve_model_path(spec, progress=False)\n"
         "    except HubUnreachableError as exc:\n"
@@ -80,12 +80,15 @@ def test_resolve_repo_id_offline_hub_gives_clear_error(tmp_path) -> None:
         "    else:\n"
         "        print('NO ERROR for', spec)\n"
     )
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_HOME": str(tmp_path / "hf")}
-    env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    env = {**env, "PYTHONPATH": REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")}
+    return subprocess.run([sys.executable, "-c", code, *specs], env=env, capture_output=True, text=True, timeout=60)
+
+
+def test_resolve_repo_id_offline_hub_gives_clear_error(tmp_path) -> None:
+    pytest.importorskip("huggingface_hub", reason="huggingface_hub not installed")
     start = time.perf_counter()
-    out = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60
-    )
+    out = _resolve_in_a_fresh_process(["Qwen/Qwen3-0.6B-GGUF", "Qwen/Qwen3-0.6B-GGUF:Qwen3-0.6B-Q8_0.gguf"],
+                                      {**os.environ, "HF_HUB_OFFLINE": "1", "HF_HOME": str(tmp_path / "hf")})
     assert out.returncode == 0, out.stderr
     lines = out.stdout.strip().splitlines()
     assert len(lines) == 2 and all(line.startswith("ERR ") for line in lines), out.stdout
@@ -99,17 +102,9 @@ def test_resolve_repo_id_offline_hub_gives_clear_error(tmp_path) -> None:
 def test_resolve_repo_id_without_network_is_one_line_at_once(tmp_path) -> None:
     pytest.importorskip("huggingface_hub", reason="huggingface_hub not installed")
     # A hub endpoint nothing listens on: one refused connect, no retries, no traceback.
-    code = (
-        "from embagents.modelfiles import resolve_model_path, HubUnreachableError\n"
-        "try:\n"
-        "    resolve_model_path('Qwen/Qwen3-0.6B-GGUF', progress=False)\n"
-        "except HubUnreachableError as exc:\n"
-        "    print('ERR', exc)\n"
-    )
     env = {k: v for k, v in os.environ.items() if not k.upper().endswith("_PROXY") and k != "HF_HUB_OFFLINE"}
     env.update(HF_ENDPOINT="http://127.0.0.1:9", HF_HOME=str(tmp_path / "hf"))
-    env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    out = _resolve_in_a_fresh_process(["Qwen/Qwen3-0.6B-GGUF"], env)
     assert out.returncode == 0 and out.stderr == "", out.stderr
     [line] = out.stdout.splitlines()
     assert line.startswith("ERR Cannot reach the Hugging Face hub to fetch 'Qwen/Qwen3-0.6B-GGUF:*Q4_K_M.gguf'")
