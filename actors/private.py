@@ -4,9 +4,11 @@ Everything a run writes (its run directory with sockets, registry, journals
 and snapshots; the announcements ``embagents status`` finds runs by; helper
 files such as DDS profiles) lives in one folder per user:
 
-- ``$XDG_RUNTIME_DIR/embagents`` when ``XDG_RUNTIME_DIR`` is set (the
+- ``$XDG_RUNTIME_DIR/<app>`` when ``XDG_RUNTIME_DIR`` is set (the
   login's runtime folder: the user's own, mode 0700, emptied at logout);
-- else ``<tmp>/embagents-<uid>`` (``<tmp>`` is ``$TMPDIR`` or ``/tmp``).
+- else ``<tmp>/<app>-<uid>`` (``<tmp>`` is ``$TMPDIR`` or ``/tmp``).
+
+``<app>`` is the application's name (:mod:`actors.app`; "embagents" sets it).
 
 Every use checks the folder (and ``XDG_RUNTIME_DIR`` itself) as ssh and tmux
 do: it must be a real directory, owned by this user, with no access for
@@ -44,12 +46,11 @@ import re
 import stat
 import tempfile
 
+from actors.app import app_name
 from actors.errors import ActorError
 
 __all__ = ["UnsafeFolder", "check_folder", "current_run_dir", "private_dir", "private_file"]
 
-#: The folder's name under ``$XDG_RUNTIME_DIR``; under ``/tmp`` it gets ``-<uid>``.
-FOLDER = "embagents"
 # mkstemp names: "<prefix>-<pid>-<8 random chars><suffix>"; the pid lets a later process sweep orphans.
 _ORPHAN = re.compile(r"-(\d+)-[a-z0-9_]{8}(?:\.\w+)?$")
 
@@ -104,9 +105,9 @@ def private_dir(*parts: str) -> str:
     """This user's private folder (see the module docs), or a checked subfolder of it."""
     xdg = os.environ.get("XDG_RUNTIME_DIR")
     if xdg:
-        base = os.path.join(check_folder(xdg, create=False, follow=True), FOLDER)
+        base = os.path.join(check_folder(xdg, create=False, follow=True), app_name())
     else:
-        base = os.path.join(tempfile.gettempdir(), f"{FOLDER}-{os.getuid()}")
+        base = os.path.join(tempfile.gettempdir(), f"{app_name()}-{os.getuid()}")
     path = check_folder(base)
     for part in parts:
         path = check_folder(os.path.join(path, part))

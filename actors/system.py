@@ -32,6 +32,7 @@ import zmq
 
 from actors import wire
 from actors.actor import Actor
+from actors.app import env
 from actors.child import child_main
 from actors.errors import ActorError
 from actors.forkserver import ForkServer
@@ -66,8 +67,8 @@ def class_path(cls: type) -> str:
 
 
 def _run_base() -> str:
-    # ipc paths are limited to ~107 bytes: $EMBAGENTS_RUN_BASE can shorten a long $XDG_RUNTIME_DIR.
-    override = os.environ.get("EMBAGENTS_RUN_BASE")
+    # ipc paths are limited to ~107 bytes: $<APP>_RUN_BASE can shorten a long $XDG_RUNTIME_DIR.
+    override = env("RUN_BASE")
     return check_folder(override) if override else private_dir()
 
 

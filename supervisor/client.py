@@ -32,6 +32,7 @@ import msgpack
 import zmq
 
 from actors import UnsafeFolder, check_folder
+from actors.app import app_name
 from supervisor.control import control_endpoint, runs_dir
 
 __all__ = ["ControlError", "find_runs", "format_status_table", "main", "pick_run", "request"]
@@ -85,8 +86,8 @@ def pick_run(which: str | None = None) -> dict[str, Any]:
         runs = [r for r in runs if which in (r.get("run_id"), r.get("system"), str(r.get("pid")))]
     if not runs:
         raise ControlError(
-            "no live embagents run found" + (f" matching {which!r}" if which else "")
-            + f" (looked in {runs_dir()}); start one with: embagents supervise system.py"
+            f"no live {app_name()} run found" + (f" matching {which!r}" if which else "")
+            + f" (looked in {runs_dir()}); start one with: {app_name()} supervise system.py"
         )
     if len(runs) > 1:
         listing = ", ".join(f"{r['run_id']} ({r.get('system')}, pid {r.get('pid')})" for r in runs)
@@ -163,7 +164,7 @@ def format_status_table(rows: Sequence[dict[str, Any]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``status [--json] | restart NAME | stop`` against a live run; returns the exit status."""
-    p = argparse.ArgumentParser(prog="embagents", description="Control a live embagents run.")
+    p = argparse.ArgumentParser(prog=app_name(), description=f"Control a live {app_name()} run.")
     p.add_argument("--run", help="run id, system name or pid (default: the only live run)")
     p.add_argument("--timeout", type=float, default=5.0)
     sub = p.add_subparsers(dest="cmd", required=True)

@@ -18,7 +18,7 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
 
 While the endpoint is up, ``<private>/runs/<run_id>.json`` (``<private>`` is
 :func:`actors.private_dir`: ``$XDG_RUNTIME_DIR/embagents`` or
-``/tmp/embagents-<uid>``, checked at every use; ``$EMBAGENTS_RUNS_DIR``
+``/tmp/embagents-<uid>``, checked at every use; ``$EMBAGENTS_RUNS_DIR`` (``$<APP>_RUNS_DIR``, :mod:`actors.app`)
 overrides the folder, checked the same way) holds ``run_id``,
 ``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint`` and
 ``started``; it is removed on close.
@@ -47,6 +47,7 @@ import pykka
 import zmq
 
 from actors import ActorRef, ActorSystem, check_folder, private_dir
+from actors.app import env
 from supervisor.rootio import on_root
 from supervisor.tree import Tree
 
@@ -57,7 +58,7 @@ log = logging.getLogger("supervisor.control")
 
 def runs_dir() -> str:
     """Where live runs announce themselves (0700; :class:`actors.UnsafeFolder` if it is not private)."""
-    override = os.environ.get("EMBAGENTS_RUNS_DIR")
+    override = env("RUNS_DIR")
     return check_folder(override) if override else private_dir("runs")
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from actors import ActorSystem, UnsafeFolder, private_dir, private_file
-from actors.private import FOLDER
+from actors.app import app_name
 
 NOBODY = pwd.getpwnam("nobody").pw_uid
 # mkstemp: "<prefix>-<pid>-<8 random chars><suffix>"
@@ -32,7 +32,7 @@ def tmp_base(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 
 def test_the_private_folder_is_made_0700_and_holds_the_run_directory(tmp_base: Path) -> None:
-    folder = tmp_base / f"{FOLDER}-{os.getuid()}"
+    folder = tmp_base / f"{app_name()}-{os.getuid()}"
     assert private_dir() == str(folder)
     assert stat.S_IMODE(folder.stat().st_mode) == 0o700
     with ActorSystem() as system:
@@ -42,7 +42,7 @@ def test_the_private_folder_is_made_0700_and_holds_the_run_directory(tmp_base: P
 
 
 def test_a_folder_another_user_made_is_refused_and_left_untouched(tmp_base: Path) -> None:
-    folder = tmp_base / f"{FOLDER}-{os.getuid()}"
+    folder = tmp_base / f"{app_name()}-{os.getuid()}"
     folder.mkdir(mode=0o777)
     os.chmod(folder, 0o777)
     os.chown(folder, NOBODY, NOBODY)  # what another user of the machine can do in /tmp
@@ -56,7 +56,7 @@ def test_a_folder_another_user_made_is_refused_and_left_untouched(tmp_base: Path
 
 
 def test_a_folder_of_ours_open_to_others_is_refused_with_the_chmod_that_fixes_it(tmp_base: Path) -> None:
-    folder = tmp_base / f"{FOLDER}-{os.getuid()}"
+    folder = tmp_base / f"{app_name()}-{os.getuid()}"
     folder.mkdir()
     os.chmod(folder, 0o777)
     with pytest.raises(UnsafeFolder, match=r"group or others may write to it \(mode 777\).*chmod 700 " + re.escape(str(folder))):
@@ -71,7 +71,7 @@ def test_a_folder_of_ours_open_to_others_is_refused_with_the_chmod_that_fixes_it
 def test_a_symlink_in_place_of_the_folder_is_refused(tmp_base: Path) -> None:
     elsewhere = tmp_base / "elsewhere"
     elsewhere.mkdir(mode=0o700)
-    (tmp_base / f"{FOLDER}-{os.getuid()}").symlink_to(elsewhere)
+    (tmp_base / f"{app_name()}-{os.getuid()}").symlink_to(elsewhere)
     with pytest.raises(UnsafeFolder, match="symbolic link"):
         private_dir()
 
@@ -80,10 +80,10 @@ def test_xdg_runtime_dir_is_used_when_set_and_checked(tmp_base: Path, monkeypatc
     xdg = tmp_base / "xdg"
     xdg.mkdir(mode=0o700)
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(xdg))
-    assert private_dir("runs") == str(xdg / FOLDER / "runs")
+    assert private_dir("runs") == str(xdg / app_name() / "runs")
     with ActorSystem() as system:
-        assert os.path.dirname(system.run_dir) == str(xdg / FOLDER)
-    assert not (tmp_base / f"{FOLDER}-{os.getuid()}").exists()  # nothing in the shared temp folder
+        assert os.path.dirname(system.run_dir) == str(xdg / app_name())
+    assert not (tmp_base / f"{app_name()}-{os.getuid()}").exists()  # nothing in the shared temp folder
     os.chmod(xdg, 0o777)
     with pytest.raises(UnsafeFolder, match=re.escape(str(xdg))):
         private_dir()
@@ -116,7 +116,8 @@ def test_private_files_get_mkstemp_names_in_the_run_directory_and_go_with_the_ru
 WRITER = """
 import os, sys, tempfile
 tempfile.tempdir = sys.argv[1]
-from actors import private_file
+from actors import private_file, set_app_name
+set_app_name(sys.argv[3])  # as the application does at import
 print(private_file("note", ".txt", b"x"), flush=True)
 if sys.argv[2] == "hang":
     sys.stdin.read()
@@ -125,11 +126,11 @@ if sys.argv[2] == "hang":
 
 def test_outside_a_run_a_private_file_is_removed_at_exit_or_swept_after_a_kill(tmp_base: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k != "XDG_RUNTIME_DIR"}
-    out = subprocess.run([sys.executable, "-c", WRITER, str(tmp_base), "exit"], env=env,
+    out = subprocess.run([sys.executable, "-c", WRITER, str(tmp_base), "exit", app_name()], env=env,
                          capture_output=True, text=True, timeout=60, check=True).stdout.strip()
     assert os.path.dirname(out) == private_dir() and MKSTEMP_NAME.match(os.path.basename(out))
     assert not os.path.exists(out)  # removed when the process exited
-    killed = subprocess.Popen([sys.executable, "-c", WRITER, str(tmp_base), "hang"], env=env,
+    killed = subprocess.Popen([sys.executable, "-c", WRITER, str(tmp_base), "hang", app_name()], env=env,
                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         path = killed.stdout.readline().strip()
