@@ -49,7 +49,7 @@ import tempfile
 from actors.app import app_name
 from actors.errors import ActorError
 
-__all__ = ["UnsafeFolder", "check_folder", "current_run_dir", "private_dir", "private_file"]
+__all__ = ["UnsafeFolder", "check_folder", "current_run_dir", "pid_alive", "private_dir", "private_file"]
 
 # mkstemp names: "<prefix>-<pid>-<8 random chars><suffix>"; the pid lets a later process sweep orphans.
 _ORPHAN = re.compile(r"-(\d+)-[a-z0-9_]{8}(?:\.\w+)?$")
@@ -125,7 +125,8 @@ def current_run_dir() -> str | None:
     return None if rt.closed else rt.run_dir
 
 
-def _alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """True while process ``pid`` exists (someone else's counts: we may not signal it, but it is there)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -140,7 +141,7 @@ def _sweep_orphans(folder: str) -> None:
     with os.scandir(folder) as entries:
         for e in entries:
             m = _ORPHAN.search(e.name)
-            if m and e.is_file(follow_symlinks=False) and not _alive(int(m.group(1))):
+            if m and e.is_file(follow_symlinks=False) and not pid_alive(int(m.group(1))):
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(e.path)
 

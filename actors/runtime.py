@@ -155,9 +155,9 @@ class Runtime:
             loop.add(link.monitor, link.on_monitor)
             loop.after_poll.append(link.flush_releases)
             self._links[key] = link
-            # The first connect is quick on ipc: wait for it so a tell is not parked.
-            if not loop.run(until=lambda: link.connected, timeout=0.2, only=[link.monitor]):
-                pass
+            # The first connect is quick on ipc: wait for it so a tell is not parked
+            # (not connected within 0.2 s: tells are parked until it is).
+            loop.run(until=lambda: link.connected, timeout=0.2, only=[link.monitor])
         return link
 
     def links(self) -> list[Link]:

@@ -2,9 +2,18 @@
 
 Each subcommand is a :class:`Command` in :data:`COMMANDS`: a function adding
 its arguments to an argparse subparser and a function running it (returning
-the exit code). Adding one is a dict entry::
+the exit code). Adding one is a dict entry:
 
-    COMMANDS["status"] = Command(_status_arguments, _status, "show a live table of actors")
+    >>> def _hello_arguments(parser):
+    ...     parser.add_argument("name")
+    >>> def _hello(args):
+    ...     print(f"hello {args.name}")
+    ...     return 0
+    >>> COMMANDS["hello"] = Command(_hello_arguments, _hello, "say hello")
+    >>> main(["hello", "robot"])
+    hello robot
+    0
+    >>> del COMMANDS["hello"]
 
 Example::
 
@@ -128,11 +137,15 @@ def _supervise_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _bench_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
-    parser.add_argument("--quick", action="store_true", help="few iterations (a smoke run, not a measurement)")
-    parser.add_argument("--only", nargs="+", metavar="NAME", help="run only cases matching these names or globs")
+    # The one definition: `python -m embagents.bench` takes it from COMMANDS["bench"] (the bench package is heavy).
+    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON to FILE")
+    parser.add_argument("--quick", action="store_true", help="a smoke test: few iterations, 2 s idle window, no PASS/FAIL verdicts")
+    parser.add_argument(
+        "--only", nargs="+", metavar="NAME",
+        help="run only cases matching NAME (a case name, glob, substring, transport or kind)",
+    )
     parser.add_argument("--list", action="store_true", help="list the cases in run order and exit")
-    parser.add_argument("--strict", action="store_true", help="exit 2 if a bar fails")
+    parser.add_argument("--strict", action="store_true", help="exit with status 2 if a bar fails")
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -151,12 +164,10 @@ def _control(cmd: str) -> Command:
             parser.add_argument("name", help="the actor to restart")
 
     def run(args: argparse.Namespace) -> int:
-        from supervisor.client import main as control_main
+        from supervisor.client import control
 
-        argv = [*(["--run", args.run] if args.run else []), "--timeout", str(args.timeout), cmd]
-        argv += ["--json"] if getattr(args, "json", False) else []
-        argv += [args.name] if cmd == "restart" else []
-        return control_main(argv)
+        return control(cmd, run=args.run, timeout=args.timeout, as_json=getattr(args, "json", False),
+                       name=getattr(args, "name", None))
 
     helps = {
         "status": "a table of the running system: name, pid, state, restarts, uptime, CPU, memory, mailbox",

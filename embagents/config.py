@@ -85,11 +85,15 @@ class BaseComponentConfig:
     """Settings every component has.
 
     - ``loop_rate_hz``: rate in Hz of a timed component (``trigger=10.0`` sets it to 10 Hz).
-    - ``step_timeout_s``: a step running longer than this is an algorithm failure
-      (enforced by the runtime's watchdog); ``None``: no limit.
+    - ``step_timeout_s``: under ``embagents supervise``, a step that keeps the
+      component busy longer than this is a hang: its heartbeat deadline, so the
+      supervisor kills the process and restarts it (time spent waiting on a
+      model actor does not count: that wait beats); ``None``: the default
+      deadline, 30 s.
     - ``input_max_age_s``: an input message older than this is treated as not
       received (a frozen camera must not feed a stale frame); ``None``: no limit.
-    - ``log_level``: one of debug, info, warning, error.
+    - ``log_level``: one of debug, info, warning, error: the level of the
+      component's logger (``embagents.component.<name>``).
 
     >>> BaseComponentConfig(loop_rate_hz=2).loop_rate_hz
     2.0

@@ -28,7 +28,7 @@ from embagents.runtime.component_actor import remember_system
 from embagents.runtime.requests import SUPERVISOR_REQUESTS, SupervisorRequest
 from embagents.supervision import build_spec
 
-__all__ = ["SYSTEM_STOP", "add_arguments", "run", "run_system"]
+__all__ = ["SYSTEM_STOP", "run", "run_system"]
 
 log = logging.getLogger("embagents.supervise")
 
@@ -94,11 +94,6 @@ class _SupervisorRequests:
                 self.sup.bounce(name)
         except Exception as exc:  # an action on a child that is not there: say so, go on
             log.error("%s %s failed: %s", kind, name, exc)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("system", help="path of the system.py file")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 
 
 def run(args: argparse.Namespace) -> int:

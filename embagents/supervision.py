@@ -52,7 +52,9 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
 
         children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
     for c in system.components:
-        children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=HEARTBEAT_S,
+        # config.step_timeout_s is the component's hang deadline: a longer step gets it killed and restarted.
+        heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S
+        children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=heartbeat,
                                   lifecycle="active", snapshot_interval=0.5, start_timeout=120))
     if system.events or any(getattr(c, "fallback", None) for c in system.components):
         children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))

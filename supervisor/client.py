@@ -4,8 +4,9 @@
 (dropping announcements whose process is gone; a folder that is not private
 to this user is refused with :class:`actors.UnsafeFolder`); :func:`request` sends one
 control request (see :mod:`supervisor.control`) and returns the answer;
-:func:`format_status_table` renders status rows. :func:`main` is a small
-command line over them (``python -m supervisor.client status --json``).
+:func:`format_status_table` renders status rows; :func:`control` runs one
+command and prints its outcome (``embagents status|restart|stop`` call it).
+:func:`main` is a small command line over them (``python -m supervisor.client status --json``).
 
 Example::
 
@@ -31,25 +32,15 @@ from typing import Any
 import msgpack
 import zmq
 
-from actors import UnsafeFolder, check_folder
+from actors import UnsafeFolder, check_folder, pid_alive
 from actors.app import app_name
 from supervisor.control import control_endpoint, runs_dir
 
-__all__ = ["ControlError", "find_runs", "format_status_table", "main", "pick_run", "request"]
+__all__ = ["ControlError", "control", "find_runs", "format_status_table", "main", "pick_run", "request"]
 
 
 class ControlError(RuntimeError):
     """The run could not be reached, or refused the request."""
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def find_runs() -> list[dict[str, Any]]:
@@ -69,7 +60,7 @@ def find_runs() -> list[dict[str, Any]]:
                 info = json.load(f)
         except (OSError, ValueError):
             continue
-        if not _alive(int(info.get("pid", 0))) or not os.path.isdir(info.get("run_dir", "")):
+        if not pid_alive(int(info.get("pid", 0))) or not os.path.isdir(info.get("run_dir", "")):
             with contextlib.suppress(OSError):
                 os.unlink(path)  # its root died without cleaning up (SIGKILL)
             continue
@@ -162,6 +153,39 @@ def format_status_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def control(cmd: str, *, run: str | None = None, timeout: float = 5.0, as_json: bool = False,
+            name: str | None = None) -> int:
+    """Run ``status`` (``as_json``: raw), ``restart`` (child ``name``) or ``stop`` against a live run.
+
+    ``run`` picks the run (run id, system name or pid; default: the only
+    live one). Prints the outcome; returns the exit status (1 on error, with
+    a JSON error object on stdout too when ``as_json``).
+    """
+    try:
+        picked = pick_run(run)
+        if cmd == "status":
+            reply = request(picked["run_dir"], {"cmd": "status"}, timeout)
+            if as_json:
+                print(json.dumps(reply, indent=2))
+            else:
+                print(f"{reply['system']}  run {reply['run_id']}  pid {reply['pid']}  up {_duration(reply['uptime'])}")
+                print(format_status_table(reply["rows"]))
+        elif cmd == "restart":
+            reply = request(picked["run_dir"], {"cmd": "restart", "name": name}, timeout)
+            print(f"restarted {name} (pid {reply['pid']})")
+        elif cmd == "stop":
+            request(picked["run_dir"], {"cmd": "stop"}, timeout)
+            print(f"stopping run {picked['run_id']}")
+        else:
+            raise ControlError(f"unknown control command {cmd!r}: use status, restart or stop")
+    except (ControlError, UnsafeFolder) as exc:
+        if as_json:  # a script reading stdout gets JSON either way
+            print(json.dumps({"ok": False, "error": str(exc)}))
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``status [--json] | restart NAME | stop`` against a live run; returns the exit status."""
     p = argparse.ArgumentParser(prog=app_name(), description=f"Control a live {app_name()} run.")
@@ -174,27 +198,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rs.add_argument("name")
     sub.add_parser("stop", help="stop the run cleanly (children in reverse order)")
     args = p.parse_args(argv)
-    try:
-        run = pick_run(args.run)
-        if args.cmd == "status":
-            reply = request(run["run_dir"], {"cmd": "status"}, args.timeout)
-            if args.json:
-                print(json.dumps(reply, indent=2))
-            else:
-                print(f"{reply['system']}  run {reply['run_id']}  pid {reply['pid']}  up {_duration(reply['uptime'])}")
-                print(format_status_table(reply["rows"]))
-        elif args.cmd == "restart":
-            reply = request(run["run_dir"], {"cmd": "restart", "name": args.name}, args.timeout)
-            print(f"restarted {args.name} (pid {reply['pid']})")
-        else:
-            request(run["run_dir"], {"cmd": "stop"}, args.timeout)
-            print(f"stopping run {run['run_id']}")
-    except (ControlError, UnsafeFolder) as exc:
-        if getattr(args, "json", False):  # a script reading stdout gets JSON either way
-            print(json.dumps({"ok": False, "error": str(exc)}))
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return control(args.cmd, run=args.run, timeout=args.timeout, as_json=getattr(args, "json", False),
+                   name=getattr(args, "name", None))
 
 
 if __name__ == "__main__":

@@ -7,12 +7,28 @@ from collections.abc import Callable
 from typing import Any
 
 
-def until(fn: Callable[[], Any], timeout: float = 10.0, interval: float = 0.05) -> Any:
-    """Call ``fn`` until it returns something truthy or ``timeout`` passes; return its last value."""
+def wait_until(
+    pred: Callable[[], Any],
+    timeout: float = 10.0,
+    what: str = "condition",
+    *,
+    interval: float = 0.01,
+    poke: Callable[[], Any] | None = None,
+) -> Any:
+    """Call ``pred`` until it returns something truthy and return that; AssertionError naming ``what`` after ``timeout``.
+
+    ``poke`` runs before each try (publish again, say, until a subscriber has it).
+
+    >>> wait_until(lambda: 42)
+    42
+    """
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        out = fn()
-        if out:
-            return out
+    while True:
+        if poke is not None:
+            poke()
+        value = pred()
+        if value:
+            return value
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"{what} not reached within {timeout} s (last: {value!r})")
         time.sleep(interval)
-    return fn()

@@ -70,7 +70,7 @@ from embagents.bench.registry import (
 )
 from embagents.bench.report import annotate, evaluate, format_report
 
-__all__ = ["CASES", "add_arguments", "case", "run", "run_bench"]
+__all__ = ["CASES", "case", "run", "run_bench"]
 
 _ROW_DROP = ("status", "traceback")
 
@@ -139,23 +139,6 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
             json.dump(doc, f, indent=1)
             f.write("\n")
     return doc
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add the ``bench`` options to ``parser``.
-
-    >>> p = argparse.ArgumentParser(); add_arguments(p)
-    >>> p.parse_args(["--quick", "--only", "ask", "idle"]).only
-    ['ask', 'idle']
-    """
-    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON to FILE")
-    parser.add_argument("--quick", action="store_true", help="a smoke test: few iterations, 2 s idle window, no PASS/FAIL verdicts")
-    parser.add_argument(
-        "--only", nargs="+", metavar="NAME",
-        help="run only cases matching NAME (a case name, glob, substring, transport or kind)",
-    )
-    parser.add_argument("--list", action="store_true", help="list the cases and exit")
-    parser.add_argument("--strict", action="store_true", help="exit with status 2 if a bar fails")
 
 
 def run(args: argparse.Namespace) -> int:

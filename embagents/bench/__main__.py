@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from embagents.bench import add_arguments, run
+from embagents.bench import run
+from embagents.cli import COMMANDS
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -19,7 +20,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m embagents.bench",
         description="Measure embagents' actors side by side with raw pyzmq, multiprocessing queues and rclpy.",
     )
-    add_arguments(parser)
+    COMMANDS["bench"].add_arguments(parser)  # the options of `embagents bench`, defined once
     return run(parser.parse_args(argv))
 
 

@@ -173,6 +173,7 @@ class Component:
         self.trigger = self.default_trigger() if trigger is UNSET else trigger
         self._parse_trigger()
         self.logger = logging.getLogger(f"embagents.component.{name}")
+        self._apply_log_level()
         # Runtime state: filled by attach() and on_message().
         self._publisher: Publisher | None = None
         self._on_health: Callable[[Health], None] | None = None
@@ -501,10 +502,14 @@ class Component:
         problems = [p for p in self.validate() if p not in self.problems]
         if problems:
             self.config = old
-            self.validate()
             raise ComponentError(str(self.name), problems)
+        self._apply_log_level()
         self.on_reconfigure(old)
         return new
+
+    def _apply_log_level(self) -> None:
+        # config.log_level is this component's logger level (its own lines: step failures, client switches).
+        self.logger.setLevel(getattr(self.config, "log_level", "info").upper())
 
     def snapshot(self) -> Any:
         """State (plain msgpack-able data) a restarted incarnation should get back; ``None``: nothing."""

@@ -12,7 +12,7 @@ from actors.runtime import Runtime
 from actors.topics import Publisher as TopicPublisher
 from actors.topics import Subscription
 from tests.actors.workers import Publisher, Subscriber
-from tests.helpers import until
+from tests.helpers import wait_until
 
 
 def test_publish_reaches_a_subscriber_in_another_process(system: ActorSystem) -> None:
@@ -23,7 +23,7 @@ def test_publish_reaches_a_subscriber_in_another_process(system: ActorSystem) ->
         pub.ask(["chatter", {"n": 1}], timeout=5).get()
         return sub.ask("got", timeout=5).get()
 
-    assert {"n": 1} in until(got)
+    assert {"n": 1} in wait_until(got)
 
 
 def test_large_frames_travel_through_shared_memory(system: ActorSystem) -> None:
@@ -35,14 +35,14 @@ def test_large_frames_travel_through_shared_memory(system: ActorSystem) -> None:
         pub.ask(["camera", frame], timeout=5).get()
         return [g for g in sub.ask("got", timeout=5).get() if isinstance(g, list) and g[0] == "array"]
 
-    out = until(got)
+    out = wait_until(got)
     assert out[0][1] == [300_000] and out[0][2] == 299_999
 
 
 def test_keep_latest_drops_the_oldest(system: ActorSystem) -> None:
     sub = system.spawn(Subscriber, "sub", "burst", 3, "latest")
     pub = system.spawn(Publisher, "pub")
-    until(lambda: (pub.ask(["burst", -1], timeout=5).get(), sub.ask("got", timeout=5).get())[1])
+    wait_until(lambda: (pub.ask(["burst", -1], timeout=5).get(), sub.ask("got", timeout=5).get())[1])
     # Block the subscriber, then publish a burst: only the newest 3 survive.
     sub.tell("got")
     for i in range(50):

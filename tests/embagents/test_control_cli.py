@@ -10,7 +10,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from tests.helpers import until
+from tests.helpers import wait_until
 
 SYSTEM = '''
 from embagents import Component, String, System, Topic
@@ -39,7 +39,7 @@ def test_status_restart_stop(tmp_path: Path) -> None:
             out = _cli("status", "--json", run=run)
             return json.loads(out.stdout) if out.returncode == 0 else None
 
-        st = until(status, 60)
+        st = wait_until(status, 60)
         assert st is not None and st["system"] == "ctl_test"
         rows = {r["name"]: r for r in st["rows"]}
         assert set(rows) == {"one", "two"}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import psutil
@@ -15,6 +15,7 @@ import tests.supervisor.workers  # noqa: F401  (imported before any fork server 
 from actors import ActorCrashed, ActorSystem
 from supervisor.rootio import on_root
 from supervisor.tree import Tree
+from tests.helpers import wait_until
 
 
 class EventLog:
@@ -47,16 +48,6 @@ class EventLog:
 
     def brief(self) -> list[str]:
         return [f"{e['event']}:{e.get('child') or e.get('supervisor')}" for e in self.items]
-
-
-def wait_until(pred: Callable[[], Any], timeout: float = 10.0, what: str = "condition") -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.01)
-    raise AssertionError(f"{what} not reached within {timeout} s")
 
 
 def gone(pid: int) -> bool:

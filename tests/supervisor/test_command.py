@@ -11,7 +11,8 @@ import pytest
 
 from actors import ActorSystem
 from supervisor import ChildSpec, Command, StartError, SupervisorSpec, start_supervisor
-from tests.supervisor.conftest import EventLog, gone, wait_until
+from tests.helpers import wait_until
+from tests.supervisor.conftest import EventLog, gone
 
 PRINTER = [sys.executable, "-c", "import sys, time; print('hello out', flush=True); "
            "print('hello err', file=sys.stderr, flush=True); time.sleep(60)"]

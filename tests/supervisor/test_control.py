@@ -12,7 +12,8 @@ from actors import ActorSystem
 from supervisor import ChildSpec, Command, SupervisorSpec, start_supervisor
 from supervisor.client import request
 from supervisor.control import ControlServer, runs_dir
-from tests.supervisor.conftest import EventLog, ask, wait_until
+from tests.helpers import wait_until
+from tests.supervisor.conftest import EventLog, ask
 from tests.supervisor.workers import Echo
 
 
@@ -54,7 +55,7 @@ def test_restart_by_name_anywhere_in_the_tree(system: ActorSystem, events: Event
         rows = {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}
         assert rows["deep"]["restarts"] == 1
         bad = request_error(system, {"cmd": "restart", "name": "nobody"})
-        assert "no child named 'nobody'" in bad
+        assert "no child named 'nobody'" in bad and "known: a, deep, in, x" in bad  # names the known ones
         assert "unknown command" in request_error(system, {"cmd": "dance"})
     finally:
         control.close()

@@ -6,7 +6,8 @@ import time
 
 from actors import ActorSystem
 from supervisor import EVENTS_TOPIC, ChildSpec, SupervisorSpec, start_supervisor
-from tests.supervisor.conftest import ask, wait_until
+from tests.helpers import wait_until
+from tests.supervisor.conftest import ask
 from tests.supervisor.workers import Echo, EventSink
 
 

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from supervisor.client import find_runs, main, request
-from tests.supervisor.conftest import gone, wait_until
+from tests.helpers import wait_until
+from tests.supervisor.conftest import gone
 
 ROOT = str(Path(__file__).resolve().parents[2])
 

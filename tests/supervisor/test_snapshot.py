@@ -9,7 +9,8 @@ import time
 from actors import ActorSystem
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 from supervisor.snapshot import read
-from tests.supervisor.conftest import EventLog, ask, wait_until
+from tests.helpers import wait_until
+from tests.supervisor.conftest import EventLog, ask
 from tests.supervisor.workers import Managed
 
 

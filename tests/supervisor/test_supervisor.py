@@ -17,7 +17,8 @@ from supervisor import (
     SupervisorSpec,
     start_supervisor,
 )
-from tests.supervisor.conftest import EventLog, ask, gone, read_lines, wait_until
+from tests.helpers import wait_until
+from tests.supervisor.conftest import EventLog, ask, gone, read_lines
 from tests.supervisor.workers import Echo, FailStart, SlowStop
 
 

@@ -7,13 +7,13 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 
 import msgpack
 import pytest
 
 from embagents.clients.openai_http import OpenAIHTTPClient, OpenAIHTTPError
+from tests.helpers import wait_until
 
 SERVER_MODULES = (
     "llama_cpp",
@@ -56,21 +56,20 @@ def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
     base_url = f"http://127.0.0.1:{port}"
     try:
         client = OpenAIHTTPClient(base_url, timeout=5.0)
-        deadline = time.monotonic() + 60.0
-        while True:
+
+        def answering() -> bool:
             if proc.poll() is not None:
-                pytest.fail(
-                    f"llama_cpp.server exited with {proc.returncode}:\n{log_path.read_text()[-3000:]}"
-                )
+                pytest.fail(f"llama_cpp.server exited with {proc.returncode}:\n{log_path.read_text()[-3000:]}")
             try:
                 client.list_models()
-                break
             except ConnectionError:
-                if time.monotonic() > deadline:
-                    pytest.fail(
-                        f"llama_cpp.server not answering after 60 s:\n{log_path.read_text()[-3000:]}"
-                    )
-                time.sleep(0.1)
+                return False
+            return True
+
+        try:
+            wait_until(answering, 60.0, "llama_cpp.server answering", interval=0.1)
+        except AssertionError as exc:
+            pytest.fail(f"{exc}:\n{log_path.read_text()[-3000:]}")
         yield base_url
     finally:
         proc.terminate()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import pytest
 from attrs import define, field
 
@@ -183,6 +185,19 @@ def test_config_is_deep_copied_per_component():
     a, b = Lister(name="a", config=shared), Lister(name="b", config=shared)
     a.config.words.append("x")
     assert b.config.words == ["a"] and shared.words == ["a"]
+
+
+def test_log_level_is_the_level_of_the_components_logger(caplog: pytest.LogCaptureFixture) -> None:
+    quiet = Lister(name="quiet_one", log_level="warning")
+    assert quiet.logger.name == "embagents.component.quiet_one" and quiet.logger.level == logging.WARNING
+    with caplog.at_level(logging.DEBUG):
+        quiet.logger.info("not shown")
+        quiet.reconfigure({"log_level": "debug"})
+        quiet.logger.info("shown")
+    assert [r.getMessage() for r in caplog.records] == ["shown"]
+    with pytest.raises(ConfigError):
+        quiet.reconfigure({"log_level": "loud"})
+    assert quiet.logger.level == logging.DEBUG  # a refused reconfigure changes nothing
 
 
 def test_config_overrides_as_keywords_and_wrong_config_class():

@@ -15,17 +15,11 @@ from pathlib import Path
 import pytest
 
 from embagents.manager import Manager, State
+from tests.helpers import wait_until
 
 pytestmark = pytest.mark.timeout(30)
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "manager_loop.py"
-
-
-def wait_until(condition: object, timeout: float = 2.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():  # type: ignore[operator]
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.005)
 
 
 def test_run_counts_ticks_from_one() -> None:

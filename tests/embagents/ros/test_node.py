@@ -25,7 +25,7 @@ from embagents.msgs import Image, StreamingString, String, Twist  # noqa: E402
 from embagents.ros import QoS, RosInput, RosOutput  # noqa: E402
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments  # noqa: E402
 from embagents.ros.node import RosBridgeCore  # noqa: E402
-from tests.helpers import until  # noqa: E402
+from tests.helpers import wait_until  # noqa: E402
 
 DOMAIN_ID = 1 + os.getpid() % 100
 DEADLINE = 15.0  # seconds for any one exchange; discovery takes ~0.1-1 s here
@@ -265,15 +265,16 @@ def test_publishes_to_an_external_node(spawn, core_factory):
     core.start("bridge_out", lambda topic, msg: None, domain_id=DOMAIN_ID)
     pixels = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3) * 7
     records = []
-    end = time.monotonic() + DEADLINE
-    while sub.poll() is None and time.monotonic() < end:
+
+    def publish_all() -> None:
         core.publish("answer", String(data="hello ROS"))
         core.publish("image_out", Image(data=pixels, encoding="rgb8", stamp=42.25, frame_id="cam0"))
         for chunk in (StreamingString(data="Hel", stream_id="s"), StreamingString(data="lo", stream_id="s"), StreamingString(data="", done=True, stream_id="s")):
             core.publish("tokens", chunk)
         core.publish("cmd_vel", Twist(linear=(0.5, 0, 0), angular=(0, 0, -1.0)))
-        time.sleep(0.05)
-    sub.wait(timeout=5)
+
+    # The subscriber exits once it has one of each.
+    wait_until(lambda: sub.poll() is not None, DEADLINE, "the ROS subscriber's exit", interval=0.05, poke=publish_all)
     while (line := lines.get(timeout=5)) is not None:
         records.append(json.loads(line))
     assert sub.returncode == 0, sub.stderr.read()[-2000:]
@@ -335,12 +336,13 @@ def test_bad_messages_and_failing_consumers_do_not_stop_the_bridge(core_factory)
     tx = core_factory(outputs=[RosOutput("loop", ros_topic="/loop_in", ros_type="std_msgs/String")])
     rx.start("bridge_rx", on_message, domain_id=DOMAIN_ID)
     tx.start("bridge_tx", lambda t, m: None, domain_id=DOMAIN_ID)
-    end = time.monotonic() + DEADLINE
-    while "after" not in calls and time.monotonic() < end:
+
+    def publish() -> None:
         tx.publish("loop", String(data="boom"))
         tx.publish("loop", String(data="after"))
-        time.sleep(0.05)
-    assert "boom" in calls and "after" in calls
+
+    wait_until(lambda: "after" in calls, DEADLINE, "'after' through the bridge", interval=0.05, poke=publish)
+    assert "boom" in calls
     assert rx.counts["loop_in"].errors >= 1
 
 
@@ -357,10 +359,8 @@ def test_stop_is_idempotent_leaves_no_threads_and_restarts():
         rx.start("bridge_restart_rx", lambda t, m, q=got: q.put(m.data), domain_id=DOMAIN_ID)
         tx.start("bridge_restart_tx", lambda t, m: None, domain_id=DOMAIN_ID)
         try:
-            end = time.monotonic() + DEADLINE
-            while got.empty() and time.monotonic() < end:
-                tx.publish("r", String(data=f"round {i}"))
-                time.sleep(0.02)
+            wait_until(lambda q=got: not q.empty(), DEADLINE, f"round {i}", interval=0.02,
+                       poke=lambda tx=tx, i=i: tx.publish("r", String(data=f"round {i}")))
             assert got.get_nowait() == f"round {i}"
         finally:
             t0 = time.monotonic()
@@ -427,16 +427,11 @@ def test_stop_from_inside_on_message(core_factory):
     tx = core_factory(outputs=[RosOutput("s", ros_topic="/stop_in", ros_type="std_msgs/String")])
     rx.start("bridge_stop_rx", on_message, domain_id=DOMAIN_ID)
     tx.start("bridge_stop_tx", lambda t, m: None, domain_id=DOMAIN_ID)
-    end = time.monotonic() + DEADLINE
-    while not stopped.is_set() and time.monotonic() < end:
-        tx.publish("s", String(data="stop"))
-        time.sleep(0.02)
-    assert stopped.is_set() and not rx.running
+    wait_until(stopped.is_set, DEADLINE, "a stop from inside on_message", interval=0.02,
+               poke=lambda: tx.publish("s", String(data="stop")))
+    assert not rx.running
     tx.stop()
-    end = time.monotonic() + 5
-    while set(threading.enumerate()) != before and time.monotonic() < end:
-        time.sleep(0.01)
-    assert set(threading.enumerate()) == before
+    wait_until(lambda: set(threading.enumerate()) == before, 5, "the bridge threads' exit")
 
 
 def test_matched_counts_peers_and_restart_makes_a_new_participant(core_factory):
@@ -451,16 +446,14 @@ def test_matched_counts_peers_and_restart_makes_a_new_participant(core_factory):
     tx.start("bridge_peer_tx", lambda t, m: None, domain_id=DOMAIN_ID)
     assert events.get(timeout=DEADLINE) == ("/peer_in", 1)
     assert rx.matched() == {"/peer_in": 1}
-    assert until(lambda: tx.matched() == {"/peer_in": 1}, timeout=DEADLINE)
+    assert wait_until(lambda: tx.matched() == {"/peer_in": 1}, timeout=DEADLINE)
     old = rx.node.get_fully_qualified_name(), rx.node.context
 
     rx.restart()  # same node and declarations, a new context (DDS participant)
     assert rx.node.get_fully_qualified_name() == old[0] and rx.node.context is not old[1]
     assert events.get(timeout=DEADLINE) == ("/peer_in", 1)  # the new participant found the peer again
-    end = time.monotonic() + DEADLINE
-    while got.empty() and time.monotonic() < end:
-        tx.publish("p", String(data="after restart"))
-        time.sleep(0.02)
+    wait_until(lambda: not got.empty(), DEADLINE, "a message after the restart", interval=0.02,
+               poke=lambda: tx.publish("p", String(data="after restart")))
     assert got.get_nowait() == "after restart"
     rx.stop()
     assert rx.matched() == {}

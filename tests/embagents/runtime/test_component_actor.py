@@ -12,9 +12,9 @@ import pytest
 
 from actors import ActorSystem
 from embagents.runtime.component_actor import ComponentActor, remember_system
-from embagents.system import load_system
 from embagents.runtime.requests import Call, HealthQuery
-from tests.helpers import until
+from embagents.system import load_system
+from tests.helpers import wait_until
 
 SYSTEM = '''
 import time
@@ -100,7 +100,7 @@ def test_topic_trigger_runs_the_step_and_publishes(running: ActorSystem) -> None
         running.rt.on_client(lambda: pub.publish(String(data="hello")))
         return recorder.ask(Call("received"), timeout=5).get()
 
-    assert "HELLO" in until(got)
+    assert "HELLO" in wait_until(got)
 
 
 def test_rate_trigger_holds_its_rate_in_hz(running: ActorSystem) -> None:

@@ -10,9 +10,9 @@ from actors.topics import Publisher
 from embagents.msgs import String
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.events_actor import EventsActor
-from embagents.system import load_system
 from embagents.runtime.requests import Call
-from tests.helpers import until
+from embagents.system import load_system
+from tests.helpers import wait_until
 
 SYSTEM = '''
 from embagents import events
@@ -65,7 +65,7 @@ def test_an_event_publishes_and_calls_a_component_method(tmp_path: Path) -> None
         for word in ("go", "halt", "halt"):
             asys.rt.on_client(lambda w=word: pub.publish(String(data=w)))
         sink = asys.ref("sink")
-        notes = until(lambda: len(sink.ask(Call("notes"), timeout=5).get()) >= 2 and
+        notes = wait_until(lambda: len(sink.ask(Call("notes"), timeout=5).get()) >= 2 and
                        sink.ask(Call("notes"), timeout=5).get())
         assert sorted(notes) == ["alarm:halted", "called"]
         # Rising edge: the second "halt" did not fire again.

@@ -21,10 +21,10 @@ from actors.topics import Publisher
 from embagents.msgs import String
 from embagents.runtime.component_actor import ComponentActor, remember_system
 from embagents.runtime.model_actor import LlamaModelActor
+from embagents.runtime.requests import Call
 from embagents.system import load_system
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
-from embagents.runtime.requests import Call
-from tests.helpers import until
+from tests.helpers import wait_until
 
 SYSTEM = '''
 from embagents import LLM, LLMConfig, LlamaModel, LocalModelClient, String, System, Topic
@@ -62,11 +62,11 @@ def scenario(tiny_gguf: str, tmp_path: Path) -> None:
                 return llm.ask(Call("snapshot"), timeout=10).get()["history"]
 
             asys.rt.on_client(lambda: pub.publish(String(data="remember me")))
-            before = until(lambda: len(history()) >= 2 and history(), 30)
+            before = wait_until(lambda: len(history()) >= 2 and history(), 30)
             assert before and before[0]["content"] == "remember me"
             old = [c.pid for c in sup.which_children() if c.id == "llm"][0]
             os.kill(old, signal.SIGKILL)
-            until(lambda: [c.pid for c in sup.which_children() if c.id == "llm"][0] not in (old, "restarting", None), 30)
+            wait_until(lambda: [c.pid for c in sup.which_children() if c.id == "llm"][0] not in (old, "restarting", None), 30)
             assert history() == before
         finally:
             sup.stop()
