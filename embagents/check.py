@@ -236,7 +236,8 @@ def _supervision_problems(system: System) -> list[Problem]:
     try:
         build_spec(system, "system.py")
     except (ValueError, TypeError) as exc:
-        return [Problem(None, "supervision", f"supervision={system.supervision!r}: {exc}")]
+        return [Problem(None, "supervision", f"the supervision tree cannot be built: {exc} (System supervision="
+                        f"{system.supervision!r}; each model and component is a child of the root supervisor)")]
     return []
 
 

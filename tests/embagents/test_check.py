@@ -116,6 +116,18 @@ def test_two_components_under_simple_one_for_one_fail_the_check_as_they_would_fa
         build_spec(load_system(path), path)
 
 
+def test_a_model_and_a_component_of_one_name_fail_the_check(tmp_path):
+    # Both become children of the root supervisor: the tree refuses two children of one id.
+    body = GOOD.replace("system = System([camera, detector, llm])", """
+from embagents.models import LlamaModel, LocalModelClient
+model = LlamaModel(name="detector", local_model_path=__file__)
+talker = LLM(name="talker", inputs=[labels], outputs=[answer], model_client=LocalModelClient(model))
+system = System([camera, detector, talker], models=[model])
+""")
+    p = only(check(tmp_path, body), "supervision")
+    assert "duplicate child ids: detector" in p.message and "each model and component is a child" in p.message
+
+
 @pytest.mark.parametrize(("policy", "needle"), [
     ("{'strategy': 'all_for_none'}", "strategy must be one of one_for_one"),
     ("{'intensity': -1}", "intensity must be an integer >= 0"),
