@@ -7,10 +7,11 @@ variables that override folders (``<APP>_RUN_BASE``, ``<APP>_RUNS_DIR``).
 
 Example::
 
+    >>> before = app_name()
     >>> set_app_name("robot")
     >>> app_name(), env_name("RUN_BASE")
     ('robot', 'ROBOT_RUN_BASE')
-    >>> set_app_name("actors")
+    >>> set_app_name(before)
 """
 
 from __future__ import annotations
