@@ -30,6 +30,7 @@ from embagents.components import LLM, Component, LLMConfig
 from embagents.launch import SYSTEM_STOP
 from embagents.models import LlamaModel, LocalModelClient
 from embagents.msgs import StreamingString, String
+from embagents.runtime.requests import Call
 from embagents.system import System
 from embagents.topic import Topic
 from supervisor.client import request
@@ -61,7 +62,7 @@ def llm_history(timeout: float = 60.0) -> list[dict[str, str]]:
     deadline = time.monotonic() + timeout
     while True:
         try:
-            return ActorRef("llm").ask({"op": "call", "method": "snapshot"}, timeout=timeout).get()["history"]
+            return ActorRef("llm").ask(Call("snapshot"), timeout=timeout).get()["history"]
         except ActorCrashed:  # the ask met the dying incarnation: ask the next one
             if time.monotonic() > deadline:
                 raise
