@@ -55,7 +55,7 @@ def test_restart_by_name_anywhere_in_the_tree(system: ActorSystem, events: Event
         rows = {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}
         assert rows["deep"]["restarts"] == 1
         bad = request_error(system, {"cmd": "restart", "name": "nobody"})
-        assert "no child named 'nobody'" in bad and "known: a, deep, in, x" in bad  # names the known ones
+        assert "no child named 'nobody'" in bad
         assert "unknown command" in request_error(system, {"cmd": "dance"})
     finally:
         control.close()
