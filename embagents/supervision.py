@@ -20,7 +20,7 @@ from typing import Any
 from embagents.models import models_of
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
-from embagents.runtime.model_actor import LlamaModelActor
+from embagents.runtime.model_actor import ModelActor
 
 __all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec"]
 
@@ -43,10 +43,10 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
 
     children = []
     for m in models_of(system):
-        opts = {"n_ctx": m.n_ctx, "n_threads": m.n_threads, "seed": m.seed}
+        batch = {"max_batch": m.max_batch, "batch_wait_ms": m.batch_wait_ms}
+        args = (m.kind, (resolved or {}).get(m.name, m.name), m.options(), m.warmup, batch)
         # A model beats per token; a long prompt evaluation is work, not a hang.
-        children.append(ChildSpec(m.name, (LlamaModelActor, ((resolved or {}).get(m.name, m.name), opts, m.warmup)),
-                                  heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
+        children.append(ChildSpec(m.name, (ModelActor, args), heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
     if system.ros:
         from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
 

@@ -4,13 +4,7 @@ Runs in the calling process; the model actor wraps it. Every value it yields
 is plain data (dict / list / str / int / float / bool / None) so it can go
 through msgpack unchanged.
 
-Chunk shapes (shared with ``embagents.clients.openai_http``)::
-
-    {"delta": "text"}                                  # zero or more
-    {"done": True, "finish_reason": "stop" | "length" | "tool_calls",
-     "tool_calls": [{"id": str, "name": str, "arguments": dict | str}] | None,
-     "usage": {"prompt_tokens": int, "completion_tokens": int, "total_tokens": int},
-     "timing": {"first_token_s": float | None, "total_s": float}}   # exactly one, last
+Chunk shapes: :mod:`embagents.models.chat` (shared with every chat client).
 
 Example::
 
@@ -27,22 +21,23 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
 import os
-import re
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from typing import Any
+
+from embagents.models.chat import (
+    ToolCallAccumulator,
+    check_messages,
+    collect_stream,
+    tool_calls_from_text,
+)
 
 __all__ = [
     "LlamaBackend",
-    "collect_stream",
     "default_use_extra_bufts",
     "inprocess_tokens_per_second",
-    "normalize_tool_call",
-    "tool_calls_from_text",
-    "ToolCallAccumulator",
 ]
 
 _INSTALL_HINT = "pip install 'embagents[llm]' (or pip install llama-cpp-python)"
@@ -176,7 +171,7 @@ class LlamaBackend:
             >>> chunks[-1]["done"], chunks[-1]["finish_reason"]                                     # doctest: +SKIP
             (True, 'length')
         """
-        _check_messages(messages)
+        check_messages(messages)
         if max_tokens < 1:
             raise ValueError(f"max_tokens must be >= 1, got {max_tokens}")
         self.load()
@@ -401,167 +396,6 @@ class _TokenCounter:
             "completion_tokens": self.completion_tokens,
             "total_tokens": self.prompt_tokens + self.completion_tokens,
         }
-
-
-def collect_stream(chunks: Iterable[dict]) -> dict:
-    """Fold a chunk stream into one reply dict (used by both backend and HTTP client).
-
-    Example::
-
-        >>> collect_stream([{"delta": "Hi"}, {"delta": "!"}, {"done": True, "finish_reason": "stop",
-        ...                 "tool_calls": None, "usage": {}}])["content"]
-        'Hi!'
-    """
-    parts: list[str] = []
-    final: dict = {}
-    for chunk in chunks:
-        if "delta" in chunk:
-            parts.append(chunk["delta"])
-        if chunk.get("done"):
-            final = chunk
-    if not final:
-        raise RuntimeError("chat stream ended without a final 'done' chunk")
-    return {
-        "content": "".join(parts),
-        "tool_calls": final.get("tool_calls"),
-        "finish_reason": final.get("finish_reason"),
-        "usage": final.get("usage", {}),
-        "timing": final.get("timing", {}),
-    }
-
-
-def _check_messages(messages: list[dict]) -> None:
-    """Fail early, with the offending index, on malformed chat messages."""
-    if not isinstance(messages, list) or not messages:
-        raise ValueError(
-            f"messages must be a non-empty list of dicts, got {type(messages).__name__}"
-        )
-    for i, msg in enumerate(messages):
-        if not isinstance(msg, dict) or not isinstance(msg.get("role"), str):
-            raise ValueError(f"messages[{i}] must be a dict with a 'role' string, got {msg!r}")
-        content = msg.get("content")
-        if content is not None and not isinstance(content, (str, list)):
-            raise ValueError(
-                f"messages[{i}]['content'] must be a string, got {type(content).__name__}"
-            )
-
-
-# --------------------------------------------------------------------------
-# Tool calls: one plain shape for every backend and client
-# --------------------------------------------------------------------------
-
-
-def _parse_arguments(arguments: Any) -> dict | str:
-    """Decode JSON-string arguments to a dict; keep the raw string if they are not JSON."""
-    if isinstance(arguments, dict):
-        return arguments
-    if arguments is None or arguments == "":
-        return {}
-    if isinstance(arguments, str):
-        try:
-            value = json.loads(arguments)
-        except ValueError:
-            return arguments
-        return value if isinstance(value, dict) else arguments
-    return str(arguments)
-
-
-def normalize_tool_call(call: dict, index: int = 0) -> dict:
-    """OpenAI/Ollama tool call -> ``{"id": str, "name": str, "arguments": dict | str}``.
-
-    Example::
-
-        >>> normalize_tool_call({"id": "c1", "type": "function",
-        ...     "function": {"name": "go", "arguments": '{"x": 1}'}})
-        {'id': 'c1', 'name': 'go', 'arguments': {'x': 1}}
-    """
-    function = call.get("function") or call
-    return {
-        "id": str(call.get("id") or f"call_{index}"),
-        "name": str(function.get("name") or ""),
-        "arguments": _parse_arguments(function.get("arguments", function.get("parameters"))),
-    }
-
-
-class ToolCallAccumulator:
-    """Joins streamed OpenAI tool-call deltas (split ``arguments`` strings) by index."""
-
-    def __init__(self) -> None:
-        self._calls: dict[int, dict] = {}
-
-    def add(self, deltas: list[dict]) -> None:
-        for pos, delta in enumerate(deltas):
-            index = delta.get("index", pos)
-            call = self._calls.setdefault(index, {"id": None, "name": "", "arguments": ""})
-            if delta.get("id"):
-                call["id"] = delta["id"]
-            function = delta.get("function") or {}
-            if function.get("name"):
-                call["name"] = function["name"]
-            args = function.get("arguments")
-            if isinstance(args, dict):  # Ollama sends whole objects, not fragments
-                call["arguments"] = args
-            elif args:
-                call["arguments"] = (
-                    call["arguments"] if isinstance(call["arguments"], str) else ""
-                ) + args
-
-    def result(self) -> list[dict] | None:
-        if not self._calls:
-            return None
-        return [
-            normalize_tool_call({"id": c["id"], "function": c}, i)
-            for i, (_, c) in enumerate(sorted(self._calls.items()))
-        ]
-
-
-_FENCE_RE = re.compile(r"^```(?:json)?\s*(.*?)\s*```$", re.DOTALL)
-_TAGGED_RE = re.compile(r"<tool_call>\s*(.*?)\s*</tool_call>", re.DOTALL)
-
-
-def _tool_names(tools: list[dict] | None) -> set[str]:
-    names = set()
-    for tool in tools or []:
-        function = tool.get("function") or tool
-        if isinstance(function.get("name"), str):
-            names.add(function["name"])
-    return names
-
-
-def tool_calls_from_text(text: str, tools: list[dict] | None) -> list[dict] | None:
-    """Fallback for models without native tool calling: a reply that is only a JSON
-    object ``{"name": ..., "arguments": ...}`` (or a list of them, or Hermes-style
-    ``<tool_call>...</tool_call>`` blocks) naming a declared tool becomes tool calls.
-
-    Example::
-
-        >>> tools = [{"type": "function", "function": {"name": "go", "parameters": {}}}]
-        >>> tool_calls_from_text('{"name": "go", "arguments": {"x": 1}}', tools)
-        [{'id': 'call_0', 'name': 'go', 'arguments': {'x': 1}}]
-        >>> tool_calls_from_text('go left', tools) is None
-        True
-    """
-    names = _tool_names(tools)
-    if not names or not text:
-        return None
-    stripped = text.strip()
-    fenced = _FENCE_RE.match(stripped)
-    if fenced:
-        stripped = fenced.group(1)
-    blobs = _TAGGED_RE.findall(stripped) or [stripped]
-    objects: list[Any] = []
-    for blob in blobs:
-        try:
-            value = json.loads(blob)
-        except ValueError:
-            return None
-        objects.extend(value if isinstance(value, list) else [value])
-    calls = []
-    for i, obj in enumerate(objects):
-        if not isinstance(obj, dict) or obj.get("name") not in names:
-            return None  # not (only) tool calls: leave it as plain text
-        calls.append(normalize_tool_call(obj, i))
-    return calls or None
 
 
 def inprocess_tokens_per_second(model_path: str, prompt: str, max_tokens: int) -> float:

@@ -23,9 +23,9 @@ import urllib.request
 from collections.abc import Iterator
 from typing import Any
 
-from embagents.backends.llama import (
+from embagents.models.chat import (
     ToolCallAccumulator,
-    _check_messages,
+    check_messages,
     collect_stream,
     tool_calls_from_text,
 )
@@ -148,7 +148,7 @@ class OpenAIHTTPClient:
             >>> for c in client.chat_stream([{"role": "user", "content": "Hi"}]):  # doctest: +SKIP
             ...     print(c.get("delta", ""), end="", flush=True)
         """
-        _check_messages(messages)
+        check_messages(messages)
         body: dict[str, Any] = {
             "model": self.model,
             "messages": messages,

@@ -46,6 +46,7 @@ from attrs import define, field
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError
+from embagents.models.chat import openai_tool_call
 from embagents.msgs import StreamingString, String
 from embagents.topic import Topic
 
@@ -361,23 +362,13 @@ class LLM(ModelComponent):
             text = "".join(parts)
             if not tool_calls or tools is None:
                 return text
-            calls = [self._normalize_call(c, i) for i, c in enumerate(tool_calls)]
+            calls = [openai_tool_call(c, i) for i, c in enumerate(tool_calls)]
             new = [{"role": "assistant", "content": text, "tool_calls": calls}]
             new += [{"role": "tool", "tool_call_id": c["id"], "name": c["function"]["name"],
                      "content": self._run_tool(c)} for c in calls]
             messages += new
             turn += new
             rounds += 1
-
-    @staticmethod
-    def _normalize_call(call: Mapping[str, Any], index: int) -> dict[str, Any]:
-        # Accept OpenAI's {"id", "function": {"name", "arguments"}} and a flat {"name", "arguments"}.
-        fn = call.get("function") if isinstance(call.get("function"), Mapping) else call
-        args = fn.get("arguments", {})
-        if not isinstance(args, str):
-            args = json.dumps(args)
-        return {"id": str(call.get("id") or f"call_{index}"), "type": "function",
-                "function": {"name": str(fn.get("name", "")), "arguments": args}}
 
     def _run_tool(self, call: Mapping[str, Any]) -> str:
         """Run one tool call; errors become the tool's answer so the model can recover."""

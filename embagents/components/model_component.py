@@ -27,18 +27,13 @@ Example::
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 from embagents.components.component import Component, ComponentProblem
 from embagents.events import Fallback
+from embagents.models.chat import ChatClient
 
 __all__ = ["ChatClient", "ModelComponent", "client_name"]
-
-
-class ChatClient(Protocol):
-    """What a ModelComponent needs from a client (either method is enough)."""
-
-    def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]: ...
 
 
 def client_name(client: object) -> str:

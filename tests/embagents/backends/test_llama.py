@@ -17,12 +17,11 @@ pytest.importorskip(
 
 from embagents.backends.llama import (  # noqa: E402
     LlamaBackend,
-    ToolCallAccumulator,
     default_use_extra_bufts,
     inprocess_tokens_per_second,
-    tool_calls_from_text,
 )
 from embagents.modelfiles import default_llm_path  # noqa: E402
+from embagents.models.chat import ToolCallAccumulator, tool_calls_from_text  # noqa: E402
 
 HELLO = [{"role": "user", "content": "hello"}]
 MOVE_TOOL = {

@@ -1,0 +1,200 @@
+"""The client a component holds to reach a local model actor (any modality).
+
+``infer`` sends one request and returns its answer; ``stream`` yields the
+chunks of a streamed one; ``chat_stream`` / ``chat`` / ``detect`` are the
+task-shaped forms. Waiting uses ``poll`` (no busy loop) and beats the
+heartbeat (waiting on a model is work, not a hang). A socket monitor sees the
+model actor's process go away: every waiting request then fails at once with
+:class:`ModelCrashed`. Closing a stream early (or timing out) cancels the
+request in the model actor.
+
+Example::
+
+    >>> client = LocalModelClient("smollm2")
+    >>> client.name
+    'smollm2'
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import zmq
+from zmq.utils.monitor import recv_monitor_message
+
+from actors import wire
+from embagents.models.chat import collect_stream
+from embagents.models.declarations import Model
+from embagents.models.protocol import (
+    BadRequest,
+    InferCancel,
+    InferError,
+    InferRequest,
+    ModelCrashed,
+    ModelError,
+    ModelUnavailable,
+    inference_endpoint,
+)
+
+__all__ = ["LocalModelClient"]
+
+_req_ids = itertools.count(1)
+
+
+class _Conn:
+    """One thread's DEALER to the model actor and the monitor that sees it disconnect."""
+
+    def __init__(self, rt: Any, name: str) -> None:
+        self.pid = os.getpid()
+        self.sock = rt.ctx.socket(zmq.DEALER)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.monitor = self.sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
+        self.sock.connect(inference_endpoint(rt.run_dir, name))
+        self.poller = zmq.Poller()
+        self.poller.register(self.sock, zmq.POLLIN)
+        self.poller.register(self.monitor, zmq.POLLIN)
+        self.orphans: dict[int, list[str]] = {}  # cancelled requests whose frames the actor may still read
+
+    def close(self) -> None:
+        self.sock.disable_monitor()
+        self.monitor.close(0)
+        self.sock.close(0)
+
+
+class LocalModelClient:
+    """Talks to the model actor serving ``model`` (in whatever process it runs)."""
+
+    def __init__(self, model: Model | str, *, timeout: float = 120.0) -> None:
+        self.name = model.name if isinstance(model, Model) else wire.check_name(model)
+        self.model = model if isinstance(model, Model) else None
+        self.timeout = timeout
+        self._local = threading.local()
+
+    def __repr__(self) -> str:
+        return f"LocalModelClient({self.name!r})"
+
+    def _conn(self) -> _Conn:
+        from actors.runtime import current
+
+        conn: _Conn | None = getattr(self._local, "conn", None)
+        if conn is None or conn.pid != os.getpid():
+            conn = self._local.conn = _Conn(current(), self.name)
+        return conn
+
+    def _drop_conn(self) -> None:
+        conn = getattr(self._local, "conn", None)
+        if conn is not None and conn.pid == os.getpid():
+            conn.close()
+        self._local.conn = None
+
+    # -- the protocol ----------------------------------------------------------------------
+    def stream(self, task: str, inputs: dict[str, Any], **options: Any) -> Iterator[dict[str, Any]]:
+        """Yield the outputs of each answer frame of ``task``; the last one came with ``done``.
+
+        Raises :class:`BadRequest` / :class:`ModelError` for an error answer,
+        :class:`ModelCrashed` if the actor dies meanwhile, :class:`ModelUnavailable`
+        after ``timeout`` seconds of silence. Closing the iterator early cancels the request.
+        """
+        from actors.runtime import current
+
+        rt = current()
+        conn = self._conn()
+        self._drain_monitor(conn)
+        rid = next(_req_ids)
+        data, segments = rt.codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
+        conn.sock.send(data)
+        finished = False
+        try:
+            while True:
+                answer = self._next(rt, conn, rid)
+                if isinstance(answer, InferError):
+                    finished = True
+                    if answer.kind == "bad_request":
+                        raise BadRequest(f"model {self.name!r} refused the request: {answer.error}")
+                    raise ModelError(f"model {self.name!r} failed: {answer.error}", answer.kind)
+                rt.beat()
+                if answer.done:
+                    finished = True
+                    yield answer.outputs
+                    return
+                yield answer.outputs
+        except ModelCrashed:
+            finished = True
+            raise
+        finally:
+            if finished:
+                rt.pool.acked(segments)
+            elif not conn.sock.closed:
+                conn.sock.send(rt.codec.encode(InferCancel(id=rid), shm=False)[0])
+                conn.orphans[rid] = segments  # freed when the actor says it let go of them
+
+    def infer(self, task: str, inputs: dict[str, Any], **options: Any) -> dict[str, Any]:
+        """One answer (the outputs of the ``done`` frame) of ``task``.
+
+        Example::
+
+            >>> LocalModelClient("faces").infer("detect", {"image": frame})  # doctest: +SKIP
+            {'boxes': array(...), 'scores': array(...), 'labels': ['face']}
+        """
+        last: dict[str, Any] = {}
+        for last in self.stream(task, inputs, **options):  # noqa: B007 - the last one is the answer
+            pass
+        return last
+
+    def _drain_monitor(self, conn: _Conn) -> None:
+        # Events from before this request (an old incarnation's exit) say nothing about it.
+        while conn.monitor.poll(0):
+            recv_monitor_message(conn.monitor)
+
+    def _next(self, rt: Any, conn: _Conn, rid: int) -> Any:
+        waited = 0.0
+        while True:
+            ready = dict(conn.poller.poll(1000))
+            if conn.monitor in ready:
+                event = recv_monitor_message(conn.monitor)
+                if event["event"] == zmq.EVENT_DISCONNECTED:
+                    for segs in conn.orphans.values():
+                        rt.pool.acked(segs)
+                    conn.orphans.clear()
+                    raise ModelCrashed(
+                        f"model actor {self.name!r} went away while request {rid} was waiting: its process "
+                        "died or stopped; the supervisor restarts it (see `embagents status`); ask again"
+                    )
+                continue
+            if conn.sock not in ready:
+                waited += 1.0
+                rt.beat()  # waiting on the model is work, not a hang
+                if waited >= self.timeout:
+                    self._drop_conn()  # a fresh socket drops the late answer
+                    raise ModelUnavailable(
+                        f"model {self.name!r} sent nothing for {self.timeout} s: is its actor running? "
+                        "(see `embagents status`)"
+                    )
+                continue
+            try:
+                answer = rt.codec.decode(conn.sock.recv())
+            except Exception as exc:  # an answer this process cannot read: say so, not hang
+                raise ModelError(f"model {self.name!r} sent an unreadable answer: {exc}") from exc
+            if getattr(answer, "id", None) == rid:
+                return answer
+            orphan = conn.orphans.get(getattr(answer, "id", -1))
+            if orphan is not None and (isinstance(answer, InferError) or getattr(answer, "done", False)):
+                rt.pool.acked(conn.orphans.pop(answer.id))
+
+    # -- task-shaped forms -----------------------------------------------------------------
+    def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
+        """Chat chunks (:mod:`embagents.models.chat` shapes), token by token."""
+        return self.stream("chat", {"messages": messages}, **options)
+
+    def chat(self, messages: list[dict[str, Any]], **options: Any) -> dict[str, Any]:
+        """The whole reply: ``{"content", "tool_calls", "finish_reason", "usage", "timing"}``."""
+        return collect_stream(self.chat_stream(messages, **options))
+
+    def detect(self, image: Any, **options: Any) -> dict[str, Any]:
+        """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``."""
+        return self.infer("detect", {"image": image}, **options)
+
