@@ -144,6 +144,10 @@ def _bench_arguments(parser: argparse.ArgumentParser) -> None:
         "--only", nargs="+", metavar="NAME",
         help="run only cases matching NAME (a case name, glob, substring, transport or kind)",
     )
+    parser.add_argument(
+        "--minutes", type=float, metavar="N",
+        help="how long the chaos case injects faults (default 1; 0.1 with --quick)",
+    )
     parser.add_argument("--list", action="store_true", help="list the cases in run order and exit")
     parser.add_argument("--strict", action="store_true", help="exit with status 2 if a bar fails")
 

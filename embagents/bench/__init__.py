@@ -10,6 +10,10 @@ Cases (each a row of the report and of the JSON file):
   (our topics and raw PUB/SUB), from a CLOCK_MONOTONIC stamp in the message.
 * ``<transport>_tell_64B``: pipelined 64-byte tells, messages per second.
 * ``idle_10_actors``: ten idle actors' CPU, % of one core.
+* ``chaos``: the chat system and two streams under the supervisor while a
+  fault injector kills, hangs, bloats or breaks a random actor every few
+  seconds (``minutes``: 1 by default, 0.1 with ``quick``; see
+  :mod:`embagents.bench.cases_chaos`).
 
 The printed report ends with the side-by-side ratios and a PASS/FAIL
 table for the project's bars. A run takes about a minute (under 3 on 2
@@ -46,6 +50,7 @@ from typing import Any
 # sockets or threads between cases: every case closes its contexts and joins its threads.
 from embagents.bench import (  # noqa: F401 - importing a case module registers its cases
     cases_actors,
+    cases_chaos,
     cases_llm,
     cases_mpqueue,
     cases_pyzmq,
@@ -79,7 +84,9 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[str] | None = None) -> dict:
+def run_bench(
+    json_path: str | None = None, *, quick: bool = False, only: list[str] | None = None, minutes: float | None = None,
+) -> dict:
     """Run the selected cases, print the report, optionally write ``json_path``; return the document.
 
     ``only`` selects cases by name, glob, substring, transport or kind
@@ -88,7 +95,9 @@ def run_bench(json_path: str | None = None, *, quick: bool = False, only: list[s
     "p50_us", "p99_us", "msgs_per_s", ...}], "bars": [...], "skipped": [...],
     "errors": [...], ...}``; skipped and failed cases are not in ``cases``.
     """
-    opts = BenchOptions(quick=quick)
+    if minutes is not None and not minutes > 0:
+        raise ValueError(f"--minutes must be a positive number of minutes, not {minutes}; e.g. --minutes 5")
+    opts = BenchOptions(quick=quick, minutes=minutes)
     chosen = select(only)
     OWNED_SHM_PREFIXES.clear()
     OWNED_SHM_NAMES.clear()
@@ -148,8 +157,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{c.name:28s} {c.transport:10s} {c.kind:6s} {c.payload_bytes:>9,} B")
         return 0
     try:
-        doc = run_bench(args.json, quick=args.quick, only=args.only)
-    except ValueError as exc:  # --only matched nothing
+        doc = run_bench(args.json, quick=args.quick, only=args.only, minutes=getattr(args, "minutes", None))
+    except ValueError as exc:  # --only matched nothing, or a bad --minutes
         print(f"embagents bench: {exc}", file=sys.stderr)
         return 1
     if doc["errors"]:

@@ -88,6 +88,8 @@ class BenchOptions:
     """
 
     quick: bool = False
+    #: How long the ``chaos`` case injects faults (None: 1 minute, 0.1 with ``quick``).
+    minutes: float | None = None
     #: A tag unique to this run (socket paths, ROS topic names).
     tag: str = field(default_factory=lambda: f"{os.getpid()}{time.monotonic_ns() % 100000}")
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from embagents.bench.registry import FRAME_1080P, SIZES, TRANSPORTS, label
 
-__all__ = ["annotate", "evaluate", "format_report", "table"]
+__all__ = ["annotate", "chaos_table", "evaluate", "format_report", "table"]
 
 Row = dict[str, Any]
 
@@ -111,6 +111,15 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))
+    chaos = by_name.get("chaos")
+    if chaos is not None:
+        for title, key, target, unit in (
+            ("chaos: numbered messages lost", "lost", 0, "msgs"),
+            ("chaos: processes of the run left after the stop", "leftover_processes", 0, "procs"),
+            ("chaos: /dev/shm entries of the run left after the stop", "leftover_shm", 0, "files"),
+            ("chaos: root RSS growth (end / start - 1)", "root_rss_growth", 0.10, "x"),
+        ):
+            bars.append(_bar(title, chaos.get(key), "<=", target, unit))
     if not grade:
         for b in bars:
             b["pass"] = None
@@ -163,6 +172,37 @@ def _side_by_side(rows: list[Row], kind: str, title: str, value: Callable[[Row],
     return table(headers, body)
 
 
+def chaos_table(r: Row) -> str:
+    """The ``chaos`` case's numbers, one per line.
+
+    >>> print(chaos_table({"faults": 2, "faults_by_kind": {"kill": 2}}).splitlines()[2])  # doctest: +NORMALIZE_WHITESPACE
+    faults injected 2 (kill 2)
+    """
+    def kinds(d: dict[str, Any] | None) -> str:
+        return ", ".join(f"{k} {v}" for k, v in (d or {}).items())
+
+    mb = 1 << 20
+    lines = [
+        ("faults injected", f"{r.get('faults')} ({kinds(r.get('faults_by_kind'))})"),
+        ("restarts", f"{r.get('restarts')} (hangs detected {r.get('hangs_detected')}, limits exceeded "
+                     f"{r.get('limits_exceeded')}, not restarted {r.get('unrecovered_faults')})"),
+        ("numbered messages lost", f"{r.get('lost')} (tells {r.get('lost_tell')}, keep-all topic {r.get('lost_topic')})"),
+        ("numbered messages duplicated", f"{r.get('duplicated')} (tells {r.get('duplicated_tell')}, of which the same "
+                                         f"tell twice in one incarnation {r.get('duplicated_tell_same_incarnation')}; "
+                                         f"topic {r.get('duplicated_topic')})"),
+        ("numbers acknowledged", f"{r.get('numbers_acked')} (sent {r.get('numbers_sent')})"),
+        ("frames", f"{r.get('frames_published')} published, {r.get('frames_received')} received, "
+                   f"{r.get('frames_torn')} torn"),
+        ("LLM requests", f"{r.get('llm_requests')} ({r.get('llm_failed')} failed, {r.get('llm_recovered')} recoveries, "
+                         f"unrecovered at the end {r.get('llm_unrecovered')})"),
+        ("root RSS", f"{(r.get('root_rss_start') or 0) / mb:.1f} -> {(r.get('root_rss_end') or 0) / mb:.1f} MiB "
+                     f"(growth {r.get('root_rss_growth')})"),
+        ("root open fds", f"{r.get('root_fds_start')} -> {r.get('root_fds_end')}"),
+        ("left after the stop", f"{r.get('leftover_processes')} processes, {r.get('leftover_shm')} /dev/shm entries"),
+    ]
+    return table(["chaos", "measured"], [[k, v] for k, v in lines], "ll")
+
+
 def format_report(doc: dict[str, Any]) -> str:
     """The full printed report of a run document (see :func:`embagents.bench.run_bench`)."""
     rows: list[Row] = doc["cases"]
@@ -188,6 +228,9 @@ def format_report(doc: dict[str, Any]) -> str:
         t = _side_by_side(rows, kind, title, val)
         if t:
             out.append(t)
+    for r in rows:
+        if r["name"] == "chaos":
+            out.append(chaos_table(r))
     if doc.get("bars"):
         bar_rows = []
         for b in doc["bars"]:

@@ -198,3 +198,34 @@ def test_a_full_run_grades_its_bars_and_a_quick_one_does_not() -> None:
     smoke = evaluate(rows, grade=False)[0]
     assert graded["value"] == smoke["value"] == 3.0
     assert graded["pass"] is False and smoke["pass"] is None
+
+
+CHAOS_FIELDS = {
+    "faults": int, "faults_by_kind": dict, "restarts": int, "lost": int, "duplicated": int, "llm_failed": int,
+    "llm_recovered": int, "root_rss_start": int, "root_rss_end": int, "root_rss_growth": float,
+    "root_fds_start": int, "root_fds_end": int, "leftover_processes": int, "leftover_shm": int,
+}
+
+
+@pytest.mark.skipif(find_spec("llama_cpp") is None, reason="the chaos case runs the chat system on llama.cpp")
+def test_chaos_case_injects_faults_recovers_and_leaves_nothing_behind(tmp_path) -> None:
+    out = tmp_path / "chaos.json"
+    tag = uuid.uuid4().hex
+    proc = subprocess.run(
+        [sys.executable, "-m", "embagents.bench", "--only", "chaos", "--minutes", "0.1", "--json", str(out)],
+        capture_output=True, text=True, timeout=300, env={**os.environ, "EMBAGENTS_BENCH_TEST_TAG": tag},
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    doc = json.loads(out.read_text())
+    assert doc["errors"] == []
+    (row,) = doc["cases"]
+    assert row["name"] == "chaos"
+    for key, typ in CHAOS_FIELDS.items():
+        assert type(row[key]) is typ, (key, row.get(key))
+    assert row["faults"] >= 1 and sum(row["faults_by_kind"].values()) == row["faults"]
+    assert row["unrecovered_faults"] == 0 and row["restarts"] >= row["faults"]
+    assert row["numbers_acked"] > 0 and row["llm_ok"] > 0 and row["frames_received"] > 0
+    assert row["lost"] == 0, row["lost_ranges"]
+    assert row["leftover_processes"] == 0 and row["leftover_shm"] == 0
+    assert _tagged_pids(tag) == []
+    assert "numbered messages lost" in proc.stdout and "chaos: root RSS growth" in proc.stdout
