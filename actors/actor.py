@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 
     from actors.extension import HostExtension
     from actors.host import ActorHost
+    from actors.topics import Subscription
 
 __all__ = ["Actor", "ActorContext"]
 
@@ -55,9 +56,13 @@ class ActorContext:
     def publish(self, topic: str, message: Any) -> None:
         self._host.publisher(topic).publish(message)
 
-    def subscribe(self, topic: str, callback: Callable[[Any], None], **options: Unpack[SubscribeOptions]) -> None:
-        """Call ``callback(message)`` on this actor's thread for each message on ``topic``."""
-        self._host.subscribe(topic, callback, **options)
+    def subscribe(self, topic: str, callback: Callable[[Any], None], **options: Unpack[SubscribeOptions]) -> Subscription:
+        """Call ``callback(message)`` on this actor's thread for each message on ``topic``.
+
+        Returns the :class:`~actors.topics.Subscription`; its ``stats()`` count what it
+        received, dropped and refused.
+        """
+        return self._host.subscribe(topic, callback, **options)
 
     def call_later(self, delay: float, fn: Callable[[], None]) -> int:
         """Run ``fn`` on this actor's thread after ``delay`` seconds (timers, rates)."""

@@ -27,7 +27,7 @@ import attrs
 import msgpack
 import numpy as np
 
-from actors.errors import CorruptFrame, MessageTooLarge, UnregisteredType
+from actors.errors import CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
 
 __all__ = [
     "Codec",
@@ -217,15 +217,25 @@ class Codec:
             st = self._local.st = (_Enc(self.threshold, self.source), _Dec(self.source))
         return st
 
-    def encode(self, obj: Any, *, shm: bool = True, owner_prefix: str | None = None) -> tuple[bytes, list[str]]:
+    def encode(
+        self,
+        obj: Any,
+        *,
+        shm: bool = True,
+        owner_prefix: str | None = None,
+        sink: ShmSink | None = None,
+    ) -> tuple[bytes, list[str]]:
         """Return the frame and the names of the shared-memory segments it refers to.
 
         ``owner_prefix``: the receiver's segment prefix; a received frame of the
         receiver's own is sent back as its handle instead of being copied.
+        ``sink``: where this frame's large arrays go instead of the codec's own
+        sink (a topic's ring); it applies to this call only, so encodes on other
+        threads never see it.
         """
         enc = self._state()[0]
         enc.owner_prefix = owner_prefix
-        enc.sink = self.sink if shm else None
+        enc.sink = (sink or self.sink) if shm else None
         segments: list[Any] = []
         enc.segments = segments
         try:
@@ -243,7 +253,7 @@ class Codec:
         dec.on_release = on_release
         try:
             return msgpack.unpackb(data, ext_hook=dec.ext_hook, strict_map_key=False)
-        except (CorruptFrame, UnregisteredType):
+        except (CorruptFrame, UnregisteredType, StaleFrame):
             raise
         except Exception as exc:  # msgpack raises many types for garbage input
             raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc

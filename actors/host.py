@@ -169,6 +169,8 @@ class ActorHost:
             "dropped": mb.dropped,
             "dead_lettered": mb.dead_lettered,
             "busy_for": time.monotonic() - mb.busy_since if mb.busy_since else 0.0,
+            "subscriptions": [sub.stats() for sub in self.subscriptions],
+            "stalled": {t: p.stalled for t, p in self.publishers.items() if p.stalled},
         }
 
     # -- topics -------------------------------------------------------------
@@ -178,8 +180,10 @@ class ActorHost:
             pub = self.publishers[topic] = Publisher(self.rt, topic)
         return pub
 
-    def subscribe(self, topic: str, callback: Callable[[Any], None], **kw: Any) -> None:
-        self.subscriptions.append(Subscription(self.rt, self.loop, topic, callback, **kw))
+    def subscribe(self, topic: str, callback: Callable[[Any], None], **kw: Any) -> Subscription:
+        sub = Subscription(self.rt, self.loop, topic, callback, **kw)
+        self.subscriptions.append(sub)
+        return sub
 
     # -- life ---------------------------------------------------------------
     def start(self) -> None:

@@ -104,6 +104,13 @@ class Link:
             self.flush_releases()
         seq = self.seq = self.seq + 1
         frame, segs = self.rt.codec.encode([kind, seq, body])
+        # ZeroMQ reconnects to a restarted actor on its own, while `connected` changes only when
+        # the monitor's events are handled. A sender busy in a handler would send straight to the
+        # new incarnation, ahead of the backlog the old one never saw (and whose ACK of the new
+        # message would then cover that backlog): handle pending monitor events first, so the
+        # backlog is re-sent before this message.
+        if self.monitor.getsockopt(_EVENTS) & _POLLIN:  # type: ignore[operator]
+            self.on_monitor()
         out = _Out(kind, frame, segs, pending)
         self.unacked[seq] = out
         if self.connected:
@@ -165,7 +172,7 @@ class Link:
 
     def on_readable(self) -> None:
         sock = self.sock
-        while sock.getsockopt(_EVENTS) & _POLLIN:  # cheaper than ending on zmq.Again
+        while sock.getsockopt(_EVENTS) & _POLLIN:  # type: ignore[operator]  # cheaper than zmq.Again
             self.handle(sock.recv(_NOBLOCK, copy=False))
 
     def wait(self, pending: Pending, timeout: float | None) -> bool:

@@ -17,6 +17,7 @@ acknowledged, not handled a second time.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import time
@@ -29,7 +30,7 @@ import msgpack
 import zmq
 
 from actors import wire
-from actors.errors import CodecError
+from actors.errors import CodecError, StaleFrame
 from actors.runtime import shm_prefix
 from actors.wire import ASK, CTRL, RELEASE, TELL
 
@@ -116,7 +117,7 @@ class Mailbox:
         sock, queue = self.sock, self.queue
         recv, events = sock.recv, sock.getsockopt
         for i in range(4096):
-            if i and not events(_EVENTS) & _POLLIN:  # the first read follows a poll
+            if i and not events(_EVENTS) & _POLLIN:  # type: ignore[operator]  # the first read follows a poll
                 return
             try:
                 ident = recv(_NOBLOCK)
@@ -135,28 +136,27 @@ class Mailbox:
     def _handle(self, ident: bytes, frame: Any) -> None:
         release = self._releasers.get(ident)
         if release is None:
-            release = self._releasers[ident] = lambda n, g, i=ident: self._release(i, n)
+            release = self._releasers[ident] = functools.partial(self._release_view, ident)
         try:
             msg = self.rt.codec.decode(frame.buffer, release)
-            kind, seq, body = msg[0], msg[1], msg[2] if len(msg) > 2 else None
-        except CodecError as exc:
+        except (CodecError, StaleFrame) as exc:
             self.dropped += 1
             log.warning("[%s] dropped a corrupt frame from %r: %s", self.name, ident, exc)
             return
-        except (TypeError, IndexError, KeyError):
+        problem = _check_inbound(msg)
+        if problem:
             self.dropped += 1
-            log.warning("[%s] dropped a foreign frame from %r", self.name, ident)
+            log.warning("[%s] dropped a foreign frame from %r: %s", self.name, ident, problem)
             return
+        kind, seq = msg[0], msg[1]
         if kind == RELEASE:
             for n in seq:  # [RELEASE, names]
                 self.rt.pool.released(n, ident)
             return
-        if kind not in _KINDS or not isinstance(seq, int):
-            self.dropped += 1
-            log.warning("[%s] dropped a frame of unknown kind %r from %r", self.name, kind, ident)
-            return
-        if seq <= self.last_seq.get(ident, 0):
-            self.to_ack[ident] = self.last_seq[ident]  # a duplicate after a resend
+        body = msg[2]
+        last = self.last_seq.get(ident, 0)
+        if seq <= last:
+            self.to_ack[ident] = last  # a duplicate after a resend
             return
         self.last_seq[ident] = seq
         if self.crashed and self.crashed.get((ident, seq), 0) >= self.poison_limit:
@@ -224,6 +224,9 @@ class Mailbox:
         if self.journal is not None:
             self.journal.forget_crash(ident, seq)
 
+    def _release_view(self, ident: bytes, name: str, gen: int) -> None:
+        self._release(ident, name)
+
     def _release(self, ident: bytes, name: str) -> None:
         self.releases.setdefault(ident, []).append(name)
         self.rt.wake(self)
@@ -250,6 +253,33 @@ class Mailbox:
             with open(tmp, "wb") as f:
                 f.write(msgpack.packb(self.last_seq))
             os.replace(tmp, self.seen_path)
+
+
+#: The largest sequence number a frame may carry (msgpack's and our counters' range).
+_MAX_SEQ = (1 << 63) - 1
+
+
+def _check_inbound(msg: Any) -> str | None:
+    """What is wrong with a decoded inbound frame, or None if it follows the wire grammar.
+
+    ``[TELL|ASK|CTRL, seq >= 1, body]`` or ``[RELEASE, [name, ...]]`` (see :mod:`actors.wire`).
+    """
+    if type(msg) is not list or len(msg) not in (2, 3):
+        return f"expected a list of 2 or 3 items, got {type(msg).__name__}"
+    kind = msg[0]
+    if type(kind) is not int:
+        return f"frame kind {kind!r} is not an int"
+    if kind == RELEASE:
+        names = msg[1]
+        if len(msg) != 2 or type(names) is not list or not all(type(n) is str for n in names):
+            return "a RELEASE frame is [RELEASE, [segment names]]"
+        return None
+    if kind not in _KINDS:
+        return f"unknown frame kind {kind!r}"
+    seq = msg[1]
+    if len(msg) != 3 or type(seq) is not int or not 1 <= seq <= _MAX_SEQ:
+        return f"a message frame is [kind, seq >= 1, body]; got seq {seq!r} in {len(msg)} items"
+    return None
 
 
 def _load_seen(path: str | None) -> dict[bytes, int]:

@@ -32,6 +32,8 @@ from __future__ import annotations
 import math
 import mmap
 import os
+import re
+import stat
 import struct
 import time
 import weakref
@@ -41,9 +43,12 @@ from typing import Any
 
 import numpy as np
 
-from actors.errors import StaleFrame
+from actors.errors import CorruptFrame, StaleFrame
 
 __all__ = ["SHM_DIR", "ShmPool", "ShmReader", "sweep"]
+
+#: What a segment name looks like (see ``actors.runtime.shm_prefix``); anything else is refused.
+_NAME_RE = re.compile(r"^ea[A-Za-z0-9]+_[0-9]+_[0-9A-Za-z]+$")
 
 SHM_DIR = "/dev/shm"
 _HEADER = 64  # magic + generation; data starts cache-line aligned
@@ -238,11 +243,16 @@ class ShmReader:
         if mm is not None:
             self._maps.move_to_end(name)
             return mm
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise CorruptFrame(f"not a shared-memory frame name: {name!r}")
         try:
-            fd = os.open(os.path.join(SHM_DIR, name), os.O_RDONLY)
+            # O_NONBLOCK: a FIFO planted under a valid-looking name must not block us.
+            fd = os.open(os.path.join(SHM_DIR, name), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
         except FileNotFoundError:
             raise StaleFrame(f"shared-memory frame {name} is gone (its writer released or died)") from None
         try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise CorruptFrame(f"shared-memory frame {name} is not a regular file")
             mm = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
         finally:
             os.close(fd)

@@ -1,20 +1,44 @@
 """Topics: publish/subscribe between processes, point to point, no broker.
 
-Each subscription binds its own SUB socket and writes its endpoint into
-``<run>/topics/<topic>/``; publishers connect their PUB socket to every
-endpoint listed there. A publisher notices new subscribers by the folder's
-mtime (one ``stat`` per publish), so nothing polls. Arrays of 64 KB and more
-go through the publisher's shared-memory ring (see :mod:`actors.shm`).
+Each subscription binds its own socket and writes its endpoint into
+``<run>/topics/<topic>/``; publishers connect to every endpoint listed
+there. A publisher notices new subscribers by the folder's mtime (one
+``stat`` per publish), so nothing polls. Arrays of 64 KB and more go
+through the publisher's shared-memory ring (see :mod:`actors.shm`).
 
-A subscription has a queue size and a policy: ``keep="latest"`` drops the
-oldest queued messages when full (sensor data), ``keep="all"`` stops reading
-until there is room (ZeroMQ's high-water mark then drops at the publisher).
+Every frame is a 16-byte header (publisher id, sequence number) and the
+message: a subscription counts the gaps in each publisher's sequence as
+drops, wherever they happened.
+
+A subscription has a queue size and a policy:
+
+- ``keep="latest"`` (sensor data): a SUB socket behind the publisher's one
+  XPUB. The oldest queued messages are dropped when the queue is full, and
+  ZeroMQ drops at the publisher when the subscriber falls a high-water mark
+  behind; both count as ``dropped``.
+- ``keep="all"``: a PULL socket with a PUSH of its own in each publisher.
+  The subscription stops reading when its queue is full, and a publisher
+  whose PUSH to it is full waits (it is slowed, as a reliable KEEP_ALL ROS 2
+  reader slows its writer): nothing is lost while both sides live. The wait
+  is bounded (``stall_timeout``, default 1 s): past it the subscriber is
+  reported as stalled, and messages for it are dropped at once, counted,
+  until it reads again. A subscription in the publisher's own thread cannot
+  read while the publisher waits, so it is not waited for.
 
 Example::
 
-    >>> pub = Publisher(rt, "chatter")                       # doctest: +SKIP
-    >>> sub = Subscription(rt, loop, "chatter", print, queue_size=10)
+    >>> import tempfile
+    >>> from actors.loop import Loop
+    >>> from actors.runtime import Runtime
+    >>> rt, loop, got = Runtime(tempfile.mkdtemp(), "doc"), Loop(), []
+    >>> sub = Subscription(rt, loop, "chatter", got.append, queue_size=10, keep="all")
+    >>> pub = Publisher(rt, "chatter")
     >>> pub.publish({"text": "hi"})
+    >>> loop.run(until=lambda: bool(got), timeout=5)
+    True
+    >>> got
+    [{'text': 'hi'}]
+    >>> pub.close(); sub.close(); rt.close()
 """
 
 from __future__ import annotations
@@ -22,6 +46,8 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import struct
+import threading
 import time
 import weakref
 from collections import deque
@@ -31,6 +57,7 @@ from typing import TYPE_CHECKING, Any
 import zmq
 
 from actors import wire
+from actors.credits import CreditBoard, CreditView
 from actors.errors import CodecError, StaleFrame
 
 if TYPE_CHECKING:
@@ -40,6 +67,13 @@ if TYPE_CHECKING:
 __all__ = ["Publisher", "Subscription", "topic_dir"]
 
 log = logging.getLogger("actors.topics")
+#: A ``keep="all"`` subscription's id ends with this: publishers PUSH to it instead of publishing.
+KEEP_ALL_SUFFIX = "-all"
+_NOBLOCK = int(zmq.NOBLOCK)
+#: A topic frame's header: the publisher's id and its sequence number.
+_HEADER = struct.Struct("<QQ")
+#: Publisher ids a subscription remembers sequence numbers for (restarted publishers get new ids).
+_MAX_PUBLISHERS = 1024
 _ids = itertools.count()
 # This process's subscriptions by id (their mark's name): see Publisher._await_subscriptions.
 _local: weakref.WeakValueDictionary[str, Subscription] = weakref.WeakValueDictionary()
@@ -49,14 +83,59 @@ def topic_dir(run_dir: str, topic: str) -> str:
     return os.path.join(run_dir, "topics", topic)
 
 
-class Publisher:
-    """Publishes on ``topic``; optionally checks the message type."""
+class _Ring:
+    """A publisher's shared-memory sink: large arrays go into the topic's ring."""
 
-    def __init__(self, rt: Runtime, topic: str, msg_type: type | None = None, *, ring: int = 8) -> None:
+    __slots__ = ("pool", "topic", "ring")
+
+    def __init__(self, pool: Any, topic: str, ring: int) -> None:
+        self.pool, self.topic, self.ring = pool, topic, ring
+
+    def put(self, arr: Any) -> list[Any]:
+        return self.pool.put_ring(self.topic, arr, ring=self.ring)
+
+
+class _Reliable:
+    """A publisher's PUSH to one ``keep="all"`` subscription, and its credit view."""
+
+    __slots__ = ("sub_id", "sock", "credits", "sent", "read", "stalled", "dropped", "local")
+
+    def __init__(self, sub_id: str, sock: zmq.Socket, credits: CreditView, local: bool) -> None:
+        self.sub_id = sub_id
+        self.sock = sock
+        self.credits = credits
+        self.sent = 0  # messages sent to it
+        self.read = 0  # messages it had handled when last looked at
+        self.stalled = False
+        self.dropped = 0
+        self.local = local  # its subscription lives in this thread: it cannot read while we wait
+
+
+class Publisher:
+    """Publishes on ``topic``; optionally checks the message type.
+
+    ``stall_timeout``: the longest a publish waits for a ``keep="all"``
+    subscriber that is ``window`` messages behind before it reports it
+    stalled and drops for it (counted) until it reads again.
+    """
+
+    #: Messages in flight to one keep-all subscriber before a publish waits for it.
+    window = 256
+
+    def __init__(
+        self,
+        rt: Runtime,
+        topic: str,
+        msg_type: type | None = None,
+        *,
+        ring: int = 8,
+        stall_timeout: float = 1.0,
+    ) -> None:
         self.rt = rt
         self.topic = wire.check_name(topic.replace("/", "."))
         self.msg_type = msg_type
         self.ring = ring
+        self.stall_timeout = stall_timeout
         self.dir = topic_dir(rt.run_dir, self.topic)
         os.makedirs(self.dir, mode=0o700, exist_ok=True)
         # XPUB (verbose) shows each subscriber's subscription: a new subscriber's
@@ -67,8 +146,12 @@ class Publisher:
         s.setsockopt(zmq.SNDHWM, 1000)
         s.setsockopt(zmq.RECONNECT_IVL, 20)
         self.sock = s
+        self._sink = _Ring(rt.pool, self.topic, ring)  # built once: encodes pass it explicitly
+        self.id = int.from_bytes(os.urandom(6), "little")
         self._mtime = -1
         self._peers: set[str] = set()
+        self._latest = 0  # keep="latest" peers on the XPUB
+        self._reliable: dict[str, _Reliable] = {}
         self.unconfirmed = 0  # new subscriptions whose SUBSCRIBE did not come within the wait (dead ones)
         self.sent = 0
 
@@ -82,15 +165,37 @@ class Publisher:
         self._mtime = mtime
         now = {f for f in os.listdir(self.dir) if not f.startswith(".")}
         new = now - self._peers
+        latest = set()
         for f in new:
-            self.sock.connect(f"ipc://{self.rt.run_dir}/s.{f}")
-        self.unconfirmed = self._await_subscriptions(new)
+            endpoint = f"ipc://{self.rt.run_dir}/s.{f}"
+            if f.endswith(KEEP_ALL_SUFFIX):
+                self._reliable[f] = self._push(f, endpoint)
+            else:
+                self.sock.connect(endpoint)
+                latest.add(f)
+        self.unconfirmed = self._await_subscriptions(latest)
         for f in self._peers - now:
+            rel = self._reliable.pop(f, None)
+            if rel is not None:
+                rel.sock.close(0)
+                rel.credits.close()
+                continue
             try:
                 self.sock.disconnect(f"ipc://{self.rt.run_dir}/s.{f}")
             except zmq.ZMQError:
                 pass
         self._peers = now
+        self._latest = len(now) - len(self._reliable)
+
+    def _push(self, sub_id: str, endpoint: str) -> _Reliable:
+        s = self.rt.ctx.socket(zmq.PUSH)
+        s.setsockopt(zmq.SNDHWM, 0)  # the credit window bounds what is in flight (see actors.credits)
+        s.setsockopt(zmq.LINGER, 200)  # a clean close still delivers what is queued
+        s.setsockopt(zmq.RECONNECT_IVL, 20)
+        s.connect(endpoint)  # the pipe exists at once: nothing sent before the connection is lost
+        local = _local.get(sub_id)
+        return _Reliable(sub_id, s, CreditView(os.path.join(self.dir, sub_id)),
+                         local is not None and local.loop.thread_id == threading.get_ident())
 
     def _await_subscriptions(self, new: set[str], timeout: float = 0.5) -> int:
         """Wait until the ``new`` subscriptions' SUBSCRIBE arrived; return how many did not."""
@@ -115,6 +220,16 @@ class Publisher:
         self._refresh()
         return len(self._peers)
 
+    @property
+    def stalled(self) -> list[str]:
+        """The ``keep="all"`` subscriptions this publisher is dropping for (see the class doc)."""
+        return [r.sub_id for r in self._reliable.values() if r.stalled]
+
+    @property
+    def dropped(self) -> int:
+        """Messages dropped for stalled ``keep="all"`` subscribers."""
+        return sum(r.dropped for r in self._reliable.values())
+
     def publish(self, msg: Any) -> None:
         if self.msg_type is not None and not isinstance(msg, self.msg_type):
             raise TypeError(
@@ -124,29 +239,68 @@ class Publisher:
         self._refresh()
         if not self._peers:
             return
-        enc = self.rt.codec
-        pool = self.rt.pool
-        topic, ring = self.topic, self.ring
-        old_sink = enc.sink
-
-        class _Ring:
-            def put(self, arr: Any) -> list[Any]:
-                return pool.put_ring(topic, arr, ring=ring)
-
-        enc.sink = _Ring()
-        try:
-            frame, _ = enc.encode(msg)
-        finally:
-            enc.sink = old_sink
-        self.sock.send(frame, zmq.NOBLOCK, copy=len(frame) > 4096)
         self.sent += 1
+        body, _ = self.rt.codec.encode(msg, sink=self._sink)
+        frame = _HEADER.pack(self.id, self.sent) + body
+        copy = len(frame) > 4096
+        if self._latest:
+            self.sock.send(frame, _NOBLOCK, copy=copy)  # XPUB drops at its HWM (counted as gaps)
+        for rel in self._reliable.values():
+            self._send_reliable(rel, frame, copy)
+
+    def _send_reliable(self, rel: _Reliable, frame: bytes, copy: bool) -> None:
+        window = self.window
+        if rel.sent - rel.read >= window:
+            rel.read = rel.credits.handled(self.id)
+            if rel.sent - rel.read >= window and (rel.stalled or rel.local or not self._wait_credit(rel)):
+                if not rel.stalled:
+                    rel.stalled = True
+                    log.warning(
+                        "topic %s: keep-all subscriber %s is %d messages behind and did not read "
+                        "for %.1f s: dropping for it (counted) until it reads again",
+                        self.topic, rel.sub_id, rel.sent - rel.read, 0 if rel.local else self.stall_timeout,
+                    )
+                rel.dropped += 1
+                return
+        rel.sock.send(frame, _NOBLOCK, copy=copy)  # SNDHWM 0: never refused
+        rel.sent += 1
+        if rel.stalled:
+            rel.stalled = False
+            log.warning("topic %s: keep-all subscriber %s reads again (%d dropped for it)",
+                        self.topic, rel.sub_id, rel.dropped)
+
+    def _wait_credit(self, rel: _Reliable) -> bool:
+        """Wait until ``rel`` has room in its window, at most ``stall_timeout``."""
+        # The subscriber's progress is a counter in shared memory, with no wake-up of its own:
+        # sleep in short, growing steps. Only a publisher held back by a slow reader waits
+        # here; an idle one never does.
+        deadline = time.monotonic() + self.stall_timeout
+        nap = 0.00005
+        while time.monotonic() < deadline:
+            time.sleep(nap)
+            nap = min(nap * 2, 0.002)
+            rel.read = rel.credits.handled(self.id)
+            if rel.sent - rel.read < self.window:
+                return True
+            self.rt.beat()  # slowed by a reader is work, not a hang
+        return False
 
     def close(self) -> None:
+        for rel in self._reliable.values():
+            rel.sock.close()
+            rel.credits.close()
+        self._reliable.clear()
         self.sock.close(0)
 
 
 class Subscription:
-    """Receives ``topic`` in ``loop``'s thread and calls ``callback(msg)``."""
+    """Receives ``topic`` in ``loop``'s thread and calls ``callback(msg)``.
+
+    ``received`` counts frames read, ``dropped`` messages lost on the way
+    (queue overflow, a publisher's high-water mark or stall, a reused
+    shared-memory frame) and ``bad`` frames that were not well-formed
+    topic messages of the declared type (logged and skipped).
+    """
 
     def __init__(
         self,
@@ -170,66 +324,107 @@ class Subscription:
         self.keep = keep
         self.queue_size = queue_size
         self.msg_type = msg_type
-        self.id = f"{os.getpid()}-{next(_ids)}"
-        s = rt.ctx.socket(zmq.SUB)
+        self.id = f"{os.getpid()}-{next(_ids)}" + (KEEP_ALL_SUFFIX if keep == "all" else "")
+        s = rt.ctx.socket(zmq.PULL if keep == "all" else zmq.SUB)
         s.setsockopt(zmq.LINGER, 0)
-        s.setsockopt(zmq.RCVHWM, max(queue_size, 16))
+        # keep="all": no high-water mark (publishers bound what is in flight by credits).
+        s.setsockopt(zmq.RCVHWM, max(queue_size, 16) if keep == "latest" else 0)
         s.setsockopt(zmq.MAXMSGSIZE, rt.codec.max_frame_bytes + 1024)
-        s.setsockopt(zmq.SUBSCRIBE, b"")
+        if keep == "latest":
+            s.setsockopt(zmq.SUBSCRIBE, b"")
         s.bind(f"ipc://{rt.run_dir}/s.{self.id}")
         self.sock = s
         self.queue: deque[Any] = deque(maxlen=queue_size if keep == "latest" else None)
         self.received = 0
         self.dropped = 0
         self.bad = 0
+        self._last: dict[int, int] = {}  # publisher id -> last sequence number seen
         d = topic_dir(rt.run_dir, self.topic)
         os.makedirs(d, mode=0o700, exist_ok=True)
         self._mark = os.path.join(d, self.id)
-        with open(self._mark, "w") as f:
-            f.write(str(os.getpid()))
+        self._credits: CreditBoard | None = None
+        if keep == "all":
+            self._credits = CreditBoard.create(self._mark)  # publishers read our progress here
+        else:
+            with open(self._mark, "w") as f:
+                f.write(str(os.getpid()))
         _local[self.id] = self
         loop.add(s, self.on_readable)
 
+    def stats(self) -> dict[str, Any]:
+        """What ``embagents status`` shows for this subscription."""
+        return {"topic": self.topic, "keep": self.keep, "queue_size": self.queue_size,
+                "received": self.received, "dropped": self.dropped, "bad": self.bad}
+
     def on_readable(self) -> None:
-        sock, q, decode = self.sock, self.queue, self.rt.codec.decode
+        sock, q = self.sock, self.queue
         while self.keep == "latest" or len(q) < self.queue_size:
             try:
-                frame = sock.recv(zmq.NOBLOCK, copy=False)
+                frame = sock.recv(_NOBLOCK, copy=False)
             except zmq.Again:
                 break
             self.received += 1
-            try:
-                msg = decode(frame.buffer)
-            except StaleFrame as exc:
-                self.dropped += 1
-                log.debug("topic %s: %s", self.topic, exc)
-                continue
-            except CodecError as exc:
-                self.bad += 1
-                log.warning("topic %s: dropped a corrupt frame: %s", self.topic, exc)
-                continue
-            if self.msg_type is not None and not isinstance(msg, self.msg_type):
-                self.bad += 1
-                log.warning(
-                    "topic %s: dropped a %s (this subscription takes %s)",
-                    self.topic, type(msg).__name__, self.msg_type.__name__,
-                )
+            pub_id, msg = self._decode(frame)
+            if msg is _SKIP:
+                if self._credits is not None and pub_id:
+                    self._credits.handled(pub_id)  # skipped is done with: its credit goes back
                 continue
             if q.maxlen is not None and len(q) == q.maxlen:
                 self.dropped += 1
-            q.append(msg)
+            q.append((pub_id, msg))
+        credits = self._credits
         while q:
-            self.callback(q.popleft())
+            pub_id, msg = q.popleft()
+            self.callback(msg)
+            if credits is not None:
+                credits.handled(pub_id)
         # keep="all" may have left messages in the socket: come back for them.
-        if self.keep == "all" and sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+        if self.keep == "all" and sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:  # type: ignore[operator, arg-type]
             self.loop.call_later(0, self.on_readable)
+
+    def _decode(self, frame: Any) -> tuple[int, Any]:
+        """``(publisher id, message)``; the message is ``_SKIP`` (counted) for a stale, corrupt or foreign frame."""
+        buf = frame.buffer
+        if len(buf) <= _HEADER.size:
+            self.bad += 1
+            log.warning("topic %s: dropped a frame of %d bytes (too short for a topic frame)", self.topic, len(buf))
+            return 0, _SKIP
+        pub_id, seq = _HEADER.unpack_from(buf)
+        last = self._last.get(pub_id)
+        if last is None and len(self._last) >= _MAX_PUBLISHERS:
+            self._last.pop(next(iter(self._last)))
+        if last is not None and seq > last + 1:
+            self.dropped += seq - last - 1  # lost before it reached us
+        self._last[pub_id] = seq
+        try:
+            msg = self.rt.codec.decode(buf[_HEADER.size:])
+        except StaleFrame as exc:
+            self.dropped += 1
+            log.debug("topic %s: %s", self.topic, exc)
+            return pub_id, _SKIP
+        except CodecError as exc:
+            self.bad += 1
+            log.warning("topic %s: dropped a corrupt frame: %s", self.topic, exc)
+            return pub_id, _SKIP
+        if self.msg_type is not None and not isinstance(msg, self.msg_type):
+            self.bad += 1
+            log.warning(
+                "topic %s: dropped a %s (this subscription takes %s)",
+                self.topic, type(msg).__name__, self.msg_type.__name__,
+            )
+            return pub_id, _SKIP
+        return pub_id, msg
 
     def close(self) -> None:
         try:
             os.unlink(self._mark)
         except FileNotFoundError:
             pass
+        _local.pop(self.id, None)
         self.loop.remove(self.sock)
         self.sock.close(0)
+        if self._credits is not None:
+            self._credits.close()
 
 
+_SKIP = object()

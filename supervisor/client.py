@@ -139,6 +139,8 @@ _COLUMNS = [
     ("RSS MB", lambda r: _num(r.get("rss_mb")), True),
     ("MAILBOX", lambda r: _num(r.get("mailbox"), "{}"), True),
     ("MSG/S", lambda r: _num(r.get("rate")), True),
+    # messages its topic subscriptions lost (queue overflow, a publisher's HWM or stall, stale frames)
+    ("DROPS", lambda r: _num(r.get("drops"), "{}"), True),
 ]
 
 

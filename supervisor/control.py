@@ -8,7 +8,10 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
   one row per child: name, supervisor (path), kind, restart, status
   (starting/running/restarting/stopped), lifecycle, pid, restarts, uptime
   (s), cpu_percent, rss_mb, mailbox (depth), handled, rate (messages/s since
-  the previous status request, or since the start), last_exit.
+  the previous status request, or since the start), last_exit, drops (messages
+  its topic subscriptions lost), subscriptions (per subscription: topic, keep,
+  queue_size, received, dropped, bad), stalled (per topic it publishes: the
+  keep-all subscribers it is dropping for).
 - ``{"cmd": "restart", "name": NAME}`` -> stop the child and start it again
   now (``Supervisor.bounce``); ``{"ok", "pid"}``.
 - ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
@@ -170,7 +173,8 @@ class ControlServer:
                 return {"ok": False, "error": "restart needs 'name'"}
             found = on_root(self.system, lambda: self._locate(name))
             if found is None:
-                return {"ok": False, "error": f"no child named {name!r} in this run"}
+                names = sorted(on_root(self.system, lambda: [r["name"] for s in self.tree.roots for r in s._rows()]))
+                return {"ok": False, "error": f"no child named {name!r} in this run; known: {', '.join(names) or 'none'}"}
             return {"ok": True, "pid": found.bounce(name)}
         if cmd == "stop":
             return {"ok": True, "stopping": True}
@@ -196,7 +200,7 @@ class ControlServer:
         now = time.monotonic()
         deadline = now + self.stats_timeout  # one wait for all: the asks run side by side
         for r in rows:
-            r.update(mailbox=None, handled=None, rate=None)
+            r.update(mailbox=None, handled=None, rate=None, drops=None, subscriptions=None)
             fut = asks.get(r["name"])
             if fut is None:
                 continue
@@ -205,6 +209,9 @@ class ControlServer:
             except Exception:
                 continue  # hung or restarting: the row says so by its missing numbers
             r["mailbox"], r["handled"] = st["mailbox_depth"], st["handled"]
+            subs = st.get("subscriptions") or []
+            r["subscriptions"], r["drops"] = subs, sum(s["dropped"] for s in subs)
+            r["stalled"] = st.get("stalled") or {}  # keep-all subscribers its publishers drop for
             prev = self._prev.get(r["name"])
             if prev is not None and prev[0] == st["incarnation"] and now > prev[2]:
                 r["rate"] = round((st["handled"] - prev[1]) / (now - prev[2]), 1)

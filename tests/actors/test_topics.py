@@ -1,17 +1,21 @@
 from __future__ import annotations
 
+import os
+import signal
 import time
 from pathlib import Path
 from typing import Any
 
+import msgpack
 import numpy as np
+import zmq
 
 from actors import ActorSystem
 from actors.loop import Loop
 from actors.runtime import Runtime
 from actors.topics import Publisher as TopicPublisher
 from actors.topics import Subscription
-from tests.actors.workers import Publisher, Subscriber
+from tests.actors.workers import Burst, Publisher, Subscriber, TopicCounter
 from tests.helpers import wait_until
 
 
@@ -70,3 +74,74 @@ def test_a_subscription_in_the_publishers_own_thread_confirms_at_once(tmp_path: 
         pub.close()
         loop.close()
         rt.close()
+
+
+def test_keep_all_loses_nothing_while_both_sides_live(system: ActorSystem) -> None:
+    # A burst far past every high-water mark into a slow subscriber with a small queue:
+    # the publisher is slowed, not the stream thinned.
+    sub = system.spawn(TopicCounter, "sub", "numbers", 10, "all", 0.0005)
+    pub = system.spawn(Burst, "pub")
+    wait_until(lambda: pub.ask(["numbers", 1], timeout=5).get() and sub.ask("stats", timeout=5).get()["got"])
+    n = 5001
+    pub.ask(["numbers", n], timeout=60).get()
+    st = wait_until(lambda: (s := sub.ask("stats", timeout=5).get())["last"] == n - 1 and s, timeout=60)
+    assert st["distinct"] == n and st["ordered"], st
+    assert st["dropped"] == 0 and st["bad"] == 0, st
+
+
+def test_keep_latest_counts_every_message_it_drops(system: ActorSystem) -> None:
+    sub = system.spawn(TopicCounter, "sub", "numbers", 3, "latest", 0.001)
+    pub = system.spawn(Burst, "pub")
+    wait_until(lambda: pub.ask(["numbers", 1], timeout=5).get() and sub.ask("stats", timeout=5).get()["got"])
+    before = sub.ask("stats", timeout=5).get()
+    n = 3000
+    pub.ask(["numbers", n], timeout=60).get()
+    time.sleep(0.5)  # the burst's tail may have been dropped: a later message reveals the gap
+    pub.ask(["numbers", 1], timeout=5).get()
+    st = wait_until(lambda: (s := sub.ask("stats", timeout=5).get())["last"] == 0 and s["got"] > before["got"] and s)
+    got, dropped = st["got"] - before["got"], st["dropped"] - before["dropped"]
+    assert dropped > 0 and got + dropped == n + 1, st  # every message is either handled or counted
+
+
+def test_a_stopped_keep_all_subscriber_holds_a_publisher_only_up_to_the_stall_bound(system: ActorSystem) -> None:
+    sub = system.spawn(TopicCounter, "sub", "numbers", 10, "all", 0.0)
+    pub = system.spawn(Burst, "pub")
+    wait_until(lambda: pub.ask(["numbers", 1], timeout=5).get() and sub.ask("stats", timeout=5).get()["got"])
+    pid = sub.ask("pid", timeout=5).get()
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        n = 20_000
+        pub.ask(["numbers", n], timeout=30).get()  # without the bound this never returns
+        stalled = system.ctrl("pub", "stats")["stalled"]
+        assert list(stalled) == ["numbers"] and len(stalled["numbers"]) == 1, stalled
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    # Once it has caught up, a later message reaches it and reveals the dropped tail's gap.
+    total = 0
+
+    def caught_up() -> dict[str, Any] | None:
+        nonlocal total
+        total = pub.ask(["numbers", 1], timeout=5).get()["total"]
+        s = sub.ask("stats", timeout=5).get()
+        return s if s["last"] == 0 and s["got"] > 1 else None
+
+    st = wait_until(caught_up, timeout=30, interval=0.2)
+    assert st["dropped"] > 0 and st["got"] + st["dropped"] == total, st  # counted, not vanished
+    assert not system.ctrl("pub", "stats")["stalled"]  # it reads again: the publisher says so
+
+
+def test_garbage_on_a_subscription_socket_is_counted_and_skipped(system: ActorSystem) -> None:
+    sub = system.spawn(TopicCounter, "sub", "numbers", 10, "all", 0.0)
+    pub = system.spawn(Burst, "pub")
+    wait_until(lambda: pub.ask(["numbers", 1], timeout=5).get() and sub.ask("stats", timeout=5).get()["got"])
+    [mark] = os.listdir(os.path.join(system.run_dir, "topics", "numbers"))
+    ctx = zmq.Context.instance()
+    push = ctx.socket(zmq.PUSH)
+    push.setsockopt(zmq.LINGER, 1000)
+    push.connect(f"ipc://{system.run_dir}/s.{mark}")
+    for junk in [b"", b"\x00" * 16, b"\x01" * 16 + b"\xc1", b"\x02" * 16 + msgpack.packb([1, 2])[:1]]:
+        push.send(junk)
+    push.close()
+    pub.ask(["numbers", 3], timeout=5).get()
+    st = wait_until(lambda: (s := sub.ask("stats", timeout=5).get())["bad"] >= 4 and s["last"] == 2 and s)
+    assert st["bad"] == 4, st

@@ -99,3 +99,44 @@ class Looper(Actor):
         for i in range(n):
             reply = ref.ask(np.full(1 << 20, i % 251, np.uint8), timeout=5).get()
         return int(reply[0]) if reply is not None else None
+
+
+class Burst(Actor):
+    """Publishes 0..n-1 on a topic from inside one handler, as fast as the topic takes them."""
+
+    def on_receive(self, message: Any) -> Any:
+        topic, n = message
+        t0 = time.monotonic()
+        longest = 0.0
+        for i in range(n):
+            t = time.monotonic()
+            self.context.publish(topic, i)
+            longest = max(longest, time.monotonic() - t)
+        self.total = getattr(self, "total", 0) + n
+        return {"seconds": time.monotonic() - t0, "longest_publish": longest, "total": self.total}
+
+
+class TopicCounter(Actor):
+    """Subscribes with a slow callback; reports what it got and its subscription's counts."""
+
+    def __init__(self, topic: str, queue_size: int, keep: str, delay: float) -> None:
+        self.args = (topic, queue_size, keep)
+        self.delay = delay
+
+    def on_start(self) -> None:
+        self.got: list[int] = []
+        topic, queue_size, keep = self.args
+        self.sub = self.context.subscribe(topic, self._on, queue_size=queue_size, keep=keep)
+
+    def _on(self, msg: int) -> None:
+        if self.delay:
+            time.sleep(self.delay)
+        self.got.append(msg)
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "pid":
+            return os.getpid()
+        if message == "stats":
+            return {"got": len(self.got), "distinct": len(set(self.got)), "ordered": self.got == sorted(self.got),
+                    "last": self.got[-1] if self.got else None, **self.sub.stats()}
+        return None

@@ -16,7 +16,8 @@ from tests.supervisor.workers import Echo
 
 ROWS = [
     {"name": "camera", "supervisor": "root", "kind": "actor", "status": "running", "lifecycle": "active",
-     "pid": 41822, "restarts": 0, "uptime": 192.0, "cpu_percent": 4.0, "rss_mb": 61.2, "mailbox": 0, "rate": 30.0},
+     "pid": 41822, "restarts": 0, "uptime": 192.0, "cpu_percent": 4.0, "rss_mb": 61.2, "mailbox": 0, "rate": 30.0,
+     "drops": 7},
     {"name": "socat", "supervisor": "root/io", "kind": "command", "status": "restarting", "lifecycle": None,
      "pid": None, "restarts": 12, "uptime": 0.0, "cpu_percent": None, "rss_mb": None, "mailbox": None, "rate": None},
 ]
@@ -25,10 +26,10 @@ ROWS = [
 def test_format_status_table() -> None:
     lines = format_status_table(ROWS).splitlines()
     assert lines[0].split() == ["NAME", "SUPERVISOR", "KIND", "STATUS", "LIFECYCLE", "PID", "RESTARTS",
-                                "UPTIME", "CPU%", "RSS", "MB", "MAILBOX", "MSG/S"]
+                                "UPTIME", "CPU%", "RSS", "MB", "MAILBOX", "MSG/S", "DROPS"]
     assert lines[1].split() == ["camera", "root", "actor", "running", "active", "41822", "0", "3m12s",
-                                "4.0", "61.2", "0", "30.0"]
-    assert lines[2].split() == ["socat", "root/io", "command", "restarting", "-", "-", "12", "-", "-", "-", "-", "-"]
+                                "4.0", "61.2", "0", "30.0", "7"]
+    assert lines[2].split() == ["socat", "root/io", "command", "restarting", "-", "-", "12", "-", "-", "-", "-", "-", "-"]
     assert len({len(line) for line in lines[:2]}) == 1  # aligned
     assert format_status_table([]).startswith("NAME")
 

@@ -38,6 +38,7 @@ def test_status_lists_every_child_with_its_numbers(system: ActorSystem) -> None:
         assert a["status"] == "running" and a["supervisor"] == "root" and a["kind"] == "actor"
         assert a["lifecycle"] == "active" and a["restarts"] == 0 and a["pid"] > 0
         assert a["mailbox"] == 0 and a["handled"] >= 11 and a["rate"] is not None
+        assert a["drops"] == 0 and a["subscriptions"] == [] and a["stalled"] == {}  # per-subscription counts
         assert rows["deep"]["supervisor"] == "root/in"
         assert rows["x"]["kind"] == "command" and rows["x"]["mailbox"] is None
         wait_until(lambda: request(system.run_dir, {"cmd": "status"})["rows"][0]["rss_mb"], 5, "an rss sample")
@@ -55,7 +56,7 @@ def test_restart_by_name_anywhere_in_the_tree(system: ActorSystem, events: Event
         rows = {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}
         assert rows["deep"]["restarts"] == 1
         bad = request_error(system, {"cmd": "restart", "name": "nobody"})
-        assert "no child named 'nobody'" in bad
+        assert "no child named 'nobody'" in bad and "known: a, deep, in, x" in bad  # names the known ones
         assert "unknown command" in request_error(system, {"cmd": "dance"})
     finally:
         control.close()

@@ -173,3 +173,16 @@ class EventSink(Actor):
 
     def on_receive(self, message: Any) -> Any:
         return self.seen
+
+
+class BurstSender(Actor):
+    """Inside ONE handler, tells ``target`` the numbers 0..n-1 in batches with pauses."""
+
+    def on_receive(self, message: Any) -> Any:
+        target, n, batch, pause = message
+        ref = self.context.ref(target)
+        for i in range(n):
+            ref.tell(i)
+            if (i + 1) % batch == 0:
+                time.sleep(pause)  # still inside the handler: the sender's loop does not run
+        return n
