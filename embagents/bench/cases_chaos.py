@@ -178,10 +178,26 @@ class _Asker(threading.Thread):
         }
 
 
-def _root_usage() -> tuple[int, int]:
+def _root_usage() -> tuple[int, dict[int, str]]:
+    """The root's RSS and its open fds (fd -> what it is: a socket, a pipe, an eventfd, a path)."""
     gc.collect()
-    me = psutil.Process()
-    return me.memory_info().rss, me.num_fds()
+    fds = {}
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            fds[int(fd)] = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue  # the listing's own fd, closed by now
+    return psutil.Process().memory_info().rss, fds
+
+
+def _fd_kinds(fds: dict[int, str]) -> dict[str, int]:
+    """``{"socket": 3, "anon_inode:[eventfd]": 2, ...}``: fds by kind (a path counts as its directory).
+
+    >>> _fd_kinds({3: "socket:[123]", 4: "socket:[124]", 5: "anon_inode:[eventfd]", 6: "/tmp/x/a.log"})
+    {'socket': 2, 'anon_inode:[eventfd]': 1, '/tmp/x': 1}
+    """
+    return dict(Counter(t.split(":")[0] if t.startswith(("socket:", "pipe:")) else os.path.dirname(t) or t
+                        for t in fds.values()))
 
 
 def _inject(asys: ActorSystem, watch: _Watch, seconds: float, interval: float, rng: random.Random) -> list[dict[str, Any]]:
@@ -283,6 +299,8 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
             asker.start()
             if not asker.first_ok.wait(300):
                 raise RuntimeError(f"the LLM never answered: {asker.summary()}")
+            for name in TARGETS:  # the root's links to every actor exist before its fds are counted
+                asys.ref(name).control("ping", timeout=30).get()
             restarts0 = watch.counts["restarted"]
             rss0, fds0 = _root_usage()
             t0 = time.monotonic()
@@ -340,8 +358,9 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
         "root_rss_start": rss0,
         "root_rss_end": rss1,
         "root_rss_growth": round(rss1 / rss0 - 1, 4),
-        "root_fds_start": fds0,
-        "root_fds_end": fds1,
+        "root_fds_start": len(fds0),
+        "root_fds_end": len(fds1),
+        "root_fds_new": _fd_kinds({fd: t for fd, t in fds1.items() if fds0.get(fd) != t}),
         "leftover_processes": len(left_procs),
         "leftover_pids": left_procs,
         "leftover_shm": len(left_shm),
