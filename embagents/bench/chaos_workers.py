@@ -2,7 +2,9 @@
 
 - :class:`NumberSource` numbers messages 0, 1, 2, ... and sends each twice: as a
   tell to :class:`NumberSink` (at-least-once) and on the ``keep="all"`` topic
-  ``chaos_numbers``. It keeps ``{"acked": W}`` in its snapshot, W being the
+  ``chaos_numbers``, 10 every 50 ms from a timer callback that works 20 ms
+  between the two halves of each batch (a sender busy in a callback while its
+  receiver restarts: issue 11's first defect). It keeps ``{"acked": W}`` in its snapshot, W being the
   highest number whose tell the sink acknowledged, and a new incarnation
   resumes at W + 1: a number is never skipped because the source died.
 - :class:`NumberSink` appends each number it handles to a file of its own
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import attrs
@@ -36,6 +39,7 @@ import numpy as np
 
 from actors import Actor
 from actors.codec import message
+from embagents.rate import next_deadline
 
 __all__ = [
     "FRAME_HZ",
@@ -55,8 +59,9 @@ FRAMES_TOPIC = "chaos_frames"
 SINK = "chaos_sink"
 FRAME_SHAPE = (480, 640, 3)
 FRAME_HZ = 15.0
-#: Numbers sent per tick, and ticks per second: 200 numbers/s on each channel.
-BATCH, TICK_S = 10, 0.05
+#: Numbers sent per tick, and seconds between ticks: 200 numbers/s on each channel. Each tick
+#: works WORK_S between its two halves, as a handler processing a frame would.
+BATCH, TICK_S, WORK_S = 10, 0.05, 0.02
 
 
 class InjectedFault(RuntimeError):
@@ -79,6 +84,18 @@ class FaultTarget(Actor):
     def __init__(self, workdir: str) -> None:
         self.workdir = workdir
         self._ballast: np.ndarray | None = None
+
+    def every(self, period: float, fn: Callable[[], bool]) -> None:
+        """Call ``fn`` every ``period`` s on absolute deadlines (:mod:`embagents.rate`) while it returns True."""
+        due = time.monotonic()
+
+        def tick() -> None:
+            nonlocal due
+            if fn():
+                due, _ = next_deadline(due, period, time.monotonic())
+                self.context.call_later(max(0.0, due - time.monotonic()), tick)
+
+        self.context.call_later(0.0, tick)
 
     def record_file(self, stem: str) -> int:
         """An append-only file ``<workdir>/<stem>-<pid>.log`` of this incarnation (an fd)."""
@@ -120,19 +137,21 @@ class NumberSource(FaultTarget):
         self.sink = self.context.ref(SINK)
         self.running = True
         self.fd = self.record_file("source")
-        self._timer = self.context.call_later(TICK_S, self._tick)
+        self.every(TICK_S, self._tick)
 
-    def _tick(self) -> None:
+    def _tick(self) -> bool:
         if not self.running:
-            return
+            return False
         pid = os.getpid()
         for n in range(self.next, self.next + BATCH):
+            if n - self.next == BATCH // 2:
+                time.sleep(WORK_S)  # work between two sends: a sink restarting now finds us inside a callback
             self.sink.tell([n, pid])
             self.context.publish(NUMBERS_TOPIC, [n, pid])
             self.unacked.append(n)
         self.next += BATCH
         self._account()
-        self._timer = self.context.call_later(TICK_S, self._tick)
+        return True
 
     def _account(self) -> None:
         # Tells are acknowledged cumulatively and in order: all but the last `backlog` are in.
@@ -185,16 +204,14 @@ class FrameSource(FaultTarget):
         self.frame = np.empty(FRAME_SHAPE, dtype=np.uint8)
         self.k = 0
         self.fd = self.record_file("frames-source")
-        self._next = time.monotonic()
-        self.context.call_later(0.0, self._tick)
+        self.every(1.0 / FRAME_HZ, self._tick)
 
-    def _tick(self) -> None:
+    def _tick(self) -> bool:
         self.frame.fill(self.k % 251)
         self.context.publish(FRAMES_TOPIC, self.image(data=self.frame, frame_id=str(self.k)))
         os.write(self.fd, f"P {self.k}\n".encode())
         self.k += 1
-        self._next += 1.0 / FRAME_HZ
-        self.context.call_later(max(0.0, self._next - time.monotonic()), self._tick)
+        return True
 
     def on_stop(self) -> None:
         os.close(self.fd)
