@@ -9,10 +9,23 @@ decode them) and re-exports what a ``system.py`` uses::
 """
 
 from actors.app import set_app_name
-from embagents.components import LLM, Component, Health, HealthStatus, LLMConfig, ModelComponent
+from embagents.components import (
+    LLM,
+    Camera,
+    CameraConfig,
+    Component,
+    Health,
+    HealthStatus,
+    LLMConfig,
+    ModelComponent,
+    VideoMakerConfig,
+    VideoMessageMaker,
+    Vision,
+    VisionConfig,
+)
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
-from embagents.models import LlamaModel, LocalModelClient
+from embagents.models import DetectorModel, LlamaModel, LocalModelClient
 from embagents.msgs import (
     Audio,
     CompressedImage,
@@ -23,7 +36,9 @@ from embagents.msgs import (
     Odometry,
     StreamingString,
     String,
+    Trackings,
     Twist,
+    Video,
 )
 from embagents.system import System, load_system
 from embagents.topic import Topic
@@ -36,9 +51,12 @@ __all__ = [
     "Action",
     "Audio",
     "BaseComponentConfig",
+    "Camera",
+    "CameraConfig",
     "Component",
     "CompressedImage",
     "Detections",
+    "DetectorModel",
     "Event",
     "Fallback",
     "Health",
@@ -55,7 +73,13 @@ __all__ = [
     "String",
     "System",
     "Topic",
+    "Trackings",
     "Twist",
+    "Video",
+    "VideoMakerConfig",
+    "VideoMessageMaker",
+    "Vision",
+    "VisionConfig",
     "load_system",
     "on",
 ]

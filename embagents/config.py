@@ -21,7 +21,7 @@ from __future__ import annotations
 import copy
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 import attrs
@@ -33,9 +33,11 @@ __all__ = [
     "ConfigError",
     "apply_config",
     "config_fields",
+    "int_at_least",
     "load_configs",
     "optional_positive_float",
     "positive_float",
+    "to_bool",
 ]
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
@@ -62,6 +64,42 @@ def positive_float(value: object) -> float:
     if not out > 0:  # also refuses NaN
         raise ConfigError(f"expected a number > 0, got {value!r}")
     return out
+
+
+def to_bool(value: object) -> bool:
+    """Converter: a bool, or true/false, yes/no, on/off, 1/0.
+
+    >>> to_bool("yes")
+    True
+    """
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.lower() in ("true", "yes", "on", "1", "false", "no", "off", "0"):
+        return value.lower() in ("true", "yes", "on", "1")
+    if isinstance(value, int) and value in (0, 1):
+        return bool(value)
+    raise ConfigError(f"expected true or false, got {value!r}")
+
+
+def int_at_least(low: int) -> Callable[[object], int]:
+    """Converter factory: an integer (or integral string) >= ``low``.
+
+    >>> int_at_least(1)("3")
+    3
+    """
+    def conv(value: object) -> int:
+        out: int | None = None
+        if isinstance(value, int) and not isinstance(value, bool):
+            out = value
+        elif isinstance(value, float) and value.is_integer():
+            out = int(value)
+        elif isinstance(value, str) and value.strip().lstrip("-").isdigit():
+            out = int(value)
+        if out is None or out < low:
+            raise ConfigError(f"expected an integer >= {low}, got {value!r}")
+        return out
+
+    return conv
 
 
 def optional_positive_float(value: object) -> float | None:

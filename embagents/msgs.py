@@ -35,7 +35,9 @@ __all__ = [
     "OccupancyGrid",
     "String",
     "StreamingString",
+    "Trackings",
     "Twist",
+    "Video",
 ]
 
 Vec3 = tuple[float, float, float]
@@ -145,6 +147,47 @@ class Detections:
             )
 
 
+@message("embagents/Trackings")
+@attrs.define(eq=False)
+class Trackings:
+    """Tracked objects in one image: ``track_ids`` (N,) stay the same for one object over frames."""
+
+    boxes: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 4), np.float32), converter=_array("float32", 2))
+    labels: list[str] = attrs.field(factory=list)
+    scores: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.float32), converter=_array("float32", 1))
+    track_ids: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.int64), converter=_array("int64", 1))
+    image_width: int = 0
+    image_height: int = 0
+    stamp: float = 0.0
+    frame_id: str = ""
+
+    def __attrs_post_init__(self) -> None:
+        n = len(self.boxes)
+        if len(self.labels) != n or len(self.scores) != n or len(self.track_ids) != n:
+            raise ValueError(f"Trackings needs as many labels, scores and track_ids as boxes: {n} boxes, "
+                             f"{len(self.labels)} labels, {len(self.scores)} scores, {len(self.track_ids)} ids")
+
+
+@message("embagents/Video")
+@attrs.define(eq=False)
+class Video:
+    """A clip of raw frames: ``frames`` (T, H, W, C) uint8, ``stamps`` (T,) seconds, RGB by default.
+
+    Raw frames, not encoded bytes: a consumer (a VLM, a recorder) reads them
+    without a codec, and the clip travels through shared memory.
+    """
+
+    frames: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0, 0, 3), np.uint8))
+    stamps: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
+    encoding: str = "rgb8"
+    frame_id: str = ""
+
+    def __attrs_post_init__(self) -> None:
+        if self.frames.ndim != 4 or len(self.frames) != len(self.stamps):
+            raise ValueError(f"Video needs frames (T, H, W, C) and T stamps: frames {self.frames.shape}, "
+                             f"{len(self.stamps)} stamps")
+
+
 @message("embagents/Twist")
 @attrs.define
 class Twist:
@@ -233,7 +276,7 @@ class Health:
 MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (
-        String, StreamingString, Image, CompressedImage, Audio, Detections, Twist, Odometry, OccupancyGrid, JointState,
-        Health,
+        String, StreamingString, Image, CompressedImage, Audio, Detections, Trackings, Video, Twist, Odometry,
+        OccupancyGrid, JointState, Health,
     )
 }

@@ -7,6 +7,7 @@ Example::
     10
 """
 
+from embagents.components.camera import Camera, CameraConfig
 from embagents.components.component import (
     UNSET,
     Component,
@@ -17,10 +18,14 @@ from embagents.components.component import (
 )
 from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
+from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
+from embagents.components.vision import Vision, VisionConfig
 
 __all__ = [
     "LLM",
     "UNSET",
+    "Camera",
+    "CameraConfig",
     "ChatClient",
     "Component",
     "ComponentError",
@@ -28,6 +33,10 @@ __all__ = [
     "HealthStatus",
     "LLMConfig",
     "ModelComponent",
+    "VideoMakerConfig",
+    "VideoMessageMaker",
+    "Vision",
+    "VisionConfig",
     "client_name",
     "lenient_construction",
     "tool_schema",

@@ -45,38 +45,12 @@ from attrs import define, field
 
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
-from embagents.config import BaseComponentConfig, ConfigError
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, to_bool
 from embagents.models.chat import openai_tool_call
 from embagents.msgs import StreamingString, String
 from embagents.topic import Topic
 
 __all__ = ["LLM", "LLMConfig", "template_fields", "tool_schema"]
-
-
-def _bool(value: object) -> bool:
-    if isinstance(value, bool):
-        return value
-    if isinstance(value, str) and value.lower() in ("true", "yes", "on", "1", "false", "no", "off", "0"):
-        return value.lower() in ("true", "yes", "on", "1")
-    if isinstance(value, int) and value in (0, 1):
-        return bool(value)
-    raise ConfigError(f"expected true or false, got {value!r}")
-
-
-def _int_at_least(low: int) -> Callable[[object], int]:
-    def conv(value: object) -> int:
-        out: int | None = None
-        if isinstance(value, int) and not isinstance(value, bool):
-            out = value
-        elif isinstance(value, float) and value.is_integer():
-            out = int(value)
-        elif isinstance(value, str) and value.strip().lstrip("-").isdigit():
-            out = int(value)
-        if out is None or out < low:
-            raise ConfigError(f"expected an integer >= {low}, got {value!r}")
-        return out
-
-    return conv
 
 
 def _temperature(value: object) -> float:
@@ -192,17 +166,17 @@ class LLMConfig(BaseComponentConfig):
     4
     """
 
-    chat_history: bool = field(default=False, converter=_bool)
-    history_size: int = field(default=10, converter=_int_at_least(1))
+    chat_history: bool = field(default=False, converter=to_bool)
+    history_size: int = field(default=10, converter=int_at_least(1))
     system_prompt: str | None = field(default=None, validator=_optional_str)
     prompt_template: str | None = field(default=None, validator=_check_template)
-    stream: bool = field(default=False, converter=_bool)
-    max_new_tokens: int = field(default=256, converter=_int_at_least(1))
+    stream: bool = field(default=False, converter=to_bool)
+    max_new_tokens: int = field(default=256, converter=int_at_least(1))
     temperature: float = field(default=0.7, converter=_temperature)
     stop: list[str] = field(factory=list, converter=_str_list)
     tools: dict[str, Callable[..., Any]] = field(factory=dict, validator=_check_tools)
     tool_schemas: dict[str, dict[str, Any]] = field(factory=dict)
-    max_tool_rounds: int = field(default=3, converter=_int_at_least(0))
+    max_tool_rounds: int = field(default=3, converter=int_at_least(0))
 
     def __attrs_post_init__(self) -> None:
         extra = sorted(set(self.tool_schemas) - set(self.tools))
