@@ -1,7 +1,9 @@
-"""Every example system passes `embagents check`; the chat-memory example keeps its conversation."""
+"""Every example system passes `embagents check`; the chat-memory example keeps its conversation;
+the vision example finds the astronaut's face and cuts two motion clips."""
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -12,7 +14,7 @@ import pytest
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
-@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py"])
+@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)
@@ -37,3 +39,20 @@ def test_chat_memory_survives_a_sigkill_of_the_llm() -> None:
     # A fresh start says so; only the restart restored a lifecycle state.
     said = [x.split("supervisor.lifecycle: ")[1] for x in out.stderr.splitlines() if "supervisor.lifecycle: " in x]
     assert said == ["[llm] activated", "[demo] activated", "[llm] lifecycle restored to active"], out.stderr
+
+
+def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: Path) -> None:
+    for module in ("onnxruntime", "cv2", "skimage", "supervision"):
+        pytest.importorskip(module, reason="the example needs the vision extra (pip install 'embagents[vision]')")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "vision.py")],
+                         capture_output=True, text=True, timeout=180, env={**os.environ, "EMBAGENTS_VISION_OUT": str(tmp_path)})
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    found = [re.fullmatch(r"detection: face (0\.9\d\d|1\.000) box \((\d+), (\d+), (\d+), (\d+)\)", x)
+             for x in out.stdout.splitlines() if x.startswith("detection:")]
+    assert len(found) >= 10 and all(found), out.stdout
+    x1, y1, x2, y2 = (int(v) for v in found[0].groups()[1:])  # the first frame: her face, top middle
+    assert 150 < x1 < 200 and 20 < y1 < 60 and 240 < x2 < 290 and 130 < y2 < 180, out.stdout
+    assert (tmp_path / "annotated.png").stat().st_size > 10_000
+    clips = sorted(tmp_path.glob("motion_clip_*.mp4"))
+    assert [c.name for c in clips] == ["motion_clip_1.mp4", "motion_clip_2.mp4"], out.stdout
+    assert out.stdout.splitlines()[-1] == f"done: 2 clips in {tmp_path}", out.stdout
