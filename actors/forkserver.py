@@ -36,6 +36,9 @@ __all__ = ["ForkServer"]
 
 _MAX = 1 << 20
 
+#: The commands the root sends the fork server, and how many items each has.
+_COMMANDS = {"spawn": 3, "kill": 3, "exit": 1}
+
 
 def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
     sweep(f"{prefix}{pid}_")
@@ -95,7 +98,19 @@ def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: C
                 data = b""
             if not data:
                 break  # the root is gone
-            cmd = msgpack.unpackb(data)
+            # Only the root holds the other end of this socketpair; a frame that is not one of
+            # its commands is still refused, not trusted (the server must outlive bad input).
+            try:
+                cmd = msgpack.unpackb(data)
+                if not isinstance(cmd, list) or not cmd or cmd[0] not in _COMMANDS or len(cmd) != _COMMANDS[cmd[0]]:
+                    raise ValueError(f"not a fork-server command: {cmd!r:.80}")
+                if cmd[0] == "spawn" and not isinstance(cmd[2], dict):
+                    raise ValueError("spawn takes [spawn, token, spec map]")
+                if cmd[0] == "kill" and not (type(cmd[1]) is int and cmd[1] > 0 and type(cmd[2]) is int):
+                    raise ValueError("kill takes [kill, pid > 0, signal]")
+            except Exception as exc:
+                print(f"fork server: dropped a bad command: {exc}", file=sys.stderr, flush=True)
+                continue
             if cmd[0] == "spawn":
                 token, spec = cmd[1], cmd[2]
                 pid = os.fork()

@@ -106,3 +106,24 @@ def test_the_discovery_file_lives_as_long_as_the_endpoint(system: ActorSystem) -
     assert oct(os.stat(runs_dir()).st_mode & 0o777) == "0o700"
     control.close()
     assert not os.path.exists(path)
+
+
+def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: ActorSystem) -> None:
+    import msgpack
+    import zmq
+
+    tree(system)
+    control = ControlServer(system, "demo")
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, 5000)
+    try:
+        sock.connect(f"ipc://{system.run_dir}/_control")
+        for junk in [b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"cmd": 7}), msgpack.packb({"cmd": "restart", "name": ["x"]})]:
+            sock.send_multipart([b"", junk])
+            reply = msgpack.unpackb(sock.recv_multipart()[-1])
+            assert reply["ok"] is False and reply["error"], reply
+        assert request(system.run_dir, {"cmd": "status"})["ok"]
+    finally:
+        sock.close()
+        control.close()
