@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 import psutil
 
-from actors import ActorSystem, private_dir
+from actors import ActorRef, ActorSystem, private_dir
 from actors.runtime import shm_prefix
 from embagents.bench.chaos_tally import read_records, tally_frames, tally_numbers, watermark
 from embagents.bench.chaos_workers import (
@@ -280,22 +280,23 @@ def _leftover_processes(watch: _Watch, before: set[int]) -> list[int]:
 def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None = None) -> dict[str, Any]:
     """Run the chaos case for ``seconds`` of faults; return its row (see the module docs)."""
     interval = interval if interval is not None else min(3.0, max(1.0, seconds / 4))
-    rng = random.Random(seed)
+    seed = random.randrange(1 << 32) if seed is None else seed
+    rng = random.Random(seed)  # the sequence of targets and kinds; the row reports the seed
     before = {p.pid for p in psutil.Process().children(recursive=True)}
     watch = _Watch()
+    from supervisor import start_supervisor
+    from supervisor.tree import Tree
+
     with tempfile.TemporaryDirectory(prefix="embagents-chaos-", dir=private_dir()) as workdir:
         spec = _spec(workdir)  # before the ActorSystem: its fork server must have the System in memory
         asys = ActorSystem(log_level=logging.WARNING)
         prefix = shm_prefix(asys.run_id)
         OWNED_SHM_PREFIXES.add(prefix)
+        tree = Tree.of(asys)
+        asker = _Asker(ActorRef(LLM_NAME))
         try:
-            from supervisor import start_supervisor
-            from supervisor.tree import Tree
-
-            tree = Tree.of(asys)
             tree.events.listeners.append(watch.on_event)
             sup = start_supervisor(asys, spec, "chaos")
-            asker = _Asker(asys.ref(LLM_NAME))
             asker.start()
             if not asker.first_ok.wait(300):
                 raise RuntimeError(f"the LLM never answered: {asker.summary()}")
@@ -315,8 +316,9 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
                 f.seek(0)
                 dead = len(f.read().splitlines())
             sup.stop()
-            tree.close()
         finally:
+            asker.stopping.set()
+            tree.close()
             asys.shutdown()
         time.sleep(0.2)
         left_procs = _leftover_processes(watch, before)
@@ -332,6 +334,7 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
         "p99_us": round(float(np.percentile(back, 99)), 1),
         "msgs_per_s": None,
         "minutes": round(seconds / 60, 2),
+        "seed": seed,
         "faulting_s": round(faulting, 1),
         "faults": len(faults),
         "faults_by_kind": dict(Counter(f["kind"] for f in faults)),
