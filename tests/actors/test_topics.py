@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from actors.loop import Loop
 from actors.runtime import Runtime
 from actors.topics import Publisher as TopicPublisher
 from actors.topics import Subscription
-from tests.actors.workers import Burst, Publisher, Subscriber, TopicCounter
+from tests.actors.workers import Burst, Holder, Publisher, Subscriber, TopicCounter
 from tests.helpers import wait_until
 
 
@@ -145,3 +146,30 @@ def test_garbage_on_a_subscription_socket_is_counted_and_skipped(system: ActorSy
     pub.ask(["numbers", 3], timeout=5).get()
     st = wait_until(lambda: (s := sub.ask("stats", timeout=5).get())["bad"] >= 4 and s["last"] == 2 and s)
     assert st["bad"] == 4, st
+
+
+def test_publishes_and_tells_of_large_arrays_from_two_threads_keep_their_own_memory(system: ActorSystem) -> None:
+    # A topic's frames go into its ring (reused after 8 newer frames); a tell's into segments kept
+    # until acknowledged. Encoding one on another thread must never put it in the other's place.
+    holder = system.spawn(Holder, "holder")
+    sub = system.spawn(Subscriber, "sub", "frames", 1, "latest")
+    pub = TopicPublisher(system.rt, "frames")
+    wait_until(lambda: sub.ask("got", timeout=5).get(), poke=lambda: pub.publish(np.zeros(1 << 17, np.uint8)))
+    stop = threading.Event()
+
+    def publish() -> None:
+        while not stop.is_set():
+            pub.publish(np.full(1 << 17, 255, np.uint8))
+
+    t = threading.Thread(target=publish)
+    t.start()
+    try:
+        n = 60
+        for i in range(n):
+            holder.tell(np.full(1 << 17, i, np.uint8))
+        assert holder.flush(30)
+    finally:
+        stop.set()
+        t.join()
+        pub.close()
+    assert holder.ask("sum", timeout=10).get() == [i << 17 for i in range(n)]
