@@ -27,14 +27,14 @@ def _row(samples_s: list[float], note: str) -> dict[str, Any]:
 
 @case("crash_detect", transport="embagents", kind="supervision")
 def crash_detect(opts: BenchOptions) -> dict[str, Any]:
-    from supervisor.bench import measure_crash_detect
+    from embagents.bench.faults import measure_crash_detect
 
     return _row(measure_crash_detect(20 if opts.quick else 100), "SIGKILL -> exit seen by the supervisor; bar p50 <= 5 ms")
 
 
 @case("restart_ready", transport="embagents", kind="supervision")
 def restart_ready(opts: BenchOptions) -> dict[str, Any]:
-    from supervisor.bench import measure_restart_ready
+    from embagents.bench.faults import measure_restart_ready
 
     return _row(measure_restart_ready(20 if opts.quick else 100),
                 "SIGKILL -> the restarted actor answers an ask; bar p50 <= 50 ms")
@@ -42,7 +42,7 @@ def restart_ready(opts: BenchOptions) -> dict[str, Any]:
 
 @case("hang_detect", transport="embagents", kind="supervision")
 def hang_detect(opts: BenchOptions) -> dict[str, Any]:
-    from supervisor.bench import measure_hang_detect
+    from embagents.bench.faults import measure_hang_detect
 
     deadline = 0.5
     late = [t - deadline for t in measure_hang_detect(deadline, 3 if opts.quick else 8)]

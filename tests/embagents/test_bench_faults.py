@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import statistics
 
-from supervisor.bench import measure_crash_detect, measure_hang_detect, measure_restart_ready
+from embagents.bench.faults import measure_crash_detect, measure_hang_detect, measure_restart_ready
 
 
 def test_crash_detect() -> None:

@@ -1,4 +1,4 @@
-"""Measurements of the supervisor for ``embagents bench`` (each runs its own actor system).
+"""Fault measurements of the supervisor for ``embagents bench`` (each runs its own actor system).
 
 - :func:`measure_crash_detect`: SIGKILL of an actor process -> the root's exit
   listener runs (the fork server's SIGCHLD path). Bar: p50 <= 5 ms.
