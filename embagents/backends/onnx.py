@@ -75,6 +75,8 @@ class OnnxSession:
             opts.intra_op_num_threads = int(threads)
             opts.inter_op_num_threads = 1
         opts.log_severity_level = 3  # warnings of the graph optimiser are not ours to show
+        # Idle worker threads spin by default, taking cores from the other processes of the system.
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         self.path = path
         self.providers = pick_providers(providers)
         try:

@@ -58,6 +58,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_ros_bridge,
     cases_ros_recovery,
     cases_supervisor,
+    cases_vision,
     idle,
 )
 from embagents.bench.registry import (

@@ -106,6 +106,8 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("restart_ready", "SIGKILL -> serving again p50", "p50_us", "<=", 50.0, "ms", 1e-3),
         ("hang_detect", "hang detected past its deadline (p99)", "p99_us", "<=", 100.0, "ms", 1e-3),
         ("llm_stream_overhead", "LLM tokens/s through the runtime / in-process", "ratio", ">=", 0.95, "x", 1.0),
+        ("vision_pipeline", "Vision 1080p frame p50 through the runtime / in-process", "ratio", "<=", 1.10, "x", 1.0),
+        ("model_actor_batching", "one detector actor: fps of 4 components / 1", "ratio", ">=", 1.5, "x", 1.0),
         ("ros_bridge_image", "ROS bridge 6.2MB image p50 / plain rclpy", "ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
     ):
