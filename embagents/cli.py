@@ -207,6 +207,14 @@ def _register_runtime_commands() -> None:
         COMMANDS[cmd] = _control(cmd)
     COMMANDS["publish"] = Command(_publish_arguments, _publish, "publish a message on a topic of the running system")
     COMMANDS["supervise"] = Command(_supervise_arguments, _lazy("embagents.launch", "run"), "run a system.py under supervision")
+    COMMANDS["keys"] = Command(
+        _lazy("embagents.keys", "keys_arguments"), _lazy("embagents.keys", "run"),
+        "make a CURVE key pair for model actors on another machine; prints the public key",
+    )
+    COMMANDS["serve-model"] = Command(
+        _lazy("embagents.serve_model", "serve_model_arguments"), _lazy("embagents.serve_model", "run"),
+        "serve a model actor to other machines over TCP with CURVE (only allowed keys get in)",
+    )
     COMMANDS["bench"] = Command(
         _bench_arguments, _lazy("embagents.bench", "run"),
         "measure embagents side by side with raw pyzmq, multiprocessing queues and rclpy",

@@ -6,7 +6,8 @@ a process that loads it once and serves inference requests from any number
 of components (:mod:`embagents.models.protocol`: arrays through shared
 memory, one answer or a stream of chunks, errors at once, cancellation,
 batching). A :class:`LocalModelClient` is what a component holds to talk to
-it; :mod:`embagents.clients` reach servers elsewhere with the same chat
+it; a :class:`RemoteModelClient` reaches one on another machine over
+CURVE (:mod:`embagents.models.remote`); :mod:`embagents.clients` reach servers elsewhere with the same chat
 interface (:mod:`embagents.models.chat`). Backends live in
 :mod:`embagents.backends` (llama.cpp, onnxruntime), model files in
 :mod:`embagents.modelfiles`.
@@ -23,6 +24,7 @@ from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
 from embagents.models.declarations import DetectorModel, LlamaModel, Model, models_of
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
+from embagents.models.remote import RemoteModelClient, RemoteRefused
 
 __all__ = [
     "BadRequest",
@@ -34,6 +36,8 @@ __all__ = [
     "ModelCrashed",
     "ModelError",
     "ModelUnavailable",
+    "RemoteModelClient",
+    "RemoteRefused",
     "collect_stream",
     "models_of",
 ]

@@ -90,15 +90,16 @@ class ModelActor(Actor):
         """Take every frame waiting on the socket (requests queue, cancels apply at once)."""
         while True:
             try:
-                parts = self.sock.recv_multipart(zmq.NOBLOCK)
+                frames = self.sock.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
+            parts = [f.bytes for f in frames]
             ident = parts[0]
             if len(parts) != 2:
                 self._refuse(ident, 0, f"expected one frame per request, got {len(parts) - 1}")
                 continue
             try:
-                msg = self.codec.decode(parts[1])
+                msg = self._decode(frames[1])
             except Exception as exc:  # garbage: say what was expected, keep serving
                 self._refuse(ident, 0, f"undecodable frame ({exc}); send an actors-codec encoded InferRequest")
                 continue
@@ -114,6 +115,10 @@ class ModelActor(Actor):
                     continue
                 self.queues.setdefault(ident, deque()).append(msg)
                 self.last_seen[ident] = time.monotonic()
+
+    def _decode(self, frame: zmq.Frame) -> Any:
+        """One request frame (a subclass may pick the codec by the frame's peer)."""
+        return self.codec.decode(frame.bytes)
 
     def _cancel(self, ident: bytes, rid: int) -> None:
         q = self.queues.get(ident, deque())

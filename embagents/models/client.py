@@ -20,7 +20,7 @@ from __future__ import annotations
 import itertools
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import zmq
@@ -43,17 +43,22 @@ from embagents.models.protocol import (
 __all__ = ["LocalModelClient"]
 
 _req_ids = itertools.count(1)
+#: Handshake outcomes: a remote client (CURVE) tells a refused key from a dead server by them.
+_HANDSHAKE = (zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+              | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL)
 
 
 class _Conn:
     """One thread's DEALER to the model actor and the monitor that sees it disconnect."""
 
-    def __init__(self, rt: Any, name: str) -> None:
+    def __init__(self, rt: Any, endpoint: str, configure: Callable[[zmq.Socket], None] | None = None) -> None:
         self.pid = os.getpid()
         self.sock = rt.ctx.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.LINGER, 0)
-        self.monitor = self.sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        self.sock.connect(inference_endpoint(rt.run_dir, name))
+        if configure is not None:
+            configure(self.sock)  # e.g. CURVE keys (embagents.models.remote)
+        self.monitor = self.sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED | _HANDSHAKE)
+        self.sock.connect(endpoint)
         self.poller = zmq.Poller()
         self.poller.register(self.sock, zmq.POLLIN)
         self.poller.register(self.monitor, zmq.POLLIN)
@@ -67,6 +72,9 @@ class _Conn:
 
 class LocalModelClient:
     """Talks to the model actor serving ``model`` (in whatever process it runs)."""
+
+    #: Served by a model actor of this run (``embagents supervise`` starts one for it).
+    in_run = True
 
     def __init__(self, model: Model | str, *, timeout: float = 120.0) -> None:
         self.name = model.name if isinstance(model, Model) else wire.check_name(model)
@@ -82,8 +90,16 @@ class LocalModelClient:
 
         conn: _Conn | None = getattr(self._local, "conn", None)
         if conn is None or conn.pid != os.getpid():
-            conn = self._local.conn = _Conn(current(), self.name)
+            conn = self._local.conn = self._connect(current())
         return conn
+
+    def _connect(self, rt: Any) -> _Conn:
+        """A new connection of this thread to the model actor."""
+        return _Conn(rt, inference_endpoint(rt.run_dir, self.name))
+
+    def _codec(self, rt: Any) -> Any:
+        """The codec of requests and answers: the run's, so large arrays go through shared memory."""
+        return rt.codec
 
     def _drop_conn(self) -> None:
         conn = getattr(self._local, "conn", None)
@@ -105,7 +121,8 @@ class LocalModelClient:
         conn = self._conn()
         self._drain_monitor(conn)
         rid = next(_req_ids)
-        data, segments = rt.codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
+        codec = self._codec(rt)
+        data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
         conn.sock.send(data)
         finished = False
         try:
@@ -129,7 +146,7 @@ class LocalModelClient:
             if finished:
                 rt.pool.acked(segments)
             elif not conn.sock.closed:
-                conn.sock.send(rt.codec.encode(InferCancel(id=rid), shm=False)[0])
+                conn.sock.send(codec.encode(InferCancel(id=rid), shm=False)[0])
                 conn.orphans[rid] = segments  # freed when the actor says it let go of them
 
     def infer(self, task: str, inputs: dict[str, Any], **options: Any) -> dict[str, Any]:
@@ -148,7 +165,11 @@ class LocalModelClient:
     def _drain_monitor(self, conn: _Conn) -> None:
         # Events from before this request (an old incarnation's exit) say nothing about it.
         while conn.monitor.poll(0):
-            recv_monitor_message(conn.monitor)
+            self._on_event(conn, recv_monitor_message(conn.monitor)["event"], before=True)
+
+    def _on_event(self, conn: _Conn, event: int, before: bool = False) -> bool:
+        """See a monitor event first (``before``: from before the request); True: it says nothing about it."""
+        return False
 
     def _next(self, rt: Any, conn: _Conn, rid: int) -> Any:
         waited = 0.0
@@ -156,6 +177,8 @@ class LocalModelClient:
             ready = dict(conn.poller.poll(1000))
             if conn.monitor in ready:
                 event = recv_monitor_message(conn.monitor)
+                if self._on_event(conn, event["event"]):
+                    continue  # it says nothing about this request
                 if event["event"] == zmq.EVENT_DISCONNECTED:
                     for segs in conn.orphans.values():
                         rt.pool.acked(segs)
@@ -176,7 +199,7 @@ class LocalModelClient:
                     )
                 continue
             try:
-                answer = rt.codec.decode(conn.sock.recv())
+                answer = self._codec(rt).decode(conn.sock.recv())
             except Exception as exc:  # an answer this process cannot read: say so, not hang
                 raise ModelError(f"model {self.name!r} sent an unreadable answer: {exc}") from exc
             if getattr(answer, "id", None) == rid:

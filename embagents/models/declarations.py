@@ -154,7 +154,7 @@ def models_of(system: Any) -> list[Model]:
             found.setdefault(m.name, m)
     for c in system.components:
         for client in getattr(c, "clients", {}).values():
-            if isinstance(client, LocalModelClient):
+            if isinstance(client, LocalModelClient) and client.in_run:
                 model = client.model or found.get(client.name)
                 if model is None:
                     raise ValueError(
