@@ -312,6 +312,8 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
             final = asys.ref(SOURCE).ask("finish", timeout=30).get()
             time.sleep(0.5)  # the sink handles the last topic messages
             rss1, fds1 = _root_usage()
+            # The runtime's own counts (received, dropped) of the sinks' last incarnations.
+            subs = {name: asys.ref(name).control("stats", timeout=10).get()["subscriptions"] for name in (SINK, FRAME_SINK)}
             with open(os.path.join(asys.run_dir, "deadletters.log"), "a+") as f:
                 f.seek(0)
                 dead = len(f.read().splitlines())
@@ -355,6 +357,7 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
         "numbers_acked": acked + 1,
         "numbers_sent": sent + 1,
         "final_source": final,
+        "subscriptions_at_end": subs,
         "sink_incarnations": nums["sink_incarnations"],
         **frames,
         **asker.summary(),
