@@ -27,14 +27,9 @@ from embagents.models import (
 )
 from embagents.models.protocol import InferError, InferRequest
 from embagents.models.remote import RemoteModelActor
+from tests.helpers import free_port
 
 HI = [{"role": "user", "content": "hello robot"}]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Keys:

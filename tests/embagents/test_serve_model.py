@@ -1,0 +1,153 @@
+"""`embagents serve-model`: a supervised model actor reached over CURVE, on loopback and from another netns."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import embagents.msgs  # noqa: F401 - registers the message types
+from actors import ActorSystem
+from actors.curve import write_keypair
+from embagents.models import RemoteModelClient, RemoteRefused
+from tests.helpers import free_port, wait_until
+
+HI = [{"role": "user", "content": "hello robot"}]
+
+
+class Served:
+    """An `embagents serve-model` process (optionally inside a network namespace) and its stderr."""
+
+    def __init__(self, argv: list[str], prefix: list[str]) -> None:
+        self.proc = subprocess.Popen([*prefix, sys.executable, "-m", "embagents.cli", "serve-model", *argv],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        self.lines: list[str] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.lines.append(line)
+
+    def log(self) -> str:
+        return "".join(self.lines)
+
+    def status(self) -> dict[str, Any] | None:
+        out = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(self.proc.pid)],
+                             capture_output=True, text=True, timeout=60)
+        return json.loads(out.stdout) if out.returncode == 0 else None
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)  # a clean stop: the tree stops, the run's files go
+        try:
+            return self.proc.wait(timeout=60)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+                self.proc.wait()
+            self.reader.join(10)
+
+
+def keys_in(folder: Path) -> dict[str, Any]:
+    folder.chmod(0o700)
+    return {who: write_keypair(str(folder), who) for who in ("server", "client", "stranger")}
+
+
+def serve(tiny_gguf: str, keys: dict[str, Any], host: str, port: int, prefix: list[str]) -> Served:
+    served = Served([tiny_gguf, "--bind", f"tcp://{host}:{port}", "--allow", keys["client"][0].decode(),
+                     "--key", keys["server"][1]], prefix)
+    wait_until(lambda: "embagents: serving model" in served.log() or served.proc.poll() is not None, 120,
+               "serve-model ready")
+    assert served.proc.poll() is None, served.log()
+    return served
+
+
+def client(keys: dict[str, Any], host: str, port: int, who: str = "client") -> RemoteModelClient:
+    return RemoteModelClient(f"tcp://{host}:{port}", server_key=keys["server"][0].decode(), key=keys[who][1],
+                             timeout=30)
+
+
+def check_serving(served: Served, keys: dict[str, Any], host: str, port: int, peer: str) -> None:
+    """A chat works, a stranger is refused and logged with its address and key."""
+    with ActorSystem():
+        assert client(keys, host, port).chat(HI, max_tokens=4)["usage"]["completion_tokens"] >= 1
+        with pytest.raises(RemoteRefused, match="not on the server's allow list"):
+            client(keys, host, port, "stranger").chat(HI, max_tokens=4)
+    stranger = keys["stranger"][0].decode()
+    wait_until(lambda: f"refused a client from {peer}: public key {stranger} is not on the allow list" in served.log(),
+               10, "the refusal in the server's log")
+
+
+def test_serve_model_is_supervised_and_serves_allowed_keys_on_loopback(tmp_path: Path, tiny_gguf: str) -> None:
+    keys = keys_in(tmp_path)
+    port = free_port()
+    served = serve(tiny_gguf, keys, "127.0.0.1", port, [])
+    try:
+        check_serving(served, keys, "127.0.0.1", port, "127.0.0.1")
+        st = served.status()
+        assert st is not None
+        (row,) = st["rows"]
+        assert row["name"] == "tiny_llama" and row["status"] == "running"
+        os.kill(row["pid"], signal.SIGKILL)  # the supervisor restarts the model actor on the same port
+
+        def restarted() -> Any:
+            rows = (served.status() or {}).get("rows", [])
+            return rows and rows[0]["restarts"] == 1 and rows[0]["status"] == "running"
+
+        wait_until(restarted, 60, "the model actor restarted", interval=0.2)
+        with ActorSystem():
+            assert client(keys, "127.0.0.1", port).chat(HI, max_tokens=4)["usage"]["completion_tokens"] >= 1
+    finally:
+        code = served.stop()
+    assert code == 0, served.log()
+
+
+@pytest.fixture()
+def netns() -> Iterator[tuple[str, str, str]]:
+    """A network namespace with a veth pair: (namespace, host address, namespace address); removed after."""
+    tag = f"ea{os.getpid() % 100000}"
+    ns, host_if, ns_if = f"{tag}-ns", f"{tag}h", f"{tag}n"
+    setup = [
+        ["ip", "netns", "add", ns],
+        ["ip", "link", "add", host_if, "type", "veth", "peer", "name", ns_if],
+        ["ip", "link", "set", ns_if, "netns", ns],
+        ["ip", "addr", "add", "10.231.7.1/30", "dev", host_if],
+        ["ip", "link", "set", host_if, "up"],
+        ["ip", "netns", "exec", ns, "ip", "addr", "add", "10.231.7.2/30", "dev", ns_if],
+        ["ip", "netns", "exec", ns, "ip", "link", "set", ns_if, "up"],
+        ["ip", "netns", "exec", ns, "ip", "link", "set", "lo", "up"],
+    ]
+    try:
+        for cmd in setup:
+            out = subprocess.run(cmd, capture_output=True, text=True, timeout=30)
+            if out.returncode != 0:
+                pytest.skip(f"cannot make a network namespace here ({' '.join(cmd)}: {out.stderr.strip()}); "
+                            "it needs root or CAP_NET_ADMIN and the `ip` tool")
+        yield ns, "10.231.7.1", "10.231.7.2"
+    except FileNotFoundError:
+        pytest.skip("no `ip` tool (iproute2) to make a network namespace")
+    finally:
+        subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=30)
+        subprocess.run(["ip", "link", "del", host_if], capture_output=True, timeout=30)
+
+
+def test_serve_model_in_another_network_namespace_is_reached_over_a_veth(
+        tmp_path: Path, tiny_gguf: str, netns: tuple[str, str, str]) -> None:
+    ns, host_addr, ns_addr = netns
+    keys = keys_in(tmp_path)
+    served = serve(tiny_gguf, keys, ns_addr, 5555, ["ip", "netns", "exec", ns])
+    try:
+        check_serving(served, keys, ns_addr, 5555, host_addr)
+    finally:
+        code = served.stop()
+    assert code == 0, served.log()
