@@ -31,8 +31,8 @@ def kill_one_incarnation(sup: Any, events: EventLog, child: str) -> int:
     then has another reason, and the next incarnation is the one to kill.
     """
     while True:
-        pid = wait_until(lambda: isinstance(p := sup.which_children()[0].pid, int) and p, 10,
-                         "a running incarnation")
+        pid = wait_until(lambda: isinstance(p := next(c.pid for c in sup.which_children() if c.id == child), int)
+                         and p, 10, "a running incarnation")
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
         if events.wait("crashed", child, pid=pid, timeout=10)["reason"] == "killed":
@@ -82,18 +82,6 @@ def test_a_poison_message_is_dead_lettered_and_the_actor_keeps_serving(system: A
     assert all("ValueError: poison" in e["detail"] for e in events.of("crashed", "rec"))
 
 
-def _kill_running(sup: Any, events: EventLog, k: int) -> None:
-    """SIGKILL the running incarnation and wait until the supervisor saw that kill (the k-th)."""
-    while True:
-        pid = wait_until(lambda: isinstance(p := sup.which_children()[0].pid, int) and p, 10, "a running incarnation")
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            continue
-        events.wait("crashed", "rec", n=k, reason="killed", timeout=10)
-        return
-
-
 @pytest.mark.parametrize(("batch", "pause"), [(100, 0.4), (25, 0.06)])
 def test_tells_from_inside_a_long_handler_survive_the_receivers_restarts(
     system: ActorSystem, events: EventLog, tmp_path: Any, batch: int, pause: float
@@ -107,7 +95,7 @@ def test_tells_from_inside_a_long_handler_survive_the_receivers_restarts(
     fut = system.ref("sender").ask(["rec", n, batch, pause], timeout=60)
     for k in range(1, 4):
         wait_until(lambda k=k: len(read_lines(path)) >= k * n // 4, 30, f"{k * n // 4} handled")
-        _kill_running(sup, events, k)
+        kill_one_incarnation(sup, events, "rec")
     assert fut.get() == n
     wait_until(lambda: len(set(read_lines(path))) >= n, 30, "every number handled")
     seen = [int(x) for x in read_lines(path)]
