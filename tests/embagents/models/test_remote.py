@@ -9,6 +9,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,7 @@ from embagents.models import (
 )
 from embagents.models.protocol import InferError, InferRequest
 from embagents.models.remote import RemoteModelActor
-from tests.helpers import free_port
+from tests.helpers import free_port, wait_until
 
 HI = [{"role": "user", "content": "hello robot"}]
 
@@ -60,6 +61,17 @@ def llm(tiny_gguf: str, keys: Keys) -> Iterator[tuple[ActorSystem, str, Keys]]:
     with ActorSystem() as asys:
         spawn(asys, "llm", "llama", tiny_gguf, {"n_ctx": 512, "seed": 0}, endpoint, keys)
         yield asys, endpoint, keys
+
+
+def server_unread(port: int) -> int:
+    """Bytes waiting unread in the established TCP connections whose local port is ``port`` (/proc/net/tcp)."""
+    total = 0
+    with open("/proc/net/tcp") as f:
+        for line in f.readlines()[1:]:
+            local, _remote, state, queues = line.split()[1:5]
+            if int(local.split(":")[1], 16) == port and state == "01":
+                total += int(queues.split(":")[1], 16)
+    return total
 
 
 def client_of(endpoint: str, keys: Keys, key: str | None = None, **kw: Any) -> RemoteModelClient:
@@ -101,21 +113,26 @@ def test_a_server_killed_mid_request_fails_it_at_once_and_the_client_reconnects_
     box: list[BaseException] = []
     connected, asking = threading.Event(), threading.Event()
 
+    long = [{"role": "user", "content": "hello robot " * 100}]  # a request frame no heartbeat is mistaken for
+
     def ask() -> None:
         client.chat(HI, max_tokens=2)  # this thread's connection is up
         connected.set()
         asking.wait(10)
         try:
-            client.chat(HI, max_tokens=4)
+            client.chat(long, max_tokens=4)
         except BaseException as exc:
             box.append(exc)
 
     t = threading.Thread(target=ask)
     t.start()
     assert connected.wait(30)
-    asys.signal("llm", signal.SIGSTOP)  # it cannot answer now
+    asys.signal("llm", signal.SIGSTOP)  # it cannot answer now (sent through the fork server: wait for it)
+    pid = asys.procs["llm"].pid
+    wait_until(lambda: Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T", 10, "stopped")
     asking.set()
-    time.sleep(0.2)  # the request is on its way (sent or queued: either way it is mid-request)
+    port = int(endpoint.rsplit(":", 1)[1])
+    wait_until(lambda: server_unread(port) >= 1000, 10, "the request in the stopped server's socket buffer")
     asys.signal("llm", signal.SIGKILL)
     t.join(timeout=25)  # the client's own timeout is 30 s: failing before it means the death was seen
     assert not t.is_alive() and len(box) == 1 and isinstance(box[0], ModelCrashed), box
