@@ -13,12 +13,20 @@ component hosted in actor processes.
   the runtime, one frame in flight.
 - ``model_actor_batching``: four Vision components sharing one model actor,
   each stepping as fast as it is answered, against one component alone.
-  ``ratio`` = frames per second served, four / one.
+  ``ratio`` = frames per second served, four / one. The detector is a
+  YOLOv8-layout conv net that takes batches (:mod:`embagents.bench.yolo_like`);
+  MTCNN's per-image pyramid does not batch, and on two busy cores its four
+  clients only share the same compute (about 1.0).
 """
 
 from __future__ import annotations
 
+import os
+import queue
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from typing import Any
 
@@ -26,10 +34,10 @@ import numpy as np
 
 import embagents.msgs  # noqa: F401 - registers the message types this case decodes
 from actors import Actor, ActorSystem
-from actors.topics import Publisher
-from embagents.bench.registry import BenchOptions, case
+from actors.topics import Publisher, Subscription
+from embagents.bench.registry import BenchOptions, case, stop_process
 
-__all__ = ["DetectionSink", "SteppingVision"]
+__all__ = ["DetectionSink", "SteppingVision"]  # actor classes the fork server imports by name
 
 MODEL = "bench_faces"
 OPTIONS = {"family": "mtcnn", "threshold": 0.9}
@@ -78,52 +86,77 @@ class SteppingVision(Actor):
 
 
 class DetectionSink(Actor):
-    """Notes when each Detections arrives, against its frame's stamp."""
+    """Publishes, for each Detections that arrives, its latency from its frame's stamp."""
 
     def on_start(self) -> None:
-        self.latencies: list[float] = []
         self.context.subscribe("bench_detections", self._on_det, queue_size=100, keep="all")
 
     def _on_det(self, det: Any) -> None:
-        self.latencies.append(time.monotonic() - det.stamp)
-
-    def on_receive(self, message: Any) -> Any:
-        return list(self.latencies)
+        self.context.publish("bench_latency", time.monotonic() - det.stamp)
 
 
-def _serve(asys: ActorSystem) -> None:
+_BASELINE = """
+import sys, time
+from embagents.backends.detectors import make_detector
+from embagents.bench.cases_vision import OPTIONS, _frame
+from embagents.modelfiles import mtcnn_dir
+det, frame = make_detector(mtcnn_dir(), **OPTIONS), _frame(1920, 1080)
+for _ in sys.stdin:
+    t0 = time.monotonic(); det.detect_batch([frame]); print(time.monotonic() - t0, flush=True)
+"""
+
+
+class _InProcess:
+    """The same detector called in its own process: onnxruntime must never load in this one, whose
+    later ActorSystems fork their fork server from it (its thread pools do not survive a fork)."""
+
+    def __enter__(self) -> _InProcess:
+        self.proc = subprocess.Popen([sys.executable, "-c", _BASELINE], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True)
+        return self
+
+    def detect_seconds(self) -> float:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write("\n")
+        self.proc.stdin.flush()
+        return float(self.proc.stdout.readline())
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()  # its loop ends
+        stop_process(self.proc)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+
+
+def _serve(asys: ActorSystem, path: str | None = None, options: dict[str, Any] | None = None) -> None:
     from embagents.modelfiles import mtcnn_dir
     from embagents.runtime.model_actor import ModelActor
 
-    asys.spawn(ModelActor, MODEL, "detector", mtcnn_dir(), OPTIONS, True, wait=120, heartbeat=None)
+    asys.spawn(ModelActor, MODEL, "detector", path or mtcnn_dir(), options or OPTIONS, True, wait=120, heartbeat=None)
 
 
 @case("vision_pipeline", transport="embagents", kind="vision", needs="onnxruntime")
 def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.backends.detectors import make_detector
-    from embagents.modelfiles import mtcnn_dir
     from embagents.msgs import Image
 
     frames = 2 if opts.quick else 20
     frame = _frame(1920, 1080)
-    detector = make_detector(mtcnn_dir(), **OPTIONS)  # after the fork server started: no threads forked
     runtime: list[float] = []
     inproc: list[float] = []
-    with ActorSystem() as asys:
+    with _InProcess() as baseline, ActorSystem() as asys:
         _serve(asys)
-        sink = asys.spawn(DetectionSink, "bench_vision_sink")
+        asys.spawn(DetectionSink, "bench_vision_sink")
         asys.spawn(SteppingVision, "bench_vision", "bench_frames")
+        got: queue.Queue[float] = queue.Queue()
+        asys.rt.on_client(lambda: Subscription(asys.rt, asys.loop, "bench_latency", got.put, queue_size=100, keep="all"))
         pub = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_frames"))
         time.sleep(0.5)  # subscriptions connected
-        for i in range(frames + 1):  # the first of each is a warm-up; interleaved, so drifts hit both
+        for _ in range(frames + 1):  # the first of each is a warm-up; interleaved, so drifts hit both
             asys.rt.on_client(lambda: pub.publish(Image(data=frame, stamp=time.monotonic(), frame_id="cam")))
-            deadline = time.monotonic() + 60
-            while len(got := sink.ask("latencies", timeout=10).get()) <= i and time.monotonic() < deadline:
-                time.sleep(0.002)
-            t0 = time.monotonic()
-            detector.detect_batch([frame])
-            inproc.append(time.monotonic() - t0)
-        runtime, inproc = got[1:], inproc[1:]
+            runtime.append(got.get(timeout=60))  # waited for, not polled: no CPU taken from the detector
+            inproc.append(baseline.detect_seconds())
+        runtime, inproc = runtime[1:], inproc[1:]
     ours, base = statistics.median(runtime), statistics.median(inproc)
     return {
         "p50_us": ours * 1e6,
@@ -136,24 +169,30 @@ def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
     }
 
 
-@case("model_actor_batching", transport="embagents", kind="vision", needs="onnxruntime")
+@case("model_actor_batching", transport="embagents", kind="vision", needs="onnx")
 def model_actor_batching(opts: BenchOptions) -> dict[str, Any]:
-    seconds = 1.0 if opts.quick else 6.0
-    with ActorSystem() as asys:
-        _serve(asys)
+    from embagents.bench.yolo_like import write_yolo_like
+
+    seconds, rounds = (0.5, 1) if opts.quick else (2.0, 5)
+    ones: list[float] = []
+    fours: list[float] = []
+    with tempfile.TemporaryDirectory() as tmp, ActorSystem() as asys:
+        _serve(asys, write_yolo_like(os.path.join(tmp, "yolo_like.onnx")), {"family": "yolo", "threshold": 0.9})
         comps = [asys.spawn(SteppingVision, f"bench_batch_{i}", None) for i in range(4)]
         comps[0].ask(["run", 0.2], timeout=60).get()  # warm the path
-        one = comps[0].ask(["run", seconds], timeout=seconds + 60).get() / seconds
-        futures = [c.ask(["run", seconds], timeout=seconds + 60) for c in comps]
-        four = sum(f.get() for f in futures) / seconds
+        for _ in range(rounds):  # interleaved, so drifts of the machine hit both alike
+            ones.append(comps[0].ask(["run", seconds], timeout=seconds + 60).get() / seconds)
+            futures = [c.ask(["run", seconds], timeout=seconds + 60) for c in comps]
+            fours.append(sum(f.get() for f in futures) / seconds)
         stats = asys.ref(MODEL).ask("stats", timeout=10).get()
+    one, four = statistics.median(ones), statistics.median(fours)
     return {
         "p50_us": 1e6 / four,
-        "p99_us": 1e6 / one,
+        "p99_us": max(1e6 / four, 1e6 / min(fours)),
         "msgs_per_s": four,
         "fps_one": one,
         "fps_four": four,
         "ratio": four / one,
         "max_batch_seen": stats["max_batch_seen"],
-        "note": f"640x480 RGB, MTCNN, {seconds:.0f} s each; bar: ratio >= 1.5",
+        "note": f"640x480 RGB, a YOLOv8-layout conv net (bench/yolo_like.py), median of {rounds} x {seconds:.1f} s; bar: ratio >= 1.5",
     }
