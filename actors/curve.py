@@ -102,6 +102,7 @@ def load_public_key(key_or_file: str) -> bytes:
     """A Z85 public key given as itself or as a key file (``NAME.key`` or ``NAME.key_secret``)."""
     if is_public_key(key_or_file):
         return key_or_file.encode()
+    key_or_file = os.path.expanduser(key_or_file)
     if not os.path.isfile(key_or_file):
         raise KeyFileError(f"{key_or_file!r} is neither a public key (40 Z85 characters, as `embagents keys` "
                         "prints) nor a key file; pass one of these")
@@ -110,7 +111,8 @@ def load_public_key(key_or_file: str) -> bytes:
 
 
 def load_secret_key(path: str) -> tuple[bytes, bytes]:
-    """(public, secret) from a secret key file only this user can read."""
+    """(public, secret) from a secret key file only this user can read (``~`` is expanded)."""
+    path = os.path.expanduser(path)
     try:
         st = os.stat(path)
     except FileNotFoundError:
