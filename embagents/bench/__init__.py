@@ -10,6 +10,9 @@ Cases (each a row of the report and of the JSON file):
   (our topics and raw PUB/SUB), from a CLOCK_MONOTONIC stamp in the message.
 * ``<transport>_tell_64B``: pipelined 64-byte tells, messages per second.
 * ``idle_10_actors``: ten idle actors' CPU, % of one core.
+* ``remote_model``: the LLM stream and a 640x480 detection through a model
+  actor on loopback TCP with CURVE against the same actor over ipc
+  (:mod:`embagents.bench.cases_remote`).
 * ``chaos``: the chat system and two streams under the supervisor while a
   fault injector kills, hangs, bloats or breaks a random actor every few
   seconds (``minutes``: 1 by default, 0.1 with ``quick``; see
@@ -55,6 +58,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_mpqueue,
     cases_pyzmq,
     cases_rclpy,
+    cases_remote,
     cases_ros_bridge,
     cases_ros_recovery,
     cases_supervisor,

@@ -109,6 +109,8 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("vision_pipeline", "Vision 1080p frame p50 through the runtime / in-process", "ratio", "<=", 1.10, "x", 1.0),
         ("model_actor_batching", "one detector actor: fps of 4 components / 1", "ratio", ">=", 1.5, "x", 1.0),
         ("ros_bridge_image", "ROS bridge 6.2MB image p50 / plain rclpy", "ratio", "<=", 1.5, "x", 1.0),
+        ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
+        ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
     ):
         if name in by_name:

@@ -229,3 +229,12 @@ def test_chaos_case_injects_faults_recovers_and_leaves_nothing_behind(tmp_path) 
     assert row["leftover_processes"] == 0 and row["leftover_shm"] == 0
     assert _tagged_pids(tag) == []
     assert "numbered messages lost" in proc.stdout and "chaos: root RSS growth" in proc.stdout
+
+
+def test_quick_run_measures_the_remote_model_case_both_ways(quick_run: tuple[dict, str, str]) -> None:
+    doc, _, _ = quick_run
+    (row,) = [r for r in doc["cases"] if r["name"] == "remote_model"]
+    assert type(row["llm_ratio"]) is float and type(row["detect_ratio"]) is float
+    assert row["local_tokens_per_s"] > 0 and row["remote_tokens_per_s"] > 0
+    names = {b["name"] for b in doc["bars"]}
+    assert {"LLM tokens/s via TCP + CURVE / via ipc", "640x480 detection p50 via TCP + CURVE / via ipc"} <= names
