@@ -189,3 +189,22 @@ def test_a_remote_detection_copies_the_frame_over_tcp(tiny_yolo: str, keys: Keys
         assert out["labels"] == ["robot"]
         assert out["boxes"].tolist() == [[660.0, 240.0, 1260.0, 840.0]]  # the same answer as through shared memory
         assert asys.ref("det").ask("stats", timeout=5).get()["served"] == 1
+
+
+def test_a_system_using_a_remote_model_declares_no_local_model_actor_for_it(keys: Keys) -> None:
+    from embagents import LLM, String, System, Topic
+    from embagents.models import models_of
+    from embagents.msgs import StreamingString
+
+    llm = LLM(name="llm", inputs=[Topic("text_in", String)], outputs=[Topic("text_out", StreamingString)],
+              model_client=client_of("tcp://gpu-box:5555", keys))
+    assert models_of(System([llm], name="remote_llm")) == []  # the model actor runs elsewhere
+
+
+def test_a_remote_client_refuses_a_plain_endpoint_and_an_unusable_key(keys: Keys) -> None:
+    with pytest.raises(ValueError, match="not a TCP endpoint; pass tcp://HOST:PORT"):
+        RemoteModelClient("ipc:///tmp/x", server_key=keys.server_pub.decode(), key=keys.client)
+    with pytest.raises(ValueError, match="neither a public key"):
+        RemoteModelClient("tcp://h:1", server_key="nope", key=keys.client)
+    with pytest.raises(ValueError, match="no secret key file .*`embagents keys`"):
+        RemoteModelClient("tcp://h:1", server_key=keys.server_pub.decode(), key=keys.folder + "/missing")
