@@ -191,8 +191,7 @@ class LocalModelClient:
             if conn.sock not in ready:
                 waited += 1.0
                 rt.beat()  # waiting on the model is work, not a hang
-                if waited >= self.timeout:
-                    self._drop_conn()  # a fresh socket drops the late answer
+                if waited >= self.timeout:  # the caller's finally cancels the request in the actor
                     raise ModelUnavailable(
                         f"model {self.name!r} sent nothing for {self.timeout} s: is its actor running? "
                         "(see `embagents status`)"

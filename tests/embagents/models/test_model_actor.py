@@ -15,7 +15,7 @@ pytest.importorskip("onnxruntime")
 
 import embagents.msgs  # noqa: E402,F401 - registers the message types
 from actors import ActorSystem  # noqa: E402
-from embagents.models import BadRequest, LocalModelClient, ModelCrashed  # noqa: E402
+from embagents.models import BadRequest, LocalModelClient, ModelCrashed, ModelUnavailable  # noqa: E402
 from embagents.models.protocol import InferError, inference_endpoint  # noqa: E402
 from embagents.runtime.model_actor import ModelActor  # noqa: E402
 
@@ -99,3 +99,19 @@ def test_four_clients_are_served_in_batches(served: Any) -> None:
     stats = asys.ref("det").ask("stats", timeout=5).get()
     assert results == [1] * 80 and stats["served"] >= 80
     assert stats["max_batch_seen"] > 1  # concurrent requests of several clients ran as one batch
+
+
+def test_a_client_that_gives_up_cancels_its_request_in_the_model_actor(served: Any) -> None:
+    asys, _ = served
+    impatient = LocalModelClient("det", timeout=1)
+    impatient.detect(np.zeros((64, 64, 3), np.uint8))  # connected
+    before = asys.ref("det").ask("stats", timeout=5).get()
+    asys.signal("det", signal.SIGSTOP)
+    try:
+        with pytest.raises(ModelUnavailable, match="sent nothing for 1 s"):
+            impatient.detect(np.zeros((64, 64, 3), np.uint8))
+    finally:
+        asys.signal("det", signal.SIGCONT)
+    after = asys.ref("det").ask("stats", timeout=5).get()  # the actor read the request and the cancel
+    assert after["cancelled"] == before["cancelled"] + 1 and after["served"] == before["served"]
+    assert impatient.detect(np.zeros((64, 64, 3), np.uint8))["labels"] == ["robot"]  # the late answer is not taken
