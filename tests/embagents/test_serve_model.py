@@ -151,3 +151,25 @@ def test_serve_model_in_another_network_namespace_is_reached_over_a_veth(
     finally:
         code = served.stop()
     assert code == 0, served.log()
+
+
+def test_model_names_a_builtin_a_file_or_a_model_a_system_declares(tmp_path: Path) -> None:
+    from embagents.serve_model import model_of
+
+    system = tmp_path / "system.py"
+    system.write_text("from embagents import LlamaModel, System\n"
+                      "system = System([], name='gpu', models=[LlamaModel(name='brain', n_ctx=1024)])\n")
+    brain = model_of(f"{system}:brain")
+    assert brain.name == "brain" and brain.options()["n_ctx"] == 1024
+    with pytest.raises(ValueError, match="declares no model 'eyes'; it declares: brain"):
+        model_of(f"{system}:eyes")
+    with pytest.raises(ValueError, match="MODEL 'gpt-9' is not known: pass smollm2 or faces"):
+        model_of("gpt-9")
+    assert model_of("faces").options()["family"] == "mtcnn"
+
+
+def test_a_tcp_bind_without_keys_is_refused_naming_the_fix(tmp_path: Path) -> None:
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "serve-model", "smollm2", "--bind", "tcp://127.0.0.1:5555"],
+                         capture_output=True, text=True, timeout=60, env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path)})
+    assert out.returncode == 1
+    assert "unauthenticated TCP is not offered; make keys with `embagents keys` and pass --key" in out.stderr
