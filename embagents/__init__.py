@@ -25,7 +25,7 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
-from embagents.models import DetectorModel, LlamaModel, LocalModelClient
+from embagents.models import DetectorModel, LlamaModel, LocalModelClient, RemoteModelClient
 from embagents.msgs import (
     Audio,
     CompressedImage,
@@ -69,6 +69,7 @@ __all__ = [
     "ModelComponent",
     "OccupancyGrid",
     "Odometry",
+    "RemoteModelClient",
     "StreamingString",
     "String",
     "System",
