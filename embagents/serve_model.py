@@ -25,6 +25,7 @@ import logging
 import os
 import re
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from actors.child import configure_logging
@@ -35,7 +36,7 @@ __all__ = ["BUILTIN_MODELS", "model_of", "run", "serve_model_arguments", "serve_
 log = logging.getLogger("embagents.serve_model")
 
 #: Built-in MODEL names: models that can be had offline from PyPI.
-BUILTIN_MODELS: dict[str, Any] = {
+BUILTIN_MODELS: dict[str, Callable[[], Model]] = {
     "smollm2": lambda: LlamaModel(name="smollm2"),
     "faces": lambda: DetectorModel(name="faces", family="mtcnn"),
 }
@@ -48,7 +49,7 @@ def model_of(spec: str) -> Model:
     ('llama', 'tiny')
     """
     if spec in BUILTIN_MODELS:
-        return BUILTIN_MODELS[spec]()  # type: ignore[no-any-return]
+        return BUILTIN_MODELS[spec]()
     stem = re.sub(r"[^A-Za-z0-9_]", "_", os.path.splitext(os.path.basename(spec))[0]) or "model"
     if spec.endswith(".gguf"):
         return LlamaModel(name=stem, local_model_path=spec)
