@@ -178,8 +178,11 @@ class CurveAllowList:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         poller.register(self._wake_rx, zmq.POLLIN)
-        while self._wake_rx not in dict(poller.poll()):
-            self._sock.send_multipart(self.decide(self._sock.recv_multipart()))
+        try:
+            while self._wake_rx not in dict(poller.poll()):
+                self._sock.send_multipart(self.decide(self._sock.recv_multipart()))
+        except zmq.ContextTerminated:
+            pass  # the process is ending without close(): nothing more to decide
         for s in (self._sock, self._wake_rx):
             s.close(0)
 

@@ -103,7 +103,12 @@ class RemoteModelActor(ModelActor):
         curve_server(self.sock, secret)
         self.sock.maxmsgsize = MAX_FRAME_BYTES  # an allowed peer still cannot make us buffer more
         for b in self.binds:
-            self.sock.bind(b)
+            try:
+                self.sock.bind(b)
+            except zmq.ZMQError as exc:
+                self.auth.close()
+                raise ValueError(f"cannot bind {b}: {exc}; is something else listening there, or is the address "
+                                 "not one of this host's? pick another --bind") from None
         log.info("serving %s on %s for %d allowed key(s)", self.name, ", ".join(self.binds), len(self.allowed))
 
     def _decode(self, frame: zmq.Frame) -> Any:
@@ -120,7 +125,9 @@ class RemoteModelActor(ModelActor):
 
     def on_stop(self) -> None:
         super().on_stop()
-        self.auth.close()
+        auth = getattr(self, "auth", None)  # None: the start failed before the allow list ran
+        if auth is not None:
+            auth.close()
 
 
 class RemoteModelClient(LocalModelClient):
