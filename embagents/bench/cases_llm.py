@@ -81,7 +81,7 @@ def _inprocess(path: str, max_tokens: int) -> tuple[int, float]:
     runs llama.cpp: its OpenMP threads would not survive the fork of a later ActorSystem."""
     code = (
         "import json, sys, time\n"
-        "from embagents.backends.llama import LlamaBackend\n"
+        "from embagents.models.backends.llama import LlamaBackend\n"
         "b = LlamaBackend(sys.argv[1]); b.load(); b.warmup()\n"
         "t0 = time.monotonic(); n = 0\n"
         "for c in b.chat_stream([{'role': 'user', 'content': sys.argv[3]}], max_tokens=int(sys.argv[2]), temperature=0.0):\n"

@@ -97,7 +97,7 @@ class DetectionSink(Actor):
 
 _BASELINE = """
 import sys, time
-from embagents.backends.detectors import make_detector
+from embagents.models.backends.detectors import make_detector
 from embagents.bench.cases_vision import OPTIONS, _frame
 from embagents.modelfiles import mtcnn_dir
 det, frame = make_detector(mtcnn_dir(), **OPTIONS), _frame(1920, 1080)

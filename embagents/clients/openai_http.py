@@ -1,7 +1,7 @@
 """OpenAI-compatible chat client over HTTP, stdlib only (urllib + SSE parsing).
 
 Talks to ``POST {base_url}/v1/chat/completions`` with ``stream: true`` and
-yields the same chunk shapes as ``embagents.backends.llama.LlamaBackend``, so
+yields the same chunk shapes as ``embagents.models.backends.llama.LlamaBackend``, so
 a component can switch between a local model and a server without caring.
 Works with llama.cpp's servers (``python -m llama_cpp.server``,
 ``llama-server``), Ollama (``http://localhost:11434``), vLLM and OpenAI.

@@ -9,7 +9,7 @@ batching). A :class:`LocalModelClient` is what a component holds to talk to
 it; a :class:`RemoteModelClient` reaches one on another machine over
 CURVE (:mod:`embagents.models.remote`); :mod:`embagents.clients` reach servers elsewhere with the same chat
 interface (:mod:`embagents.models.chat`). Backends live in
-:mod:`embagents.backends` (llama.cpp, onnxruntime), model files in
+:mod:`embagents.models.backends` (llama.cpp, onnxruntime), model files in
 :mod:`embagents.modelfiles`.
 
 Example::
@@ -22,7 +22,8 @@ Example::
 
 from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
-from embagents.models.declarations import DetectorModel, LlamaModel, Model, models_of
+from embagents.models.declarations import DetectorModel, LlamaModel, Model
+from embagents.models.inventory import models_of
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
 

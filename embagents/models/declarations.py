@@ -22,7 +22,7 @@ import attrs
 
 from actors import wire
 
-__all__ = ["DETECTOR_FAMILIES", "DetectorModel", "LlamaModel", "Model", "models_of"]
+__all__ = ["DETECTOR_FAMILIES", "DetectorModel", "LlamaModel", "Model"]
 
 #: The detector output layouts the onnxruntime backend knows.
 DETECTOR_FAMILIES = ("yolo", "mtcnn")
@@ -140,26 +140,3 @@ class DetectorModel(Model):
             "threads": self.threads, "providers": self.providers,
         }
 
-
-def models_of(system: Any) -> list[Model]:
-    """Every model ``system`` declares or a component's client refers to, once each.
-
-    Raises ``ValueError`` for a client whose model the system does not declare.
-    """
-    from embagents.models.client import LocalModelClient
-
-    found: dict[str, Model] = {}
-    for m in system.models:
-        if isinstance(m, Model):
-            found.setdefault(m.name, m)
-    for c in system.components:
-        for client in getattr(c, "clients", {}).values():
-            if isinstance(client, LocalModelClient) and client.in_run:
-                model = client.model or found.get(client.name)
-                if model is None:
-                    raise ValueError(
-                        f"component {c.name!r} uses model {client.name!r}, which the system does not declare: "
-                        "pass the model (e.g. LlamaModel) to LocalModelClient or to System(models=[...])"
-                    )
-                found.setdefault(model.name, model)
-    return list(found.values())

@@ -53,7 +53,7 @@ class ChatServing:
     batchable = False
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.backends.llama import LlamaBackend
+        from embagents.models.backends.llama import LlamaBackend
 
         self.backend = LlamaBackend(path, **options)
 
@@ -109,7 +109,7 @@ class DetectorServing:
     batchable = True
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.backends.detectors import make_detector
+        from embagents.models.backends.detectors import make_detector
 
         self.detector = make_detector(path, **options)
 

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from embagents.backends.onnx import OnnxSession
+from embagents.models.backends.onnx import OnnxSession
 
 __all__ = ["DetectorLayoutError", "MtcnnDetector", "YoloDetector", "letterbox", "make_detector", "nms"]
 

@@ -8,7 +8,7 @@ Chunk shapes: :mod:`embagents.models.chat` (shared with every chat client).
 
 Example::
 
-    >>> from embagents.backends.llama import LlamaBackend
+    >>> from embagents.models.backends.llama import LlamaBackend
     >>> from embagents.modelfiles import default_llm_path
     >>> llm = LlamaBackend(default_llm_path())
     >>> llm.chat([{"role": "system", "content": "You are a helpful assistant that answers in one sentence."},

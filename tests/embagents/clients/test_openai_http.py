@@ -81,7 +81,7 @@ def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
 
 
 def test_chat_matches_inprocess_backend(server: str, tiny_gguf: str) -> None:
-    from embagents.backends.llama import LlamaBackend
+    from embagents.models.backends.llama import LlamaBackend
 
     reply = OpenAIHTTPClient(server).chat(HELLO, max_tokens=20, extra=SAME_AS_INPROCESS)
     assert reply["finish_reason"] == "length"

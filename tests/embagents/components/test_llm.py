@@ -248,15 +248,15 @@ def test_tool_schemas_must_name_tools():
 # --- a real model ---------------------------------------------------------------------
 
 _HAVE_LLAMA = (
-    importlib.util.find_spec("embagents.backends.llama") is not None
+    importlib.util.find_spec("embagents.models.backends.llama") is not None
     and importlib.util.find_spec("llama_cpp") is not None
     and importlib.util.find_spec("gguf") is not None
 )
 
 
-@pytest.mark.skipif(not _HAVE_LLAMA, reason="needs embagents.backends.llama, llama-cpp-python and gguf")
+@pytest.mark.skipif(not _HAVE_LLAMA, reason="needs embagents.models.backends.llama, llama-cpp-python and gguf")
 def test_llm_streams_from_a_real_llama_backend(tiny_gguf):
-    from embagents.backends.llama import LlamaBackend
+    from embagents.models.backends.llama import LlamaBackend
 
     backend = LlamaBackend(tiny_gguf)
     try:

@@ -18,6 +18,7 @@ from actors import ActorSystem  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, ModelCrashed, ModelUnavailable  # noqa: E402
 from embagents.models.protocol import InferError, inference_endpoint  # noqa: E402
 from embagents.runtime.model_actor import ModelActor  # noqa: E402
+from tests.helpers import wait_until  # noqa: E402
 
 OPTIONS = {"family": "yolo", "threshold": 0.25}
 
@@ -112,6 +113,9 @@ def test_a_client_that_gives_up_cancels_its_request_in_the_model_actor(served: A
             impatient.detect(np.zeros((64, 64, 3), np.uint8))
     finally:
         asys.signal("det", signal.SIGCONT)
-    after = asys.ref("det").ask("stats", timeout=5).get()  # the actor read the request and the cancel
+    # Its mailbox and its inference socket are read in either order after SIGCONT: wait for the cancel.
+    wait_until(lambda: asys.ref("det").ask("stats", timeout=5).get()["cancelled"] > before["cancelled"],
+               what="the model actor to read the cancel")
+    after = asys.ref("det").ask("stats", timeout=5).get()
     assert after["cancelled"] == before["cancelled"] + 1 and after["served"] == before["served"]
     assert impatient.detect(np.zeros((64, 64, 3), np.uint8))["labels"] == ["robot"]  # the late answer is not taken

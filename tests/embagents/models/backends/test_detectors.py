@@ -10,8 +10,8 @@ import pytest
 pytest.importorskip("onnxruntime")
 pytest.importorskip("cv2")
 
-from embagents.backends.detectors import DetectorLayoutError, make_detector  # noqa: E402
-from embagents.backends.onnx import OnnxSession  # noqa: E402
+from embagents.models.backends.detectors import DetectorLayoutError, make_detector  # noqa: E402
+from embagents.models.backends.onnx import OnnxSession  # noqa: E402
 from tests.embagents.tiny_yolo import make_tiny_yolo  # noqa: E402
 
 

@@ -15,12 +15,12 @@ pytest.importorskip(
     "llama_cpp", reason="llama-cpp-python not installed (pip install 'embagents[llm]')"
 )
 
-from embagents.backends.llama import (  # noqa: E402
+from embagents.modelfiles import default_llm_path  # noqa: E402
+from embagents.models.backends.llama import (  # noqa: E402
     LlamaBackend,
     default_use_extra_bufts,
     inprocess_tokens_per_second,
 )
-from embagents.modelfiles import default_llm_path  # noqa: E402
 from embagents.models.chat import ToolCallAccumulator, tool_calls_from_text  # noqa: E402
 
 HELLO = [{"role": "user", "content": "hello"}]
@@ -227,7 +227,7 @@ def test_the_example_prompt_has_no_near_tie_on_its_greedy_path() -> None:
     """Guards the main job: a margin this wide survives other CPUs' rounding."""
     from llama_cpp import Llama
 
-    prompt = runpy.run_path(str(Path(__file__).parents[3] / "examples" / "chat.py"))["SYSTEM_PROMPT"]
+    prompt = runpy.run_path(str(Path(__file__).parents[4] / "examples" / "chat.py"))["SYSTEM_PROMPT"]
     llm = Llama(default_llm_path(), n_ctx=256, logits_all=True, verbose=False)
     try:
         text = (
