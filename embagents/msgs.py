@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+from typing import Any
 
 import attrs
 import numpy as np
@@ -125,26 +126,37 @@ class Audio:
     stamp: float = 0.0
 
 
+def _boxes() -> Any:  # an attrs field
+    return attrs.field(factory=lambda: np.zeros((0, 4), np.float32), converter=_array("float32", 2))
+
+
+def _column(dtype: str) -> Any:  # an attrs field
+    return attrs.field(factory=lambda: np.zeros(0, dtype), converter=_array(dtype, 1))
+
+
+def _same_length(owner: object, **columns: object) -> None:
+    """Every column has one entry per box (``boxes`` first)."""
+    lengths = {k: len(v) for k, v in columns.items()}  # type: ignore[arg-type]
+    if len(set(lengths.values())) > 1:
+        n, others = lengths.pop("boxes"), ", ".join(f"{v} {k}" for k, v in lengths.items())
+        raise ValueError(f"{type(owner).__name__} needs as many {', '.join(lengths)} as boxes: {n} boxes, {others}")
+
+
 @message("embagents/Detections")
 @attrs.define(eq=False)
 class Detections:
     """Object detections in one image: ``boxes`` (N, 4) as x1, y1, x2, y2 pixels."""
 
-    boxes: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 4), np.float32), converter=_array("float32", 2))
+    boxes: np.ndarray = _boxes()
     labels: list[str] = attrs.field(factory=list)
-    scores: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.float32), converter=_array("float32", 1))
+    scores: np.ndarray = _column("float32")
     image_width: int = 0
     image_height: int = 0
     stamp: float = 0.0
     frame_id: str = ""
 
     def __attrs_post_init__(self) -> None:
-        n = len(self.boxes)
-        if len(self.labels) != n or len(self.scores) != n:
-            raise ValueError(
-                f"Detections needs as many labels and scores as boxes: {n} boxes, "
-                f"{len(self.labels)} labels, {len(self.scores)} scores"
-            )
+        _same_length(self, boxes=self.boxes, labels=self.labels, scores=self.scores)
 
 
 @message("embagents/Trackings")
@@ -152,20 +164,17 @@ class Detections:
 class Trackings:
     """Tracked objects in one image: ``track_ids`` (N,) stay the same for one object over frames."""
 
-    boxes: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 4), np.float32), converter=_array("float32", 2))
+    boxes: np.ndarray = _boxes()
     labels: list[str] = attrs.field(factory=list)
-    scores: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.float32), converter=_array("float32", 1))
-    track_ids: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.int64), converter=_array("int64", 1))
+    scores: np.ndarray = _column("float32")
+    track_ids: np.ndarray = _column("int64")
     image_width: int = 0
     image_height: int = 0
     stamp: float = 0.0
     frame_id: str = ""
 
     def __attrs_post_init__(self) -> None:
-        n = len(self.boxes)
-        if len(self.labels) != n or len(self.scores) != n or len(self.track_ids) != n:
-            raise ValueError(f"Trackings needs as many labels, scores and track_ids as boxes: {n} boxes, "
-                             f"{len(self.labels)} labels, {len(self.scores)} scores, {len(self.track_ids)} ids")
+        _same_length(self, boxes=self.boxes, labels=self.labels, scores=self.scores, track_ids=self.track_ids)
 
 
 @message("embagents/Video")
@@ -178,7 +187,7 @@ class Video:
     """
 
     frames: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0, 0, 3), np.uint8))
-    stamps: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
+    stamps: np.ndarray = _column("float64")
     encoding: str = "rgb8"
     frame_id: str = ""
 
