@@ -1,4 +1,4 @@
-"""OpenAI-compatible chat client over HTTP, stdlib only (urllib + SSE parsing).
+"""OpenAI-compatible chat client over HTTP, on the ``openai`` package (its HTTP and SSE, no retries).
 
 Talks to ``POST {base_url}/v1/chat/completions`` with ``stream: true`` and
 yields the same chunk shapes as ``embagents.models.backends.llama.LlamaBackend``, so
@@ -16,10 +16,9 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Iterator
 from typing import Any
 
@@ -78,39 +77,46 @@ class OpenAIHTTPClient:
         self.timeout = timeout
         self.api_root = _api_root(base_url)
         self.url = self.api_root + "/chat/completions"
+        self._sdk: Any = None
 
-    def _request(self, url: str, body: dict | None = None) -> Any:
-        """Open ``url`` (POST JSON if ``body``) and map failures to clear errors."""
-        headers = {"Accept": "text/event-stream, application/json"}
-        data = None
-        if body is not None:
-            data = json.dumps(body).encode("utf-8")
-            headers["Content-Type"] = "application/json"
-        if self.api_key:
-            headers["Authorization"] = f"Bearer {self.api_key}"
-        request = urllib.request.Request(
-            url, data=data, headers=headers, method="POST" if data else "GET"
-        )
+    def _client(self) -> Any:
         try:
-            return urllib.request.urlopen(request, timeout=self.timeout)
-        except urllib.error.HTTPError as exc:
-            text = _read_excerpt(exc)
-            raise OpenAIHTTPError(
-                f"HTTP {exc.code} {exc.reason} from {url}: {text}", status=exc.code, body=text
-            ) from exc
-        except urllib.error.URLError as exc:
-            reason = exc.reason
-            if isinstance(reason, ConnectionRefusedError):
-                raise ConnectionError(
-                    f"Cannot connect to {url}: connection refused. Is the server running on that "
-                    f"host and port? (llama.cpp: python -m llama_cpp.server --model M.gguf; "
-                    f"Ollama: ollama serve)"
-                ) from exc
-            if isinstance(reason, TimeoutError):
+            import openai
+        except ImportError as exc:
+            raise ModuleNotFoundError("OpenAIHTTPClient needs the openai package: pip install 'embagents[llm]' "
+                                      "(or pip install openai)") from exc
+        if self._sdk is None:
+            # No retries: a robot wants the failure now, and the fallbacks decide what happens next.
+            self._sdk = openai.OpenAI(base_url=self.api_root, api_key=self.api_key or "no-key",
+                                      timeout=self.timeout, max_retries=0)
+        return self._sdk
+
+    def _errors(self, url: str) -> Any:
+        """Map the SDK's errors to ours: connection, timeout, HTTP status (with the body excerpted)."""
+        import openai
+
+        @contextlib.contextmanager
+        def mapping() -> Iterator[None]:
+            try:
+                yield
+            except openai.APITimeoutError as exc:
                 raise TimeoutError(f"No answer from {url} within {self.timeout} s") from exc
-            raise ConnectionError(f"Cannot connect to {url}: {reason}") from exc
-        except TimeoutError as exc:
-            raise TimeoutError(f"No answer from {url} within {self.timeout} s") from exc
+            except openai.APIConnectionError as exc:
+                if _refused(exc):
+                    raise ConnectionError(
+                        f"Cannot connect to {url}: connection refused. Is the server running on that "
+                        f"host and port? (llama.cpp: python -m llama_cpp.server --model M.gguf; "
+                        f"Ollama: ollama serve)"
+                    ) from exc
+                raise ConnectionError(f"Cannot connect to {url}: {exc.__cause__ or exc}") from exc
+            except openai.APIStatusError as exc:
+                text = exc.response.text.strip()[:_BODY_EXCERPT]
+                raise OpenAIHTTPError(f"HTTP {exc.status_code} {exc.response.reason_phrase} from {url}: {text}",
+                                      status=exc.status_code, body=text) from exc
+            except openai.APIError as exc:  # an error event mid-stream
+                raise OpenAIHTTPError(f"Error from {url}: {str(exc)[:_BODY_EXCERPT]}") from exc
+
+        return mapping()
 
     def list_models(self) -> list[str]:
         """Model ids the server offers (``GET /v1/models``); also a cheap health check.
@@ -120,9 +126,8 @@ class OpenAIHTTPClient:
             >>> OpenAIHTTPClient("http://127.0.0.1:8000").list_models()  # doctest: +SKIP
             ['/path/tiny.gguf']
         """
-        with self._request(self.api_root + "/models") as response:
-            payload = json.loads(response.read().decode("utf-8"))
-        return [str(m.get("id")) for m in payload.get("data", []) if isinstance(m, dict)]
+        with self._errors(self.api_root + "/models"):
+            return [str(m.id) for m in self._client().models.list()]
 
     def chat_stream(
         self,
@@ -152,7 +157,6 @@ class OpenAIHTTPClient:
         body: dict[str, Any] = {
             "model": self.model,
             "messages": messages,
-            "stream": True,
             "max_tokens": max_tokens,
             "temperature": temperature,
             "stream_options": {"include_usage": True},
@@ -164,33 +168,24 @@ class OpenAIHTTPClient:
             if tool_choice is not None:
                 body["tool_choice"] = tool_choice
         if extra:
-            body.update(extra)
+            body["extra_body"] = dict(extra)
         return self._stream(body, tools)
 
     def _stream(self, body: dict, tools: list[dict] | None) -> Iterator[dict]:
         start = time.perf_counter()
-        response = self._request(self.url, body)
+        with self._errors(self.url):
+            raw = self._client().chat.completions.with_raw_response.create(stream=True, **body)
         first_token_s: float | None = None
         parts: list[str] = []
         calls = ToolCallAccumulator()
         finish_reason: str | None = None
         usage: dict | None = None
-        saw_done = False
-        with response:
-            if "text/event-stream" in (response.headers.get("Content-Type") or ""):
-                events = _sse_events(response, self.url)
+        with contextlib.closing(raw.http_response), self._errors(self.url):  # closed also when abandoned
+            if "text/event-stream" in (raw.headers.get("content-type") or ""):
+                events: Iterator[dict] = (c.model_dump(exclude_none=True) for c in raw.parse())
             else:  # a server that ignored stream=true: one JSON reply
-                events = iter([response.read().decode("utf-8"), "[DONE]"])
-            for data in events:
-                if data == "[DONE]":
-                    saw_done = True
-                    break
-                try:
-                    event = json.loads(data)
-                except ValueError as exc:
-                    raise OpenAIHTTPError(
-                        f"Bad JSON in stream from {self.url}: {data[:_BODY_EXCERPT]!r}"
-                    ) from exc
+                events = iter([_json(raw.http_response.read().decode("utf-8"), self.url)])
+            for event in events:
                 if "error" in event:
                     raise OpenAIHTTPError(
                         f"Error from {self.url}: {json.dumps(event['error'])[:_BODY_EXCERPT]}"
@@ -209,7 +204,7 @@ class OpenAIHTTPClient:
                         calls.add(delta["tool_calls"])
                     if choice.get("finish_reason"):
                         finish_reason = choice["finish_reason"]
-        if not saw_done and finish_reason is None:
+        if finish_reason is None:
             raise ConnectionError(f"Stream from {self.url} ended before the reply was complete")
         tool_calls = calls.result() or tool_calls_from_text("".join(parts), tools)
         if tool_calls:
@@ -255,31 +250,18 @@ class OpenAIHTTPClient:
         )
 
 
-def _read_excerpt(exc: urllib.error.HTTPError) -> str:
+def _json(text: str, url: str) -> dict:
     try:
-        raw = exc.read()
-    except OSError:
-        return ""
-    return raw.decode("utf-8", errors="replace").strip()[:_BODY_EXCERPT]
+        return dict(json.loads(text))
+    except ValueError as exc:
+        raise OpenAIHTTPError(f"Bad JSON from {url}: {text[:_BODY_EXCERPT]!r}") from exc
 
 
-def _sse_events(response: Any, url: str) -> Iterator[str]:
-    """The ``data`` payloads of a server-sent-events stream, one string per event."""
-    lines: list[str] = []
-    while True:
-        try:
-            raw = response.readline()
-        except TimeoutError as exc:
-            raise TimeoutError(f"Stream from {url} stalled (read timeout)") from exc
-        if not raw:  # end of body
-            if lines:
-                yield "\n".join(lines)
-            return
-        line = raw.decode("utf-8").rstrip("\r\n")
-        if not line:  # blank line ends an event
-            if lines:
-                yield "\n".join(lines)
-                lines = []
-        elif line.startswith("data:"):
-            lines.append(line[5:].removeprefix(" "))
-        # other fields (event:, id:, retry:) and ':' comments are not used by this protocol
+def _refused(exc: BaseException) -> bool:
+    """True when the connection was refused (somewhere in the cause chain)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, ConnectionRefusedError) or "refused" in str(seen).lower():
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
