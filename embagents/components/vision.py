@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from attrs import define, field
 
+from embagents.components.component import ComponentProblem
 from embagents.components.imaging import annotate, image_rgb
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, to_bool
@@ -104,6 +105,14 @@ class Vision(ModelComponent):
 
     def default_trigger(self) -> Topic | None:
         return self.inputs[0] if self.inputs else None
+
+    def validate(self) -> list[ComponentProblem]:
+        problems = super().validate()
+        for key, client in self.clients.items():
+            if not callable(getattr(client, "detect", None)):
+                problems.append(("bad-client", f"{self._label()}: model client {key!r} cannot detect (it has no "
+                                               "detect()); give it LocalModelClient(DetectorModel(...))"))
+        return problems
 
     def run_warmup(self) -> None:
         self.model_client.detect(np.zeros((64, 64, 3), np.uint8))

@@ -99,3 +99,16 @@ def test_an_image_of_the_wrong_shape_or_dtype_is_a_clear_algorithm_failure(detec
     assert not step(comp, Image(data=np.zeros((64, 64, 2), np.uint8)))
     assert "not one this reads: send rgb8/bgr8 (H, W, 3)" in comp.health.text
     assert step(comp, Image(data=np.zeros((64, 64, 3), np.uint8))) and sent[-1].labels == ["robot"]
+
+
+def test_a_client_that_cannot_detect_is_a_declaration_error() -> None:
+    from embagents.components import ComponentError
+
+    class Chatty:
+        name = "chatty"
+
+        def chat(self, messages: list, **options: Any) -> str:
+            return "hi"
+
+    with pytest.raises(ComponentError, match="model client 'chatty' cannot detect"):
+        Vision(name="vision", inputs=[camera], outputs=[Topic("found", Detections)], model_client=Chatty())
