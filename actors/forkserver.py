@@ -21,6 +21,7 @@ import select
 import shutil
 import signal
 import socket
+import stat
 import sys
 import threading
 import traceback
@@ -53,8 +54,17 @@ def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
 def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: Callable[[dict[str, Any]], None]) -> None:
     server_pid = os.getpid()
     # Keep only stdio and our socket: an inherited fd must not outlive the root through us.
-    os.closerange(3, sock.fileno())
-    os.closerange(sock.fileno() + 1, 4096)
+    # /dev/null stays: it holds nothing open, and libraries imported before the fork keep
+    # module-level handles on it (llama_cpp redirects its C output through one).
+    devnull = os.stat(os.devnull).st_rdev
+    for fd in [int(f) for f in os.listdir("/proc/self/fd")]:
+        if fd < 3 or fd == sock.fileno():
+            continue
+        with contextlib.suppress(OSError):
+            st = os.fstat(fd)
+            if stat.S_ISCHR(st.st_mode) and st.st_rdev == devnull:
+                continue
+            os.close(fd)
     # Streams a test runner swapped in may sit on fds we just closed.
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115

@@ -140,3 +140,17 @@ class TopicCounter(Actor):
             return {"got": len(self.got), "distinct": len(set(self.got)), "ordered": self.got == sorted(self.got),
                     "last": self.got[-1] if self.got else None, **self.sub.stats()}
         return None
+
+
+class FdProbe(Actor):
+    """Says what the given fds are in its process: [st_dev, st_ino], or None if closed."""
+
+    def on_receive(self, message: Any) -> Any:
+        out: list[Any] = []
+        for fd in message:
+            try:
+                st = os.fstat(fd)
+                out.append([st.st_dev, st.st_ino])
+            except OSError:
+                out.append(None)
+        return out
