@@ -149,7 +149,8 @@ class _Asker(threading.Thread):
     def __init__(self, ref: Any) -> None:
         super().__init__(name="chaos-asker", daemon=True)
         self.ref = ref
-        self.stopping = threading.Event()
+        self.stopping = threading.Event()  # stop now
+        self.finishing = threading.Event()  # stop after the next success (a last failure gets its chance)
         self.first_ok = threading.Event()
         self.results: list[tuple[float, bool, str]] = []  # (time asked, ok, error)
 
@@ -165,6 +166,8 @@ class _Asker(threading.Thread):
             self.results.append((t0, ok, err))
             if ok:
                 self.first_ok.set()
+                if self.finishing.is_set():
+                    return
             self.stopping.wait(0.3 if ok else 1.0)
 
     def summary(self) -> dict[str, Any]:
@@ -307,6 +310,8 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
             t0 = time.monotonic()
             faults = _inject(asys, watch, seconds, interval, rng)
             faulting = time.monotonic() - t0
+            asker.finishing.set()
+            asker.join(ASK_TIMEOUT + RECOVERY_TIMEOUT)
             asker.stopping.set()
             asker.join(ASK_TIMEOUT + 5)
             final = asys.ref(SOURCE).ask("finish", timeout=30).get()

@@ -225,6 +225,7 @@ def test_chaos_case_injects_faults_recovers_and_leaves_nothing_behind(tmp_path) 
     assert row["faults"] >= 1 and sum(row["faults_by_kind"].values()) == row["faults"]
     assert row["unrecovered_faults"] == 0 and row["restarts"] >= row["faults"]
     assert row["numbers_acked"] > 0 and row["llm_ok"] > 0 and row["frames_received"] > 0
+    assert row["llm_unrecovered"] == 0 and row["llm_recovered"] <= row["llm_failed"]
     assert row["lost"] == 0, row["lost_ranges"]
     assert row["leftover_processes"] == 0 and row["leftover_shm"] == 0
     assert _tagged_pids(tag) == []
