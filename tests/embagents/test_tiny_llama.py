@@ -9,6 +9,8 @@ import pytest
 
 from tests.embagents.tiny_llama import make_tiny_llama_gguf
 
+pytestmark = pytest.mark.llama_in_process  # see tests/conftest.py
+
 
 def test_tiny_gguf_is_small_loads_fast_and_tokenizes(tiny_gguf: str) -> None:
     llama_cpp = pytest.importorskip("llama_cpp", reason="llama-cpp-python not installed")

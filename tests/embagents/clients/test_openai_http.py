@@ -80,6 +80,7 @@ def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
             proc.wait(timeout=10)
 
 
+@pytest.mark.llama_in_process  # see tests/conftest.py
 def test_chat_matches_inprocess_backend(server: str, tiny_gguf: str) -> None:
     from embagents.models.backends.llama import LlamaBackend
 

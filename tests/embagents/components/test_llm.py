@@ -255,6 +255,7 @@ _HAVE_LLAMA = (
 
 
 @pytest.mark.skipif(not _HAVE_LLAMA, reason="needs embagents.models.backends.llama, llama-cpp-python and gguf")
+@pytest.mark.llama_in_process  # see tests/conftest.py
 def test_llm_streams_from_a_real_llama_backend(tiny_gguf):
     from embagents.models.backends.llama import LlamaBackend
 

@@ -23,6 +23,8 @@ from embagents.models.backends.llama import (  # noqa: E402
 )
 from embagents.models.chat import ToolCallAccumulator, tool_calls_from_text  # noqa: E402
 
+pytestmark = pytest.mark.llama_in_process  # see tests/conftest.py
+
 HELLO = [{"role": "user", "content": "hello"}]
 MOVE_TOOL = {
     "type": "function",
