@@ -37,7 +37,6 @@ from embagents.models.chat import (
 __all__ = [
     "LlamaBackend",
     "default_use_extra_bufts",
-    "inprocess_tokens_per_second",
 ]
 
 _INSTALL_HINT = "pip install 'embagents[llm]' (or pip install llama-cpp-python)"
@@ -396,25 +395,3 @@ class _TokenCounter:
             "completion_tokens": self.completion_tokens,
             "total_tokens": self.prompt_tokens + self.completion_tokens,
         }
-
-
-def inprocess_tokens_per_second(model_path: str, prompt: str, max_tokens: int) -> float:
-    """Generated tokens per second of one streamed chat request, llama.cpp in this process.
-
-    Same settings as ``LlamaBackend.chat_stream`` (temperature 0, default
-    threads); load and a warmup generation are excluded, prompt evaluation is
-    included (end to end, like a client sees it).
-
-    Example::
-
-        >>> inprocess_tokens_per_second(default_llm_path(), "Tell me a story.", 64)  # doctest: +SKIP
-        96.3
-    """
-    backend = LlamaBackend(model_path)
-    try:
-        backend.load()
-        backend.warmup()
-        reply = backend.chat([{"role": "user", "content": prompt}], max_tokens=max_tokens)
-    finally:
-        backend.close()
-    return reply["usage"]["completion_tokens"] / reply["timing"]["total_s"]

@@ -19,7 +19,6 @@ from embagents.modelfiles import default_llm_path  # noqa: E402
 from embagents.models.backends.llama import (  # noqa: E402
     LlamaBackend,
     default_use_extra_bufts,
-    inprocess_tokens_per_second,
 )
 from embagents.models.chat import ToolCallAccumulator, tool_calls_from_text  # noqa: E402
 
@@ -201,10 +200,6 @@ def test_extra_bufts_env_override(monkeypatch: pytest.MonkeyPatch) -> None:
     assert default_use_extra_bufts() is True
     monkeypatch.setenv("EMBAGENTS_LLAMA_EXTRA_BUFTS", "0")
     assert default_use_extra_bufts() is False
-
-
-def test_inprocess_tokens_per_second(tiny_gguf: str) -> None:
-    assert inprocess_tokens_per_second(tiny_gguf, "hello", 32) > 20
 
 
 def test_smollm2_knows_the_capital_of_france() -> None:
