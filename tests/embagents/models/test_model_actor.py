@@ -13,6 +13,7 @@ import zmq
 
 pytest.importorskip("onnxruntime")
 
+import embagents.models.client as client_module  # noqa: E402
 import embagents.msgs  # noqa: E402,F401 - registers the message types
 from actors import ActorSystem  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, ModelCrashed, ModelUnavailable  # noqa: E402
@@ -63,6 +64,11 @@ def test_garbage_on_the_socket_gets_an_error_answer_and_the_actor_keeps_serving(
     assert client.detect(np.zeros((64, 64, 3), np.uint8))["labels"] == ["robot"]
 
 
+def _next_request_id() -> int:
+    """The id the next request of this process will get (itertools.count shows it in its repr)."""
+    return int(repr(client_module._req_ids)[len("count("):-1])
+
+
 def test_a_request_to_a_model_actor_that_dies_fails_at_once(served: Any) -> None:
     asys, client = served
     client.detect(np.zeros((64, 64, 3), np.uint8))  # connected
@@ -75,8 +81,13 @@ def test_a_request_to_a_model_actor_that_dies_fails_at_once(served: Any) -> None
         except BaseException as exc:
             box.append(exc)
 
+    first = _next_request_id()
     t = threading.Thread(target=ask)
     t.start()
+    # Kill only once the request is on its way (its id is taken after the client has read the
+    # connection's older events): killed earlier, the request would wait for a restart of the
+    # actor (as it should), not fail.
+    wait_until(lambda: _next_request_id() > first, 10, "the request sent")
     asys.signal("det", signal.SIGKILL)
     t.join(timeout=25)  # the client's own timeout is 30 s: failing before it means the death was seen
     assert not t.is_alive() and len(box) == 1 and isinstance(box[0], ModelCrashed), box
