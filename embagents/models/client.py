@@ -123,7 +123,7 @@ class LocalModelClient:
         rid = next(_req_ids)
         codec = self._codec(rt)
         data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
-        conn.sock.send(data)
+        self._send(rt, conn, data)
         finished = False
         try:
             while True:
@@ -161,6 +161,30 @@ class LocalModelClient:
         for last in self.stream(task, inputs, **options):  # noqa: B007 - the last one is the answer
             pass
         return last
+
+    def _send(self, rt: Any, conn: _Conn, data: bytes) -> None:
+        """Send a request without ever blocking for good.
+
+        A socket with no usable peer (a remote server that refused our key just now)
+        would block a plain send forever; this one reads the connection's events meanwhile
+        (a refusal raises) and gives up after ``timeout``.
+        """
+        waited = 0.0
+        while True:
+            try:
+                conn.sock.send(data, zmq.NOBLOCK)
+                return
+            except zmq.Again:
+                pass
+            if waited >= self.timeout:
+                raise ModelUnavailable(
+                    f"model {self.name!r} took no request for {self.timeout} s: is its actor running? "
+                    "(`embagents status`)"
+                )
+            if conn.monitor.poll(100):
+                self._on_event(conn, recv_monitor_message(conn.monitor)["event"], before=True)
+            waited += 0.1
+            rt.beat()  # waiting on the model is work, not a hang
 
     def _drain_monitor(self, conn: _Conn) -> None:
         # Events from before this request (an old incarnation's exit) say nothing about it.
