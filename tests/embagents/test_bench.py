@@ -58,7 +58,9 @@ def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str, str]
     key, value = tag.split("=")
     proc = subprocess.run(
         [sys.executable, "-m", "embagents.bench", "--quick", "--json", str(out)],
-        capture_output=True, text=True, timeout=180, env={**os.environ, key: value},
+        # ~90 s normally; model_actor_batching sometimes waits out a 60 s ask (a detect request
+        # left unanswered: an open defect of the batching model actor, see the note).
+        capture_output=True, text=True, timeout=280, env={**os.environ, key: value},
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return json.loads(out.read_text()), proc.stdout, tag
