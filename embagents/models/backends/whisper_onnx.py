@@ -322,10 +322,10 @@ def _bar(label: str, total: int, enabled: bool) -> Callable[[], None]:
 
     def step() -> None:
         done[0] += 1
-        if enabled:
-            frac = done[0] / total
-            end = "\n" if done[0] >= total else ""
-            print(f"\r{label}: [{'#' * int(frac * 30):<30}] {done[0]}/{total}", end=end, file=sys.stderr, flush=True)
+        final = done[0] >= total
+        if enabled and (final or sys.stderr.isatty()):  # a log file gets the last line only
+            bar = "#" * int(done[0] / total * 30)
+            print(f"\r{label}: [{bar:<30}] {done[0]}/{total}", end="\n" if final else "", file=sys.stderr, flush=True)
 
     return step
 
