@@ -64,7 +64,7 @@ class SpeechToTextServing:
 
     def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
         audio = inputs["audio"]
-        yield {"text": self.recognizer.transcribe(audio), "seconds": len(audio) / 16000.0}
+        yield {"text": self.recognizer.transcribe(audio), "seconds": len(audio) / 16000.0, "done": True}
 
     def run_batch(self, task: str, batch: list[dict[str, Any]], options: dict[str, Any]) -> list[dict[str, Any]]:
         raise NotImplementedError("the recognizer serves one utterance at a time")

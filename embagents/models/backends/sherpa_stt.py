@@ -25,6 +25,7 @@ from __future__ import annotations
 import glob
 import logging
 import os
+import re
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,7 @@ log = logging.getLogger("embagents.stt")
 #: The model families a sherpa-onnx model directory can hold.
 STT_FAMILIES = ("whisper", "moonshine", "moonshine_v2", "paraformer", "transducer")
 SAMPLE_RATE = 16000
+_ANNOTATION = re.compile(r"\[[^\]]*\]|\([^)]*\)|\*[^*]*\*")
 
 # Per family: role -> glob patterns (first that matches wins).
 _LAYOUTS: dict[str, dict[str, tuple[str, ...]]] = {
@@ -185,4 +187,7 @@ class SherpaRecognizer:
         stream = self.recognizer.create_stream()
         stream.accept_waveform(int(sample_rate), audio)
         self.recognizer.decode_stream(stream)
-        return str(stream.result.text).strip()
+        text = str(stream.result.text)
+        if self.family == "whisper":  # Whisper names what is not speech ("[ Silence ]", "(music)"): not words
+            text = _ANNOTATION.sub("", text)
+        return " ".join(text.split())

@@ -61,6 +61,12 @@ class SpeechSegmenter:
         """True while an utterance is going on."""
         return bool(self.vad.is_speech_detected())
 
+    def current(self) -> np.ndarray:
+        """The utterance going on so far (from where the VAD saw it start); empty between utterances."""
+        if not self.speaking:
+            return np.zeros(0, np.float32)
+        return np.asarray(self.vad.current_segment.samples, np.float32)
+
     def feed(self, samples: np.ndarray) -> list[np.ndarray]:
         """Give 16 kHz mono float32 samples; returns the utterances that ended in them."""
         buf = np.concatenate([self._pending, samples.astype(np.float32, copy=False)])
