@@ -49,7 +49,9 @@ def to_mono_16k(msg: object) -> tuple[np.ndarray, str | None]:
     if channels > 1:
         samples = samples.reshape(-1, channels).mean(axis=1, dtype=np.float32)
     if rate != TARGET_RATE and samples.size:
-        from scipy.signal import resample_poly  # polyphase: filters before it decimates (no aliasing)
+        from scipy.signal import (
+            resample_poly,  # polyphase: filters before it decimates (no aliasing)
+        )
 
         g = math.gcd(rate, TARGET_RATE)
         samples = resample_poly(samples, TARGET_RATE // g, rate // g).astype(np.float32)

@@ -104,7 +104,7 @@ def detect_stt_model(folder: str, family: str | None = None) -> tuple[str, dict[
     family = family or _family_of(folder, names)
     files: dict[str, str] = {}
     for role, patterns in _LAYOUTS[family].items():
-        exclude = ("uncached",) if role == "cached_decoder" else ("merged",) if family == "moonshine" else ()
+        exclude: tuple[str, ...] = ("uncached",) if role == "cached_decoder" else ("merged",) if family == "moonshine" else ()
         if family == "moonshine" and role == "encoder":
             exclude = ("decode", "preprocess")
         if family == "moonshine_v2" and role == "encoder":

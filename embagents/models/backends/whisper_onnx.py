@@ -27,6 +27,7 @@ Example::
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import os
 import re
@@ -39,8 +40,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["WHISPER_FILES", "convert_ct2_whisper", "gpt2_token_bytes", "read_ct2_model"]
+__all__ = ["CONVERTER_VERSION", "WHISPER_FILES", "convert_ct2_whisper", "gpt2_token_bytes", "read_ct2_model"]
 
+#: Bumped when the graphs written change: a prepared directory is cached per version.
+CONVERTER_VERSION = 1
 #: The files of a sherpa-onnx Whisper model directory.
 WHISPER_FILES = ("encoder.onnx", "decoder.onnx", "tokens.txt")
 
@@ -95,12 +98,9 @@ def read_ct2_model(path: str) -> dict[str, np.ndarray]:
     return out
 
 
-def gpt2_token_bytes(token: str) -> bytes:
-    """The bytes of a GPT-2 byte-level BPE token as written in a vocabulary (``Ġthe`` -> ``b' the'``).
-
-    >>> gpt2_token_bytes("Ġthe")
-    b' the'
-    """
+@functools.lru_cache(maxsize=1)
+def _unicode_to_byte() -> dict[str, int]:
+    """GPT-2's byte <-> printable character table, reversed."""
     visible = list(range(ord("!"), ord("~") + 1)) + list(range(ord("¡"), ord("¬") + 1)) + list(range(ord("®"), 256))
     chars = list(visible)
     n = 0
@@ -109,7 +109,16 @@ def gpt2_token_bytes(token: str) -> bytes:
             visible.append(b)
             chars.append(256 + n)
             n += 1
-    back = {chr(c): b for b, c in zip(visible, chars, strict=True)}
+    return {chr(c): b for b, c in zip(visible, chars, strict=True)}
+
+
+def gpt2_token_bytes(token: str) -> bytes:
+    """The bytes of a GPT-2 byte-level BPE token as written in a vocabulary (``Ġthe`` -> ``b' the'``).
+
+    >>> gpt2_token_bytes("Ġthe")
+    b' the'
+    """
+    back = _unicode_to_byte()
     return bytes(back[c] for c in token)
 
 
@@ -283,13 +292,13 @@ def _decoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], Non
     g.op("Concat", *new_v, axis=0, name="out_n_layer_self_v_cache")
     t = g.h.make_tensor_value_info
     f32, i64t = 1, 7
-    cache = [d["n_text_layer"], "n_audio", ctx, state]
+    shape = [d["n_text_layer"], "n_audio", ctx, state]
     cross = [d["n_text_layer"], "n_audio", "T", state]
-    inputs = [t("tokens", i64t, ["n_audio", "n_tokens"]), t("in_n_layer_self_k_cache", f32, cache),
-              t("in_n_layer_self_v_cache", f32, cache), t("n_layer_cross_k", f32, cross),
+    inputs = [t("tokens", i64t, ["n_audio", "n_tokens"]), t("in_n_layer_self_k_cache", f32, shape),
+              t("in_n_layer_self_v_cache", f32, shape), t("n_layer_cross_k", f32, cross),
               t("n_layer_cross_v", f32, cross), t("offset", i64t, [1])]
     outputs = [t("logits", f32, ["n_audio", "n_tokens", d["n_vocab"]]),
-               t("out_n_layer_self_k_cache", f32, cache), t("out_n_layer_self_v_cache", f32, cache)]
+               t("out_n_layer_self_k_cache", f32, shape), t("out_n_layer_self_v_cache", f32, shape)]
     return g, [inputs, outputs]
 
 

@@ -12,7 +12,11 @@ import pytest
 
 pytest.importorskip("sherpa_onnx")
 
-from embagents.models.backends.sherpa_stt import SherpaRecognizer, SpeechModelError, detect_stt_model  # noqa: E402
+from embagents.models.backends.sherpa_stt import (  # noqa: E402
+    SherpaRecognizer,
+    SpeechModelError,
+    detect_stt_model,
+)
 from embagents.models.backends.sherpa_vad import SpeechSegmenter  # noqa: E402
 from embagents.models.backends.whisper_onnx import gpt2_token_bytes, read_ct2_model  # noqa: E402
 from embagents.speechfiles import SPEECH_CLIP_WORDS, silero_vad_path  # noqa: E402
