@@ -55,6 +55,8 @@ class SpeechSegmenter:
         self.window = int(config.silero_vad.window_size)
         self.vad = sherpa_onnx.VoiceActivityDetector(config, buffer_size_in_seconds=max_utterance_ms / 1000.0 + 30)
         self._pending = np.zeros(0, np.float32)  # less than one VAD window, kept for the next chunk
+        #: Where each utterance the last feed/flush returned starts (samples from the stream's start).
+        self.last_starts: list[int] = []
 
     @property
     def speaking(self) -> bool:
@@ -87,8 +89,9 @@ class SpeechSegmenter:
         return out
 
     def _take(self) -> list[np.ndarray]:
-        out = []
+        out, self.last_starts = [], []
         while not self.vad.empty():
             out.append(np.asarray(self.vad.front.samples, np.float32))
+            self.last_starts.append(int(self.vad.front.start))
             self.vad.pop()
         return out

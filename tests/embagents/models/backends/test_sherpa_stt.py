@@ -118,10 +118,15 @@ def test_vad_cuts_the_clip_into_its_six_phrases(recognizer: SherpaRecognizer, sp
     samples = speech_clip[0].astype(np.float32) / 32768
     vad = SpeechSegmenter(silero_vad_path(progress=False), min_silence_ms=300)
     utterances: list[np.ndarray] = []
+    starts: list[int] = []
     for i in range(0, len(samples), 1600):  # 100 ms chunks, as a microphone gives them
         utterances += vad.feed(samples[i:i + 1600])
+        starts += vad.last_starts
     utterances += vad.flush()
+    starts += vad.last_starts
     assert len(utterances) == 6 and all(0.5 < len(u) / 16000 < 2.0 for u in utterances)
+    assert 0.2 < starts[0] / 16000 < 0.5 and 7.5 < starts[-1] / 16000 < 8.5 and starts == sorted(starts)
+    assert all(np.array_equal(u, samples[s:s + len(u)]) for u, s in zip(utterances, starts, strict=True))
     said = " ".join(words(recognizer.transcribe(u)) for u in utterances)
     assert said == SPEECH_CLIP_WORDS
     assert vad.feed(np.zeros(16000, np.float32)) == [] and vad.flush() == []  # silence is no utterance
