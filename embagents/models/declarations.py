@@ -183,7 +183,7 @@ class SpeechToTextModel(Model):
         try:
             detect_stt_model(self.local_model_path, self.family)
         except (SpeechModelError, ValueError) as exc:
-            return f"speech model {self.name!r}: {exc}"
+            return str(exc)
         return None
 
     def options(self) -> dict[str, Any]:

@@ -147,6 +147,30 @@ def test_a_model_directory_missing_a_file_is_named_before_anything_starts(tmp_pa
         model.resolve()
 
 
+def test_embagents_check_names_the_missing_file_and_starts_nothing(tmp_path: Any) -> None:
+    import subprocess
+    import sys
+
+    (tmp_path / "model").mkdir()
+    for name in ("encoder.onnx", "tokens.txt"):
+        (tmp_path / "model" / name).write_bytes(b"")
+    system = tmp_path / "system.py"
+    system.write_text(
+        "from embagents.components import SpeechToText\n"
+        "from embagents.models import LocalModelClient, SpeechToTextModel\n"
+        "from embagents.msgs import Audio, String\n"
+        "from embagents.system import System\n"
+        "from embagents.topic import Topic\n"
+        f"m = SpeechToTextModel(name='whisper', local_model_path={str(tmp_path / 'model')!r})\n"
+        "system = System([SpeechToText(name='ears', inputs=[Topic('mic', Audio)], outputs=[Topic('heard', String)],\n"
+        "                              model_client=LocalModelClient(m))], models=[m], name='broken')\n")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(system)], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 1
+    assert "model 'whisper': the whisper model in" in out.stdout + out.stderr
+    assert "misses its decoder file (*decoder*.onnx); it has encoder.onnx, tokens.txt" in out.stdout + out.stderr
+
+
 def test_a_client_that_cannot_transcribe_is_a_declaration_error() -> None:
     class Chatty:
         name = "chatty"
@@ -156,3 +180,15 @@ def test_a_client_that_cannot_transcribe_is_a_declaration_error() -> None:
 
     with pytest.raises(ComponentError, match="model client .* cannot transcribe"):
         SpeechToText(name="ears", inputs=[mic], outputs=[Topic("heard", String)], model_client=Chatty())
+
+
+def test_a_wake_word_model_that_cannot_be_had_is_named_with_the_alternative(whisper: str, tmp_path: Any) -> None:
+    # openWakeWord ships no model on PyPI: what can be tested here is how a missing one is reported.
+    with pytest.raises(FileNotFoundError, match="openWakeWord model not found: .*use wake_phrase='hey robot'"):
+        ears(whisper, wake_word_model=str(tmp_path / "hey_robot.onnx"))
+    try:
+        import openwakeword  # noqa: F401
+    except ImportError:
+        (tmp_path / "hey_robot.onnx").write_bytes(b"")
+        with pytest.raises(ModuleNotFoundError, match="pip install openwakeword"):
+            ears(whisper, wake_word_model=str(tmp_path / "hey_robot.onnx"))
