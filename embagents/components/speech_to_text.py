@@ -179,6 +179,10 @@ class SpeechToText(ModelComponent):
                                         max_utterance_ms=cfg.max_utterance_ms)
         if cfg.wake_word_model:
             self._wake_word = _load_wake_word(cfg.wake_word_model)
+        for t in self.inputs:
+            if t.keep != "all":  # a dropped chunk is a hole in a word
+                self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
+                                    "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
         super().on_configure()
         self.logger.info("%s: listening (VAD %s, wake phrase %r, model client %s)", self._label(),
                          "on" if self._vad else "off", cfg.wake_phrase, self.client_name)
