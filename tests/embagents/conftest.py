@@ -42,3 +42,12 @@ def speech_clip() -> tuple[object, int]:
 
     with wave.open(speech_clip_path(progress=False)) as w:
         return np.frombuffer(w.readframes(w.getnframes()), np.int16).copy(), w.getframerate()
+
+
+@pytest.fixture(scope="session")
+def tiny_paraformer(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_paraformer.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_paraformer import make_tiny_paraformer
+
+    return make_tiny_paraformer(str(tmp_path_factory.mktemp("models") / "tiny-paraformer"))

@@ -20,10 +20,15 @@ def words(text: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def whisper(whisper_dir: str) -> Iterator[str]:
+def system(whisper_dir: str) -> Iterator[ActorSystem]:
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "whisper", "stt", whisper_dir, {"threads": 1}, True, wait=60)
-        yield "whisper"
+        yield asys
+
+
+@pytest.fixture
+def whisper(system: ActorSystem) -> str:
+    return "whisper"
 
 
 def test_the_model_refuses_audio_at_another_rate_and_keeps_serving(whisper: str, speech_clip: tuple) -> None:
@@ -44,3 +49,13 @@ def test_a_long_utterance_crosses_through_shared_memory_and_is_transcribed(whisp
     assert client.transcribe(np.zeros(0, np.float32))["text"] == ""  # empty: answered, not refused
     with pytest.raises(BadRequest, match="serves task 'transcribe', not 'detect'"):
         client.infer("detect", {"audio": clip[:10]})
+
+
+def test_a_model_directory_the_user_gives_is_served_the_same_way(system: ActorSystem, tiny_paraformer: str) -> None:
+    from embagents.models import SpeechToTextModel
+
+    model = SpeechToTextModel(name="para", local_model_path=tiny_paraformer)
+    system.spawn(ModelActor, model.name, model.kind, model.resolve(), model.options(), True, wait=60)
+    assert LocalModelClient(model).transcribe(np.zeros(16000, np.float32))["text"] == "hello robot"
+    stats = system.ref("para").ask("stats", timeout=10).get()
+    assert (stats["served"], stats["kind"], stats["model"]) == (1, "stt", tiny_paraformer)

@@ -106,3 +106,9 @@ def test_vad_settings_are_checked() -> None:
         SpeechSegmenter(silero_vad_path(progress=False), threshold=1.5)
     with pytest.raises(FileNotFoundError, match="silero_vad_path"):
         SpeechSegmenter("/nonexistent/silero.onnx")
+
+
+def test_a_user_model_directory_of_another_family_loads_and_decodes(tiny_paraformer: str) -> None:
+    stt = SherpaRecognizer(tiny_paraformer)
+    assert stt.family == "paraformer" and stt.files["paraformer"].endswith("model.onnx")
+    assert stt.transcribe(np.zeros(16000, np.float32)) == "hello robot"
