@@ -11,7 +11,8 @@ shared memory), or to an OpenAI-compatible server
 transcript is published on the ``String`` output. When a ``StreamingString``
 output is wired, the utterance in progress is transcribed every
 ``partial_interval_ms`` and each hypothesis is published on it (``data`` is
-the whole hypothesis so far, ``done=False``), the final one with ``done=True``.
+the whole hypothesis so far, ``done=False``), the final one with ``done=True``:
+a live view of what is heard, not gated by the wake phrase.
 
 A wake phrase (``wake_phrase="hey robot"``) gates what is passed on: a
 transcript that says it is passed on from after the phrase; one that is only
@@ -271,20 +272,19 @@ class SpeechToText(ModelComponent):
         if cfg.wake_phrase is None and self._wake_word is None:
             return text
         now = time.monotonic()
-        if now < self._awake_until:
-            self._awake_until = 0.0
-            rest = strip_wake_phrase(text, cfg.wake_phrase) if cfg.wake_phrase else None
-            return text if rest is None else (rest or None)
+        awake, self._awake_until = now < self._awake_until, 0.0
         rest = strip_wake_phrase(text, cfg.wake_phrase) if cfg.wake_phrase else None
-        if rest is None:
-            self.logger.info("%s: not for me (no wake %s): %r", self._label(),
-                             f"phrase {cfg.wake_phrase!r}" if cfg.wake_phrase else "word", text)
-            return None
-        if not rest:
+        if rest:  # the phrase, then what is asked
+            return rest
+        if rest == "":  # the phrase alone: the next utterance is for us
             self._awake_until = now + cfg.wake_window_s
             self.logger.info("%s: wake phrase heard; listening for %.0f s", self._label(), cfg.wake_window_s)
             return None
-        return rest
+        if awake:
+            return text
+        self.logger.info("%s: not for me (no wake %s): %r", self._label(),
+                         f"phrase {cfg.wake_phrase!r}" if cfg.wake_phrase else "word", text)
+        return None
 
     def _listen_for_wake_word(self, samples: np.ndarray) -> None:
         pcm = np.clip(samples * 32768.0, -32768, 32767).astype(np.int16)

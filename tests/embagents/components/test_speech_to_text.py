@@ -95,6 +95,9 @@ def test_the_wake_phrase_gates_what_is_passed_on(whisper: str, speech_clip: tupl
     comp, sent = ears(whisper, min_silence_ms=300, wake_phrase="hey robot")
     play(comp, speech_clip[0])
     assert sent == []
+    comp, sent = ears(whisper, min_silence_ms=300, wake_phrase="ever")  # the phrase, then what is asked
+    play(comp, speech_clip[0])
+    assert [m.data for m in sent] == ["tried.", "failed."]
 
 
 def test_bad_audio_is_a_clear_skip_and_the_next_chunk_is_heard(whisper: str, speech_clip: tuple) -> None:
