@@ -37,6 +37,8 @@ log = logging.getLogger("embagents.stt")
 #: The model families a sherpa-onnx model directory can hold.
 STT_FAMILIES = ("whisper", "moonshine", "moonshine_v2", "paraformer", "transducer")
 SAMPLE_RATE = 16000
+#: Whisper's longest piece of audio here (its window is 30 s, sherpa-onnx keeps 0.5 s of it for padding).
+WHISPER_PIECE_S = 28.0
 _ANNOTATION = re.compile(r"\[[^\]]*\]|\([^)]*\)|\*[^*]*\*")
 
 # Per family: role -> glob patterns (first that matches wins).
@@ -144,6 +146,13 @@ def check_samples(samples: object) -> np.ndarray:
     return samples
 
 
+def _quietest(audio: np.ndarray, start: int, end: int, rate: int) -> int:
+    """The start of the quietest 100 ms window of ``audio[start:end]`` (a pause, where a cut splits no word)."""
+    hop = rate // 10
+    energy = [float(np.square(audio[i:i + hop]).sum()) for i in range(start, end - hop + 1, hop)]
+    return start + hop * int(np.argmin(energy))
+
+
 class SherpaRecognizer:
     """One sherpa-onnx offline recognizer on the model in ``path`` (see the module docstring).
 
@@ -180,10 +189,19 @@ class SherpaRecognizer:
         log.info("loaded %s model from %s (%d threads, %s)", self.family, path, threads, provider)
 
     def transcribe(self, samples: Any, sample_rate: int = SAMPLE_RATE) -> str:
-        """The text said in ``samples`` (mono, float32 in [-1, 1] or int16); "" for silence."""
+        """The text said in ``samples`` (mono, float32 in [-1, 1] or int16); "" for silence.
+
+        Whisper hears at most 30 s at once: longer audio is transcribed in pieces of
+        :data:`WHISPER_PIECE_S` seconds (cut where it is quietest near the end of each).
+        """
         audio = check_samples(samples)
         if audio.size == 0:
             return ""
+        piece = int(WHISPER_PIECE_S * sample_rate)
+        if self.family == "whisper" and len(audio) > piece:
+            cut = _quietest(audio, piece - 3 * sample_rate, piece, sample_rate)
+            return " ".join(t for t in (self.transcribe(audio[:cut], sample_rate),
+                                        self.transcribe(audio[cut:], sample_rate)) if t)
         stream = self.recognizer.create_stream()
         stream.accept_waveform(int(sample_rate), audio)
         self.recognizer.decode_stream(stream)

@@ -37,6 +37,13 @@ def test_the_prepared_whisper_transcribes_the_real_clip_word_for_word(recognizer
     assert words(recognizer.transcribe(samples)) == SPEECH_CLIP_WORDS
 
 
+def test_audio_longer_than_whisper_hears_at_once_is_transcribed_in_pieces(recognizer: SherpaRecognizer,
+                                                                         speech_clip: tuple[np.ndarray, int]) -> None:
+    samples = np.tile(speech_clip[0], 4)  # 40 s: more than Whisper's 30 s window
+    said = words(recognizer.transcribe(samples))
+    assert said.count("fail better") >= 3 and said.startswith("ever tried ever failed") and said.endswith("fail better")
+
+
 def test_silence_and_empty_audio_give_no_words(recognizer: SherpaRecognizer) -> None:
     assert recognizer.transcribe(np.zeros(0, np.float32)) == ""
     assert recognizer.transcribe(np.zeros(16000, np.float32)) == ""  # not Whisper's "[ Silence ]"
