@@ -1,6 +1,6 @@
 """The model layer: declarations, the inference protocol, clients, model actors, serving.
 
-A model is data (:class:`LlamaModel`, :class:`DetectorModel`). ``embagents
+A model is data (:class:`LlamaModel`, :class:`DetectorModel`, :class:`SpeechToTextModel`). ``embagents
 supervise`` starts one model actor per model (:mod:`embagents.models.actor`):
 a process that loads it once and serves inference requests from any number
 of components (:mod:`embagents.models.protocol`: arrays through shared
