@@ -28,10 +28,15 @@ def words(text: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def whisper(whisper_dir: str) -> Iterator[str]:
+def system(whisper_dir: str) -> Iterator[ActorSystem]:
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "whisper", "stt", whisper_dir, {"threads": 1}, True, wait=60)
-        yield "whisper"
+        yield asys
+
+
+@pytest.fixture
+def whisper(system: ActorSystem) -> str:
+    return "whisper"
 
 
 def ears(model: str, partials: bool = False, **config: Any) -> tuple[SpeechToText, list[Any]]:
@@ -186,3 +191,29 @@ def test_a_wake_word_model_that_cannot_be_had_is_named_with_the_alternative(whis
         (tmp_path / "hey_robot.onnx").write_bytes(b"")
         with pytest.raises(ModuleNotFoundError, match="pip install openwakeword"):
             ears(whisper, wake_word_model=str(tmp_path / "hey_robot.onnx"))
+
+
+def test_a_model_actor_that_dies_mid_utterance_is_reported_and_its_successor_is_heard(
+        system: ActorSystem, whisper_dir: str, speech_clip: tuple) -> None:
+    import signal
+    import threading
+
+    from embagents.models import client as client_module
+    from tests.helpers import wait_until
+
+    system.spawn(ModelActor, "doomed", "stt", whisper_dir, {"threads": 1}, True, wait=60)
+    comp, sent = ears("doomed", enable_vad=False)
+    first = int(repr(client_module._req_ids)[len("count("):-1])
+    comp.on_message("mic", Audio(data=np.tile(speech_clip[0], 4)))  # 40 s: seconds of work for the model
+    step = threading.Thread(target=comp.execute)
+    step.start()
+    wait_until(lambda: int(repr(client_module._req_ids)[len("count("):-1]) > first, 10, "the request sent")
+    system.signal("doomed", signal.SIGKILL)
+    step.join(timeout=25)
+    assert not step.is_alive() and sent == []  # the step ended: nothing stuck
+    assert comp.health.status == HealthStatus.ALGORITHM_FAILURE and "went away" in comp.health.text
+    system.stop("doomed")
+    system.spawn(ModelActor, "doomed", "stt", whisper_dir, {"threads": 1}, True, wait=60)  # as a supervisor would
+    comp.on_message("mic", Audio(data=speech_clip[0][:44000]))
+    assert comp.execute() and [words(m.data) for m in sent] == ["ever tried ever failed"]
+    assert comp.health.status == HealthStatus.HEALTHY
