@@ -192,12 +192,13 @@ def _dims(w: dict[str, np.ndarray]) -> dict[str, int]:
         "n_mels": int(w["encoder/conv1/weight"].shape[1]),
         "n_audio_ctx": int(w["encoder/position_encodings/encodings"].shape[0]),
         "n_audio_state": int(w["encoder/conv1/weight"].shape[0]),
-        "n_audio_head": int(w["encoder/num_heads"]) if "encoder/num_heads" in w else 6,
+        # every Whisper size has 64-dimensional heads (older CTranslate2 specs do not store the count)
+        "n_audio_head": int(w.get("encoder/num_heads", w["encoder/conv1/weight"].shape[0] // 64)),
         "n_audio_layer": layers("encoder"),
         "n_vocab": int(w["decoder/embeddings/weight"].shape[0]),
         "n_text_ctx": int(w["decoder/position_encodings/encodings"].shape[0]),
         "n_text_state": int(w["decoder/embeddings/weight"].shape[1]),
-        "n_text_head": int(w["decoder/num_heads"]) if "decoder/num_heads" in w else 6,
+        "n_text_head": int(w.get("decoder/num_heads", w["decoder/embeddings/weight"].shape[1] // 64)),
         "n_text_layer": layers("decoder"),
     }
 
