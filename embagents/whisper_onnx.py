@@ -340,6 +340,10 @@ def _bar(label: str, total: int, enabled: bool) -> Callable[[], None]:
     return step
 
 
+def _complete(folder: str) -> bool:
+    return all(os.path.isfile(os.path.join(folder, f)) for f in WHISPER_FILES)
+
+
 def convert_ct2_whisper(src: str, dest: str, *, name: str = "tiny.en", progress: bool = True) -> str:
     """Write ``encoder.onnx``, ``decoder.onnx``, ``tokens.txt`` for the CTranslate2 Whisper model in ``src``.
 
@@ -369,9 +373,11 @@ def convert_ct2_whisper(src: str, dest: str, *, name: str = "tiny.en", progress:
             for i, tok in enumerate(vocab[:eot]):
                 f.write(f"{base64.b64encode(gpt2_token_bytes(tok)).decode()} {i}\n")
         step()
+        if os.path.isdir(dest) and not _complete(dest):  # a folder that lost a file: replaced whole
+            shutil.rmtree(dest, ignore_errors=True)
         os.replace(tmp, dest)
     except OSError:
-        if not all(os.path.isfile(os.path.join(dest, f)) for f in WHISPER_FILES):
+        if not _complete(dest):
             raise
     finally:  # nothing half-written is left (or: another process prepared it meanwhile, keep theirs)
         shutil.rmtree(tmp, ignore_errors=True)
