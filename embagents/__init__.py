@@ -18,6 +18,8 @@ from embagents.components import (
     HealthStatus,
     LLMConfig,
     ModelComponent,
+    SpeechToText,
+    SpeechToTextConfig,
     VideoMakerConfig,
     VideoMessageMaker,
     Vision,
@@ -25,7 +27,13 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
-from embagents.models import DetectorModel, LlamaModel, LocalModelClient, RemoteModelClient
+from embagents.models import (
+    DetectorModel,
+    LlamaModel,
+    LocalModelClient,
+    RemoteModelClient,
+    SpeechToTextModel,
+)
 from embagents.msgs import (
     Audio,
     CompressedImage,
@@ -70,6 +78,9 @@ __all__ = [
     "OccupancyGrid",
     "Odometry",
     "RemoteModelClient",
+    "SpeechToText",
+    "SpeechToTextConfig",
+    "SpeechToTextModel",
     "StreamingString",
     "String",
     "System",

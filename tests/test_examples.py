@@ -14,7 +14,7 @@ import pytest
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
-@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py"])
+@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)
@@ -56,3 +56,14 @@ def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: 
     clips = sorted(tmp_path.glob("motion_clip_*.mp4"))
     assert [c.name for c in clips] == ["motion_clip_1.mp4", "motion_clip_2.mp4"], out.stdout
     assert out.stdout.splitlines()[-1] == f"done: 2 clips in {tmp_path}", out.stdout
+
+
+def test_listen_example_hears_the_six_phrases_of_the_clip() -> None:
+    pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "listen.py")],
+                         capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    heard = [re.sub(r"[^a-z ]", "", x[len("heard: "):].lower()) for x in out.stdout.splitlines() if x.startswith("heard: ")]
+    assert heard == ["ever tried", "ever failed", "no matter", "try again", "fail again", "fail better"], out.stdout
+    assert any(x.startswith("  (hearing: ") for x in out.stdout.splitlines()), out.stdout  # partial transcripts
+    assert out.stdout.splitlines()[-1] == "done: 6 phrases heard", out.stdout

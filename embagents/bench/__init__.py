@@ -61,6 +61,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_remote,
     cases_ros_bridge,
     cases_ros_recovery,
+    cases_speech,
     cases_supervisor,
     cases_vision,
     idle,

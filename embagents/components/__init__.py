@@ -18,6 +18,7 @@ from embagents.components.component import (
 )
 from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
+from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
 
@@ -33,6 +34,8 @@ __all__ = [
     "HealthStatus",
     "LLMConfig",
     "ModelComponent",
+    "SpeechToText",
+    "SpeechToTextConfig",
     "VideoMakerConfig",
     "VideoMessageMaker",
     "Vision",

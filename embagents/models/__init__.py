@@ -1,6 +1,6 @@
 """The model layer: declarations, the inference protocol, clients, model actors, serving.
 
-A model is data (:class:`LlamaModel`, :class:`DetectorModel`). ``embagents
+A model is data (:class:`LlamaModel`, :class:`DetectorModel`, :class:`SpeechToTextModel`). ``embagents
 supervise`` starts one model actor per model (:mod:`embagents.models.actor`):
 a process that loads it once and serves inference requests from any number
 of components (:mod:`embagents.models.protocol`: arrays through shared
@@ -22,7 +22,7 @@ Example::
 
 from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
-from embagents.models.declarations import DetectorModel, LlamaModel, Model
+from embagents.models.declarations import DetectorModel, LlamaModel, Model, SpeechToTextModel
 from embagents.models.inventory import models_of
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
@@ -39,6 +39,7 @@ __all__ = [
     "ModelUnavailable",
     "RemoteModelClient",
     "RemoteRefused",
+    "SpeechToTextModel",
     "collect_stream",
     "models_of",
 ]

@@ -244,3 +244,6 @@ class LocalModelClient:
         """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``."""
         return self.infer("detect", {"image": image}, **options)
 
+    def transcribe(self, audio: Any, **options: Any) -> dict[str, Any]:
+        """The text said in ``audio`` (1-D 16 kHz float32 or int16 samples): ``{"text", "seconds"}``."""
+        return self.infer("transcribe", {"audio": audio}, **options)

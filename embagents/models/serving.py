@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'llama']
+    ['detector', 'llama', 'stt']
 """
 
 from __future__ import annotations
@@ -134,7 +134,14 @@ class DetectorServing:
         pass
 
 
-_KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {"llama": ChatServing, "detector": DetectorServing}
+def _stt(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.speech_serving import SpeechToTextServing
+
+    return SpeechToTextServing(path, options)
+
+
+_KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {"llama": ChatServing, "detector": DetectorServing,
+                                                           "stt": _stt}
 
 
 def serving_kinds() -> list[str]:

