@@ -25,6 +25,7 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
+from embagents.manager import Agent, HandshakeRule, Manager, Node, StateMachineHandler
 from embagents.models import DetectorModel, LlamaModel, LocalModelClient, RemoteModelClient
 from embagents.msgs import (
     Audio,
@@ -49,6 +50,7 @@ set_app_name("embagents")
 __all__ = [
     "LLM",
     "Action",
+    "Agent",
     "Audio",
     "BaseComponentConfig",
     "Camera",
@@ -59,6 +61,7 @@ __all__ = [
     "DetectorModel",
     "Event",
     "Fallback",
+    "HandshakeRule",
     "Health",
     "HealthStatus",
     "Image",
@@ -66,11 +69,14 @@ __all__ = [
     "LLMConfig",
     "LlamaModel",
     "LocalModelClient",
+    "Manager",
     "ModelComponent",
+    "Node",
     "OccupancyGrid",
     "Odometry",
     "RemoteModelClient",
     "StreamingString",
+    "StateMachineHandler",
     "String",
     "System",
     "Topic",
