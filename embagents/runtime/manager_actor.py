@@ -41,6 +41,9 @@ __all__ = ["SNAPSHOT_EVERY_S", "ManagerActor"]
 log = logging.getLogger("embagents.runtime.manager")
 #: The tick counter alone is snapshotted at least this often (state changes at once).
 SNAPSHOT_EVERY_S = 0.5
+#: The loop's poll waits in whole milliseconds, rounded up: the tick's timer is set this much early and
+#: the last fraction is slept, so a tick starts on its deadline, not up to 1 ms after it.
+EARLY_S = 0.0015
 HEALTH_TOPIC = "_health"
 _codec = Codec()
 
@@ -111,6 +114,9 @@ class ManagerActor(Actor):
         self._timer = None
         if not self.active or self.stopped:
             return
+        early = self._next - time.monotonic()
+        if self.ticking and early > 0:
+            time.sleep(early)  # at most EARLY_S: a short sleep, not a busy wait
         m = self.manager
         if not self.ticking and not self._handshake(m):
             self._timer = self.context.call_later(m.period, self._step)
@@ -126,7 +132,7 @@ class ManagerActor(Actor):
         self._next, overran = next_deadline(self._next, m.period, now)
         if overran:
             m.overruns += 1
-        self._timer = self.context.call_later(max(0.0, self._next - now), self._step)
+        self._timer = self.context.call_later(max(0.0, self._next - now - EARLY_S), self._step)
 
     def _handshake(self, m: Any) -> bool:
         if self._progress is None:
