@@ -175,7 +175,11 @@ class Agent:
                 err.__cause__ = exc
                 fut.set_exception(err)
 
-        self._executor.submit(run)
+        def cancelled(job: concurrent.futures.Future) -> None:  # type: ignore[type-arg]
+            if job.cancelled() and not fut.done():
+                fut.set_exception(AgentNotRunning(f"agent {self.name!r} stopped before running {method}()"))
+
+        self._executor.submit(run).add_done_callback(cancelled)
         return fut
 
     def _isolated_call(self, method: str, args: Any, kwargs: Any) -> AgentFuture:
