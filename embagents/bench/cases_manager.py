@@ -187,8 +187,8 @@ def manager_restart_resume(opts: BenchOptions) -> dict[str, Any]:
                 seen = len(got)
                 t0 = time.monotonic()
                 os.kill(pid, signal.SIGKILL)
-            beat = wait_for(lambda: next((b for b in got[seen:] if b[0] != pid and b[1] == at_kill), None), 10,
-                            "resumed tick")  # noqa: B023 - used at once
+            beat = wait_for(lambda s=seen, p=pid, k=at_kill: next((b for b in got[s:] if b[0] != p and b[1] == k), None),
+                            10, "resumed tick")
             samples.append((beat[3] - t0) * 1000)
             states.append(at_kill)
         asys.rt.on_client(sub.close)
