@@ -25,6 +25,7 @@ Example::
 from __future__ import annotations
 
 import logging
+import os
 import time
 from typing import Any
 
@@ -78,6 +79,10 @@ class ManagerActor(Actor):
                     lambda msg, n=node, name=t.name: self._on_message(n, name, msg),
                     queue_size=t.queue_size, keep=t.keep, msg_type=t.msg_type,
                 )
+        agents = ", ".join(f"{a.name} ({'isolated' if a.isolated else 'attached'})" for a in m.agents) or "none"
+        m.logger.info("pid %d: %g Hz, handlers %s; nodes %s; agents %s", os.getpid(), m.rate_hz,
+                      ", ".join(h.name for h in m.handlers) or "none", ", ".join(n.name for n in m.nodes) or "none",
+                      agents)
         if self._restored is not None:
             m.restore(self._restored)
         m.start_agents()
