@@ -35,9 +35,23 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["Agent", "AgentCrashed", "AgentError", "AgentFuture", "AgentNotRunning"]
+import attrs
+
+from actors.codec import message
+
+__all__ = ["Agent", "AgentCall", "AgentCrashed", "AgentError", "AgentFuture", "AgentNotRunning"]
 
 log = logging.getLogger("embagents.manager.agents")
+
+
+@message("embagents/AgentCall")
+@attrs.define
+class AgentCall:
+    """One call to an isolated agent's actor: ``method(*args, **kwargs)``; the ask gets its return value."""
+
+    method: str
+    args: list[Any] = attrs.field(factory=list, converter=list)
+    kwargs: dict[str, Any] = attrs.field(factory=dict, converter=dict)
 
 
 class AgentError(RuntimeError):
@@ -186,7 +200,6 @@ class Agent:
         from actors import runtime, wire
         from actors.errors import ActorCrashed, RemoteError
         from actors.link import Pending
-        from embagents.runtime.requests import Call
 
         rt = runtime.current()
         fut: AgentFuture
@@ -205,7 +218,7 @@ class Agent:
                 fut.set_exception(value if isinstance(value, BaseException) else AgentError(str(value)))
 
         pending = Pending(settle)
-        message = Call(method, list(args), dict(kwargs))
+        message = AgentCall(method, list(args), dict(kwargs))
         loop = rt.loop_here()
         if loop is not None:  # the manager actor's own loop thread: answers arrive between ticks
             link = rt.link(self.actor_name, loop)
