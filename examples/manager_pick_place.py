@@ -17,7 +17,9 @@ Offline, no ROS, about ten seconds. What runs, each in its own process:
   same way). ``isolated=False`` would run it as a thread of the manager's process.
 
 Every detection is published on ``detections`` (Detections). When the table
-is clear the manager publishes on ``system_stop`` and the run ends. SIGKILL the
+is clear the manager publishes on ``system_stop`` and the run ends; with
+opencv installed it first writes a filmstrip of the first cube's states to
+``$EMBAGENTS_PICK_PLACE_OUT/filmstrip.png`` (default ``./pick_place_out``). SIGKILL the
 manager mid-mission (``kill -9`` the pid ``embagents status`` shows) and it
 resumes in the state it was in ("restarted: resuming at tick ...: handler
 'PickPlace' in state 'carry'").
@@ -26,6 +28,7 @@ resumes in the state it was in ("restarted: resuming at tick ...: handler
 from __future__ import annotations
 
 import json
+import os
 import time
 from typing import Any
 
@@ -127,7 +130,12 @@ class PickPlace(StateMachineHandler):
     def __init__(self) -> None:
         super().__init__()
         self.pending: Any = None  # the detector's future
-        self.sent_at = 0
+        self.strip: list[tuple[str, np.ndarray]] = []  # the frame on entering each state, for the filmstrip
+
+    def on_tick(self, state: State, tick: int) -> None:
+        super().on_tick(state, tick)
+        if len(self.strip) < 6 and (not self.strip or self.strip[-1][0] != self.current):
+            self.strip.append((self.current, camera.latest(image).data.copy()))
 
     def arm(self) -> dict[str, Any]:
         return json.loads(camera.latest(arm_state).data)
@@ -186,8 +194,26 @@ class PickPlace(StateMachineHandler):
         return "dropped"
 
     def on_enter_done(self, state: State) -> None:
+        self.write_strip()
         print(f"done: the table is clear ({state.get('placed', 0)} cubes in the bin)", flush=True)
         camera.publish(stop, String(data="pick_place done"))
+
+    def write_strip(self) -> None:
+        try:
+            import cv2
+        except ImportError:
+            return  # the filmstrip is a picture for people; the mission does not need it
+        tiles = []
+        for name, frame in self.strip:
+            tile = cv2.cvtColor(frame, cv2.COLOR_RGB2BGR)
+            cv2.putText(tile, name, (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2)
+            tiles.append(np.pad(tile, ((2, 2), (2, 2), (0, 0))))
+        while len(tiles) < 6:  # a restart forgets the frames it had kept
+            tiles.append(np.zeros((H + 4, W + 4, 3), np.uint8))
+        out = os.path.abspath(os.environ.get("EMBAGENTS_PICK_PLACE_OUT", "pick_place_out"))
+        os.makedirs(out, exist_ok=True)
+        cv2.imwrite(os.path.join(out, "filmstrip.png"), np.vstack([np.hstack(tiles[:3]), np.hstack(tiles[3:6])]))
+        print(f"filmstrip: {os.path.join(out, 'filmstrip.png')}", flush=True)
 
 
 manager = Manager(

@@ -62,11 +62,13 @@ def _supervised(system: Any, key: str) -> Any:
         raise
 
 
-def _jitter_run(isolated: bool, ticks: int, out: str) -> list[float]:
+def _jitter_run(isolated: bool, ticks: int, out: str, nice: int | None = None) -> list[float]:
     from embagents.manager import Agent, Handler, Manager, State
     from embagents.system import System
 
-    agent = Agent("busy", BusyAgent, isolated=isolated)
+    agent = Agent("busy", BusyAgent, isolated=isolated, nice=nice)
+    if os.path.exists(out):
+        os.unlink(out)
 
     class Recorder(Handler):
         def __init__(self) -> None:
@@ -183,10 +185,12 @@ def manager_restart_resume(opts: BenchOptions) -> dict[str, Any]:
         for _ in range(kills):
             time.sleep(0.1 + float(rng.random()) * 0.25)  # somewhere mid-state
             with cond:
-                pid, at_kill = got[-1][0], got[-1][1]
-                seen = len(got)
+                pid, seen = got[-1][0], len(got)
                 t0 = time.monotonic()
                 os.kill(pid, signal.SIGKILL)
+            wait_for(lambda s=seen, p=pid: any(b[0] != p for b in got[s:]), 10, "tick of the new incarnation")
+            with cond:  # the old incarnation's last tick: its beats still in flight at the kill have arrived
+                at_kill = [b for b in got if b[0] == pid][-1][1]
             beat = wait_for(lambda s=seen, p=pid, k=at_kill: next((b for b in got[s:] if b[0] != p and b[1] == k), None),
                             10, "resumed tick")
             samples.append((beat[3] - t0) * 1000)

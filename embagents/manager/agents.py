@@ -107,7 +107,8 @@ class Agent:
     """``factory(*args, **kwargs)`` as an agent named ``name``; ``isolated`` picks where it runs.
 
     ``heartbeat`` is an isolated agent's hang deadline in seconds (one call
-    longer than that gets it killed and restarted).
+    longer than that gets it killed and restarted); ``nice`` its process's
+    niceness (a positive value lets the loop's process win a busy CPU).
     """
 
     def __init__(
@@ -117,6 +118,7 @@ class Agent:
         *args: Any,
         isolated: bool = False,
         heartbeat: float = 30.0,
+        nice: int | None = None,
         **kwargs: Any,
     ) -> None:
         from actors.wire import check_name
@@ -130,6 +132,7 @@ class Agent:
         self.kwargs = kwargs
         self.isolated = bool(isolated)
         self.heartbeat = heartbeat
+        self.nice = nice
         #: The actor name of an isolated agent (set by its manager: "<manager>.<agent>").
         self.actor_name = name
         self._call: Callable[[str, Any, Any], AgentFuture] | None = None
