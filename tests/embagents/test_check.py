@@ -287,3 +287,18 @@ def test_a_system_of_one_component_is_counted_in_the_singular(tmp_path, capsys):
     write(tmp_path, 'camera = Camera(name="camera", outputs=[image], trigger=15.0)\nsystem = System([camera])\n')
     assert main(["check", str(tmp_path / "system.py")]) == 0
     assert capsys.readouterr().out.strip() == "OK: 1 component, 1 topic"
+
+
+def test_a_managers_node_topics_count_in_the_check() -> None:
+    from embagents.manager import Manager, Node
+    from embagents.msgs import Image, String
+    from embagents.system import System
+    from embagents.topic import Topic
+
+    heard, said = Topic("heard", String), Topic("said", String)
+    node = Node("io", subscribe=[heard, Topic("said", Image)], publish=[said])
+    problems = check_system(System([], managers=[Manager(10, name="boss", nodes=[node])]))
+    by_code = {p.code: p for p in problems}
+    assert by_code["unknown-topic"].message.startswith("manager 'boss': node 'io' subscribes to 'heard' (String), "
+                                                       "which nothing in this system publishes")
+    assert "topic 'said' is used with 2 message types" in by_code["topic-type-conflict"].message
