@@ -166,7 +166,7 @@ def manager_restart_resume(opts: BenchOptions) -> dict[str, Any]:
 
     def on_beat(msg: Any) -> None:
         with cond:
-            got.append(tuple(json.loads(msg.data)))  # type: ignore[arg-type]
+            got.append(tuple(json.loads(msg.data)))
             cond.notify_all()
 
     def wait_for(pred: Any, timeout: float, what: str) -> Any:

@@ -66,7 +66,7 @@ class AgentNotRunning(RuntimeError):
     """An agent was called before its manager started it (or after it stopped)."""
 
 
-class AgentFuture(concurrent.futures.Future):  # type: ignore[type-arg]
+class AgentFuture(concurrent.futures.Future[Any]):
     """The future of one agent call; ``result()`` may wait, ``done()`` never does.
 
     For an isolated agent called from the manager's loop thread, waiting in
@@ -192,7 +192,7 @@ class Agent:
                 err.__cause__ = exc
                 fut.set_exception(err)
 
-        def cancelled(job: concurrent.futures.Future) -> None:  # type: ignore[type-arg]
+        def cancelled(job: concurrent.futures.Future[None]) -> None:
             if job.cancelled() and not fut.done():
                 fut.set_exception(AgentNotRunning(f"agent {self.name!r} stopped before running {method}()"))
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 from actors import Actor, Codec
@@ -74,11 +75,8 @@ class ManagerActor(Actor):
         for node in m.nodes:
             node.bind(ctx.publish)
             for t in node.subscriptions:
-                ctx.subscribe(
-                    t.name,
-                    lambda msg, n=node, name=t.name: self._on_message(n, name, msg),
-                    queue_size=t.queue_size, keep=t.keep, msg_type=t.msg_type,
-                )
+                ctx.subscribe(t.name, self._deliverer(node, t.name), queue_size=t.queue_size, keep=t.keep,
+                              msg_type=t.msg_type)
         agents = ", ".join(f"{a.name} ({'isolated' if a.isolated else 'attached'})" for a in m.agents) or "none"
         m.logger.info("pid %d: %g Hz, handlers %s; nodes %s; agents %s", os.getpid(), m.rate_hz,
                       ", ".join(h.name for h in m.handlers) or "none", ", ".join(n.name for n in m.nodes) or "none",
@@ -90,6 +88,9 @@ class ManagerActor(Actor):
             self.on_activate()
 
     # -- topics -----------------------------------------------------------------------
+    def _deliverer(self, node: Node, topic: str) -> Callable[[Any], None]:
+        return lambda msg: self._on_message(node, topic, msg)
+
     def _on_message(self, node: Node, topic: str, msg: Any) -> None:
         try:
             node.deliver(topic, msg)
