@@ -31,6 +31,7 @@ Example::
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -148,10 +149,21 @@ class Agent:
         """Attached: build the object and its worker thread. Isolated: connect to its actor."""
         if self.isolated:
             self._call = self._isolated_call
+            self._connect()
         else:
             self._obj = self.build()
             self._executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix=f"agent-{self.name}")
             self._call = self._attached_call
+
+    def _connect(self) -> None:
+        """On an actor's loop thread, connect to the agent's actor now, not on the first tick that calls it."""
+        from actors import ActorNotFound, runtime
+
+        rt = runtime.current()
+        loop = rt.loop_here()
+        if loop is not None:
+            with contextlib.suppress(ActorNotFound):  # not started (yet): the first call connects
+                rt.link(self.actor_name, loop)
 
     def stop(self) -> None:
         self._call = None
