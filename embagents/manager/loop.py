@@ -408,7 +408,7 @@ class Manager:
                 begun = time.monotonic()
                 if begun - window_start >= self.log_rate_every:
                     window = begun - window_start
-                    self._log_rate(window_ticks / window, window_overruns, window)
+                    self.log_rate(window_ticks / window, window_overruns, window)
                     window_start, window_ticks, window_overruns = begun, 0, 0
                 window_ticks += 1
             ticks += 1
@@ -516,7 +516,8 @@ class Manager:
             logged = now
         self._failures[index] = (kind, count + 1, logged)
 
-    def _log_rate(self, rate: float, overruns: int, window: float) -> None:
+    def log_rate(self, rate: float, overruns: int, window: float) -> None:
+        """Log the rate achieved over the last ``window`` s (a warning if ticks overran)."""
         self.achieved_rate = rate
         level = logging.WARNING if overruns else logging.INFO
         self.logger.log(

@@ -71,6 +71,7 @@ class ManagerActor(Actor):
         self._snap_key: Any = None
         self._snap_at = 0.0
         self._unencodable: set[str] = set()
+        self._window = (0.0, 0, 0)  # rate logging: start, ticks, overruns
         ctx = self.context
         for node in m.nodes:
             node.bind(ctx.publish)
@@ -138,7 +139,18 @@ class ManagerActor(Actor):
         self._next, overran = next_deadline(self._next, m.period, now)
         if overran:
             m.overruns += 1
+        if m.log_rate_every is not None:
+            self._log_rate(m, now)
         self._timer = self.context.call_later(max(0.0, self._next - now - EARLY_S), self._step)
+
+    def _log_rate(self, m: Any, now: float) -> None:
+        start, ticks, overruns = self._window
+        ticks += 1
+        if now - start >= m.log_rate_every:
+            m.log_rate(ticks / (now - start), m.overruns - overruns, now - start)
+            self._window = (now, 0, m.overruns)
+        else:
+            self._window = (start, ticks, overruns)
 
     def _handshake(self, m: Any) -> bool:
         if self._progress is None:
@@ -149,6 +161,7 @@ class ManagerActor(Actor):
             m.start_handlers()
             self._set_health(HealthStatus.HEALTHY, f"ticking at {m.rate_hz:g} Hz")
             self._next = time.monotonic()
+            self._window = (self._next, 0, m.overruns)
             return True
         timeout = m.handshake_timeout
         if timeout is not None and not self._reported_timeout and time.monotonic() - progress.start >= timeout:
@@ -174,13 +187,14 @@ class ManagerActor(Actor):
 
     # -- requests --------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
-        """Tick, handlers' states, overruns, health and the handshake rules still unmet."""
+        """Tick, handlers' states, overruns, achieved rate (``log_rate_every``), health, handshake rules unmet."""
         m = self.manager
         return {
             "tick": m.tick,
             "ticking": self.ticking and self.active and not self.stopped,
             "states": {h.name: getattr(h, "current", None) for h in m.handlers},
             "overruns": m.overruns,
+            "rate_hz": m.achieved_rate,
             "status": int(self._health[0]),
             "text": self._health[1],
             "unmet": [r.name for r in self._progress.pending] if self._progress else [],

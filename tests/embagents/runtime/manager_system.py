@@ -135,7 +135,7 @@ def build(name: str, policy: Any) -> Manager:
     helper = Agent("helper", Worker)
     mission = Mission(node)
     return Manager(
-        50, name=name, on_handler_error=policy, hang_timeout=1.0,
+        50, name=name, on_handler_error=policy, hang_timeout=1.0, log_rate_every=0.5,
         handshake=[HandshakeRule.first_message(frames)], handshake_timeout=10,
         nodes=[node], agents=[worker, helper],
         handlers=[count, mission, Obey(node, mission, worker, helper)],

@@ -85,6 +85,11 @@ def test_the_manager_ticks_in_its_own_supervised_process(run: Run) -> None:
     assert run.status("main")["tick"] > first["tick"] + 10  # 50 Hz: about 25 more
 
 
+def test_the_achieved_rate_is_logged_and_reported(run: Run) -> None:
+    rate = wait_until(lambda: run.status("main")["rate_hz"], 5, "a rate window")
+    assert 10 < rate < 80  # 50 Hz asked; a loose band (a shared machine): the bench measures the jitter
+
+
 def test_a_node_publishes_on_a_system_topic(run: Run) -> None:
     run.send("main", "say hello")
     wait_until(lambda: "hello" in run.status_msgs, 5, "the node's message on 'status'")
