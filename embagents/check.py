@@ -153,6 +153,13 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
     provided |= {name for name, _ in ros_provided} | {t.name for t in system.external}
     provided |= {t for m in system.managers for node in m.nodes for t in node.outputs}
     for m in system.managers:
+        heard = {t.name for node in m.nodes for t in node.subscriptions}
+        for rule in m.handshake:
+            if rule.topic is not None and rule.topic not in heard:
+                out.append(Problem(m.name, "handshake-topic",
+                                   f"manager {m.name!r}: handshake rule {rule.name!r} waits for a message on "
+                                   f"{rule.topic!r}, which none of its nodes subscribes to (it would never hold); "
+                                   f"add the topic to a Node(subscribe=[...]) of the manager"))
         for node in m.nodes:
             for t in node.subscriptions:
                 if t.name not in provided:

@@ -40,6 +40,8 @@ class HandshakeRule:
     name: str
     predicate: Callable[[State], bool]
     description: str = ""
+    #: The topic a :meth:`first_message` rule waits for (a node of the manager must subscribe to it).
+    topic: str | None = None
 
     @classmethod
     def message_received(
@@ -74,6 +76,7 @@ class HandshakeRule:
             name=name or f"first_message_on_{str(key).replace('/', '_')}",
             predicate=lambda state: bool(state.received.get(key)),
             description=description or f"a first message on {key}",
+            topic=str(key),
         )
 
     def check(self, state: State) -> bool:
