@@ -123,7 +123,7 @@ class ManagerActor(Actor):
             return
         early = self._next - time.monotonic()
         if self.ticking and early > 0:
-            time.sleep(early)  # at most EARLY_S: a short sleep, not a busy wait
+            time.sleep(min(early, EARLY_S))  # the last fraction of a millisecond or so: a short sleep, no busy wait
         m = self.manager
         if not self.ticking and not self._handshake(m):
             self._timer = self.context.call_later(m.period, self._step)
