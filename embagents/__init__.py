@@ -27,6 +27,7 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
+from embagents.manager import Agent, HandshakeRule, Manager, Node, StateMachineHandler
 from embagents.models import (
     DetectorModel,
     LlamaModel,
@@ -57,6 +58,7 @@ set_app_name("embagents")
 __all__ = [
     "LLM",
     "Action",
+    "Agent",
     "Audio",
     "BaseComponentConfig",
     "Camera",
@@ -67,6 +69,7 @@ __all__ = [
     "DetectorModel",
     "Event",
     "Fallback",
+    "HandshakeRule",
     "Health",
     "HealthStatus",
     "Image",
@@ -74,7 +77,9 @@ __all__ = [
     "LLMConfig",
     "LlamaModel",
     "LocalModelClient",
+    "Manager",
     "ModelComponent",
+    "Node",
     "OccupancyGrid",
     "Odometry",
     "RemoteModelClient",
@@ -82,6 +87,7 @@ __all__ = [
     "SpeechToTextConfig",
     "SpeechToTextModel",
     "StreamingString",
+    "StateMachineHandler",
     "String",
     "System",
     "Topic",

@@ -113,6 +113,12 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
         ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
+        ("manager_loop_jitter", "manager 100 Hz tick jitter p99, 50 ms agent isolated", "p99_jitter_ms", "<=", 2.0,
+         "ms", 1.0),
+        ("manager_loop_jitter", "manager tick jitter p99: isolated / attached agent", "jitter_ratio", "<=", 0.2,
+         "x", 1.0),
+        ("manager_restart_resume", "manager SIGKILLed mid-mission: resumed in its state (max)", "resume_ms", "<=",
+         100.0, "ms", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))
