@@ -198,7 +198,9 @@ class LocalModelClient:
     def _next(self, rt: Any, conn: _Conn, rid: int) -> Any:
         waited = 0.0
         while True:
-            ready = dict(conn.poller.poll(1000))
+            # Waits in steps of at most 1 s (beats between them); a sub-second timeout is kept to the ms.
+            step = min(1.0, max(0.0, self.timeout - waited))
+            ready = dict(conn.poller.poll(step * 1000))
             if conn.monitor in ready:
                 event = recv_monitor_message(conn.monitor)
                 if self._on_event(conn, event["event"]):
@@ -213,7 +215,7 @@ class LocalModelClient:
                     )
                 continue
             if conn.sock not in ready:
-                waited += 1.0
+                waited += step
                 rt.beat()  # waiting on the model is work, not a hang
                 if waited >= self.timeout:  # the caller's finally cancels the request in the actor
                     raise ModelUnavailable(

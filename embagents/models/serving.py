@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'llama']
+    ['detector', 'llama', 'policy']
 """
 
 from __future__ import annotations
@@ -134,7 +134,15 @@ class DetectorServing:
         pass
 
 
-_KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {"llama": ChatServing, "detector": DetectorServing}
+def _policy(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.policy import PolicyServing
+
+    return PolicyServing(path, options)
+
+
+_KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
+    "llama": ChatServing, "detector": DetectorServing, "policy": _policy,
+}
 
 
 def serving_kinds() -> list[str]:
