@@ -100,8 +100,8 @@ class SimConfig(BaseComponentConfig):
     camera_hz: float = field(default=5.0, converter=positive_float)
     camera_width: int = field(default=320, converter=int_at_least(8))
     camera_height: int = field(default=240, converter=int_at_least(8))
-    camera_eye: tuple[float, float, float] = field(default=(1.3, 0.9, 1.0), converter=_vec3)
-    camera_target: tuple[float, float, float] = field(default=(0.0, 0.0, 0.4), converter=_vec3)
+    camera_eye: tuple[float, float, float] = field(default=(1.3, -0.2, 0.9), converter=_vec3)
+    camera_target: tuple[float, float, float] = field(default=(0.3, 0.15, 0.4), converter=_vec3)
     camera_fov: float = field(default=60.0, converter=positive_float)
     frame_id: str = "camera"
     command_timeout_s: float = field(default=0.5, converter=positive_float)
@@ -266,7 +266,7 @@ class Sim(Component):
         self.steps += n
         if now >= self._js_due:
             self._js_due, _ = next_deadline(self._js_due, 1.0 / self.config.joint_state_hz, now)
-            self._publish_state()
+            self.publish_state()
         if now >= self._cam_due and any(t.msg_type is Image for t in self.outputs):
             self._cam_due, _ = next_deadline(self._cam_due, 1.0 / self.config.camera_hz, now)
             self.publish_frame()
@@ -277,7 +277,8 @@ class Sim(Component):
         return JointState(name=list(self.joints), position=[s[0] for s in states], velocity=[s[1] for s in states],
                           effort=[s[3] for s in states], stamp=time.time())
 
-    def _publish_state(self) -> None:
+    def publish_state(self) -> None:
+        """Publish the joint states (and the odometry of a base) now."""
         js = self.joint_state()
         for t in self.outputs:
             if t.msg_type is JointState:
