@@ -20,6 +20,7 @@ from __future__ import annotations
 import itertools
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -196,11 +197,11 @@ class LocalModelClient:
         return False
 
     def _next(self, rt: Any, conn: _Conn, rid: int) -> Any:
-        waited = 0.0
+        deadline = time.monotonic() + self.timeout  # of silence: each answer frame waits anew
         while True:
             # Waits in steps of at most 1 s (beats between them); a sub-second timeout is kept to the ms.
-            step = min(1.0, max(0.0, self.timeout - waited))
-            ready = dict(conn.poller.poll(step * 1000))
+            left = deadline - time.monotonic()
+            ready = dict(conn.poller.poll(min(1.0, max(0.0, left)) * 1000)) if left > 0 else {}
             if conn.monitor in ready:
                 event = recv_monitor_message(conn.monitor)
                 if self._on_event(conn, event["event"]):
@@ -215,9 +216,8 @@ class LocalModelClient:
                     )
                 continue
             if conn.sock not in ready:
-                waited += step
                 rt.beat()  # waiting on the model is work, not a hang
-                if waited >= self.timeout:  # the caller's finally cancels the request in the actor
+                if time.monotonic() >= deadline:  # the caller's finally cancels the request in the actor
                     raise ModelUnavailable(
                         f"model {self.name!r} sent nothing for {self.timeout} s: is its actor running? "
                         "(see `embagents status`)"
