@@ -112,6 +112,10 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
         ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
+        ("vla_control_loop", "VLA 50 Hz command period p99 jitter", "p99_jitter_ms", "<=", 2.0, "ms", 1.0),
+        ("vla_control_loop", "VLA p99 jitter minus in-process", "jitter_over_inprocess_ms", "<=", 1.0, "ms", 1.0),
+        ("gil_isolation", "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads", "ratio", "<=",
+         0.2, "x", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))

@@ -143,6 +143,7 @@ class VLA(Component):
         self._next_obs = 0
         self._previous: np.ndarray | None = None  # the last position command sent
         self._halted_for = ""
+        self._sent_at = -1  # the tick of the last command
         super().__init__(name=name, **kw)
 
     def default_trigger(self) -> float:
@@ -255,15 +256,18 @@ class VLA(Component):
             return
         try:
             obs, q = self._observation(inputs)
-            if self._tick >= self._next_obs or self._tick not in self._queue:
+            if self._tick not in self._queue:  # at the start, or after a halt: nothing to send yet
                 self._ask(obs)
-            action = self._queue.pop(self._tick)
+            self._send(self._queue.pop(self._tick), q)
+            for k in [k for k in self._queue if k <= self._tick]:
+                del self._queue[k]
+            if self._tick >= self._next_obs:
+                # After this tick's command went out: the policy's latency never delays a command. The new
+                # chunk's first action is for this tick (its observation's), already served: from the next on.
+                self._ask(obs)
         except _Halt as halt:
             self._halt(halt, inputs)
             return
-        for k in [k for k in self._queue if k < self._tick]:
-            del self._queue[k]
-        self._send(action, q)
         if self._halted_for:
             self.logger.info("%s: moving again (was stopped: %s)", self._label(), self._halted_for)
             self._halted_for = ""
@@ -324,6 +328,8 @@ class VLA(Component):
         chunk = chunk[: cfg.actions_per_chunk].astype(np.float64)
         for i, action in enumerate(chunk):
             k = self._tick + i
+            if k < self._tick or (k == self._tick and self._sent_at == self._tick):
+                continue  # its time is past
             old = self._queue.get(k)
             if old is None or cfg.chunk_merge == "newest":
                 self._queue[k] = action
@@ -351,6 +357,7 @@ class VLA(Component):
 
     def _send(self, action: np.ndarray, q: np.ndarray) -> None:
         assert self.clipper is not None  # validate() made it, or construction failed
+        self._sent_at = self._tick
         if self.config.action_type == "position":
             previous = q if self._previous is None else self._previous
             target = self.clipper.position(action, previous)

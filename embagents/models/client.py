@@ -124,11 +124,13 @@ class LocalModelClient:
         rid = next(_req_ids)
         codec = self._codec(rt)
         data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
+        asked: float | None = time.monotonic()  # the first answer is due within timeout of the ask, not of the end of the send
         self._send(rt, conn, data)
         finished = False
         try:
             while True:
-                answer = self._next(rt, conn, rid)
+                answer = self._next(rt, conn, rid, asked)
+                asked = None  # each later frame: within timeout of the one before
                 if isinstance(answer, InferError):
                     finished = True
                     if answer.kind == "bad_request":
@@ -196,8 +198,8 @@ class LocalModelClient:
         """See a monitor event first (``before``: from before the request); True: it says nothing about it."""
         return False
 
-    def _next(self, rt: Any, conn: _Conn, rid: int) -> Any:
-        deadline = time.monotonic() + self.timeout  # of silence: each answer frame waits anew
+    def _next(self, rt: Any, conn: _Conn, rid: int, since: float | None = None) -> Any:
+        deadline = (time.monotonic() if since is None else since) + self.timeout
         while True:
             # Waits in steps of at most 1 s (beats between them); a sub-second timeout is kept to the ms.
             left = deadline - time.monotonic()

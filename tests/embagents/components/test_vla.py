@@ -196,6 +196,9 @@ def test_a_policy_that_answers_late_stops_motion_says_why_and_resumes(loop: Loop
     loop.vla.manipulate("reach", 200)
     loop.tick(5)
     loop.vla.reconfigure({"policy_timeout_s": 1e-6})  # no model actor answers within a microsecond
+    loop.tick(6)  # the next ask (every 5 ticks) is late
+    assert loop.vla.health.status == HealthStatus.SYSTEM_FAILURE
+    loop.tick(5)  # the hold settles
     q = loop.q()
     loop.tick(20)
     assert loop.vla.health.status == HealthStatus.SYSTEM_FAILURE
