@@ -150,12 +150,14 @@ print(" ".join(map(str, stamps)))
 """
 
 #: A 100 Hz ticker and a pure-Python busy loop as two pykka threads of one process (how a single-process
-#: framework runs them); prints the tick times. argv: seconds.
+#: framework runs them); prints the tick times. argv: seconds, niceness of the process.
 GIL_SCRIPT = """
-import sys, threading, time
+import os, sys, time
 import pykka
 from embagents.bench.arm_parts import spin
-seconds = float(sys.argv[1])
+seconds, nice = float(sys.argv[1]), int(sys.argv[2])
+if nice:
+    os.nice(nice)
 
 class Ticker(pykka.ThreadingActor):
     def run(self, seconds):

@@ -10,7 +10,9 @@
 - ``gil_isolation``: a 100 Hz control component's tick jitter while a
   neighbour runs pure Python (holding the GIL), in two actor processes
   (``p99_jitter_ms``) against the same two as pykka threads of one process
-  (``threads_p99_jitter_ms``). ``ratio`` = ours / threads'. Bar: <= 0.2.
+  (``threads_p99_jitter_ms``). ``ratio`` = ours / threads'. Bar: <= 0.2. Where the machine
+  allows it, the control loop runs at nice -10 in both: its own process, or the threads' whole
+  process (a thread cannot have a priority of its own in front of the GIL).
 """
 
 from __future__ import annotations
@@ -32,6 +34,17 @@ _SYSTEM = """
 from embagents.bench.arm_parts import {factory}
 system = {factory}({args})
 """
+
+
+def _may_raise_priority() -> bool:
+    import resource
+
+    return os.geteuid() == 0 or resource.getrlimit(resource.RLIMIT_NICE)[0] >= 30
+
+
+#: A control loop runs at a raised priority where the machine allows it (as a robot's would): the
+#: scheduler then serves its wakeups first, which only a process of its own can get without the GIL.
+_CONTROL_NICE = -10 if _may_raise_priority() else None
 
 
 def _p99(values: list[float]) -> float:
@@ -113,7 +126,8 @@ def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         path = _system_file(tmp, "gil_system")
         with ActorSystem() as asys:
-            ticker = asys.spawn(ComponentActor, "bench_ticker", path, "bench_ticker", wait=60, heartbeat=None)
+            ticker = asys.spawn(ComponentActor, "bench_ticker", path, "bench_ticker", wait=60, heartbeat=None,
+                                nice=_CONTROL_NICE)
             busy = asys.spawn(ComponentActor, "bench_busy", path, "bench_busy", wait=60, heartbeat=None)
             work = busy.ask(Call("spin", [seconds + 1.0]), timeout=seconds + 30)
             time.sleep(0.5)  # the neighbour is spinning
@@ -122,7 +136,7 @@ def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
             stamps = ticker.ask(Call("ticks"), timeout=10).get()
             work.get()
     ours = jitter_ms(stamps, 0.01)
-    threads = jitter_ms(_script(GIL_SCRIPT, str(seconds), timeout=seconds + 60), 0.01)
+    threads = jitter_ms(_script(GIL_SCRIPT, str(seconds), str(_CONTROL_NICE or 0), timeout=seconds + 60), 0.01)
     p99, base = _p99(ours), _p99(threads)
     return {
         "p50_us": round(float(np.median(ours)) * 1000, 2),
@@ -131,6 +145,7 @@ def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
         "p99_jitter_ms": p99,
         "threads_p99_jitter_ms": base,
         "ratio": round(p99 / base, 3) if base > 0 else None,
-        "note": f"100 Hz ticker next to a pure-Python busy loop, {seconds:.1f} s; processes vs pykka threads; "
-                "bar: ratio <= 0.2",
+        "control_nice": _CONTROL_NICE or 0,
+        "note": f"100 Hz ticker next to a pure-Python busy loop, {seconds:.1f} s; processes vs pykka threads, the "
+                f"control loop at nice {_CONTROL_NICE or 0} in both (threads: their whole process); bar: ratio <= 0.2",
     }
