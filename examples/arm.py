@@ -102,11 +102,12 @@ joint_states = Topic("arm/joint_states", JointState)
 command = Topic("arm/command", JointState)
 image = Topic("camera/image", Image)
 feedback = Topic("vla/feedback", TaskFeedback)
+task = Topic("vla/task", String)  # `embagents publish vla/task "reach again"` starts a task too
 stop = Topic(SYSTEM_STOP, String)
 
 reach = PolicyModel(name="reach", local_model_path=reach_policy())
 vla = VLA(
-    name="vla", inputs=[joint_states, image], outputs=[command, feedback], policy=LocalPolicyClient(reach),
+    name="vla", inputs=[joint_states, image, task], outputs=[command, feedback], policy=LocalPolicyClient(reach),
     config=VLAConfig(joint_names_map={f"joint{i + 1}": j for i, j in enumerate(JOINTS)},
                      camera_inputs_map={"front": image.name}, urdf="franka_panda/panda.urdf",
                      observation_rate_hz=10.0, actions_per_chunk=10, chunk_merge="newest", max_steps=3000),
@@ -122,5 +123,6 @@ system = System(
     ],
     events={first_state: call(vla, "manipulate", "reach the target pose", 3000)},
     models=[reach],
+    external=[task],  # published from outside: the CLI, another system
     name="arm",
 )

@@ -126,7 +126,7 @@ class Clipper:
         q = np.asarray(position, np.float64)
         room_up = np.maximum(self.upper - q, 0.0) / self.period
         room_down = np.maximum(q - self.lower, 0.0) / self.period
-        got = np.clip(want, np.maximum(-self.vmax, -room_down), np.minimum(self.vmax, room_up))
+        got = np.clip(want, np.maximum(-self.vmax, -room_down), np.minimum(self.vmax, room_up)) + 0.0  # no -0.0
         self._note(want, got, "rad/s", lambda i: f"speed limit {self.vmax[i]:.3f}, position "
                                                  f"[{self.lower[i]:.4f}, {self.upper[i]:.4f}]")
         return got

@@ -350,7 +350,7 @@ class VLA(Component):
             points, -self.clipper.vmax, self.clipper.vmax)  # observers never see an unsafe point either
         dt = 1.0 / (self.rate_hz or self.config.loop_rate_hz)
         kind = "positions" if self.config.action_type == "position" else "velocities"
-        traj = JointTrajectory(joint_names=self.joints, time_from_start=[(k - self._tick) * dt for k in keys],
+        traj = JointTrajectory(joint_names=self.joints, time_from_start=np.array([(k - self._tick) * dt for k in keys]),
                                stamp=time.time(), **{kind: points})
         for t in outs:
             self.publish(t, traj)

@@ -241,3 +241,13 @@ def test_a_vla_without_limits_for_a_joint_is_refused() -> None:
     with pytest.raises(ComponentError, match=r"no limits for joints \['elbow'\].*safety"):
         VLA(name="vla", inputs=[states], outputs=[command], policy=LocalPolicyClient("reach"),
             config=VLAConfig(joint_names_map={"e": "elbow"}, urdf="franka_panda/panda.urdf"))
+
+
+def test_a_string_on_a_task_input_starts_that_task() -> None:
+    task = Topic("vla/task", String)
+    vla = VLA(name="vla", inputs=[states, task], outputs=[command], policy=LocalPolicyClient("reach"),
+              config=VLAConfig(joint_names_map={"j": "panda_joint1"}, urdf="franka_panda/panda.urdf", max_steps=7))
+    assert not vla.running
+    vla.on_message(task.name, String("wave"))
+    assert vla.status() == {"task": "wave", "step": 0, "max_steps": 7, "running": True, "outcome": "running",
+                            "clipped": {"panda_joint1": 0}}
