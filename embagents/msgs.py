@@ -264,7 +264,7 @@ class JointTrajectory:
 @attrs.define
 class TaskFeedback:
     """Progress of a long-running task (a VLA's ``manipulate``): ``step`` of ``max_steps``;
-    ``done`` marks the last, ``outcome`` says how it ended (succeeded, max_steps, stopped, failed)."""
+    ``done`` marks the last, ``outcome`` says how it ended (succeeded, max_steps, stopped, replaced)."""
 
     task: str = ""
     step: int = 0

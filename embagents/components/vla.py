@@ -198,6 +198,8 @@ class VLA(Component):
         steps = self.config.max_steps if max_steps is None else int(max_steps)
         if steps < 1:
             raise ValueError(f"{self._label()}: max_steps must be >= 1, got {max_steps!r}")
+        if self.running:
+            self._end("replaced")  # its feedback says so; the arm goes on from where it is
         self._reset_motion()
         self.task, self.step, self.task_max_steps, self.outcome = task, 0, steps, "running"
         self.logger.info("%s: task %r started (at most %d steps)", self._label(), task, steps)

@@ -251,3 +251,21 @@ def test_a_string_on_a_task_input_starts_that_task() -> None:
     vla.on_message(task.name, String("wave"))
     assert vla.status() == {"task": "wave", "step": 0, "max_steps": 7, "running": True, "outcome": "running",
                             "clipped": {"panda_joint1": 0}}
+
+
+def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_running_one(policies: None) -> None:
+    done = Topic("grasped", String)
+    lp = Loop()
+    lp.vla = VLA(name="vla", inputs=[states], outputs=[command, feedback], policy=LocalPolicyClient("reach"),
+                 config=lp.vla.config, done_event=Event("grasped", on(done).field("data") == "yes"))
+    lp.vla.attach(lp._out)
+    try:
+        lp.vla.manipulate("first", 100)
+        lp.tick(3)
+        lp.vla.manipulate("second", 100)
+        lp.tick(3)
+        lp.vla.on_message(done.name, String("yes"))
+        ends = [(m.task, m.outcome) for t, m in lp.sent if t == feedback.name and m.done]
+        assert ends == [("first", "replaced"), ("second", "succeeded")] and not lp.vla.running
+    finally:
+        lp.close()
