@@ -71,11 +71,17 @@ class Loop:
                        outputs=[command, chunks, feedback], policy=LocalPolicyClient(policy), config=VLAConfig(**cfg),
                        stop_event=stop_event)
         self.sent: list[tuple[str, Any]] = []
+        self.violations: list[JointState] = []
         self.vla.attach(self._out)
 
     def _out(self, topic: str, msg: Any) -> None:
         self.sent.append((topic, msg))
         if topic == command.name:
+            # The invariant of every test here: the arm never receives a command outside its limits.
+            # (Noted, not raised here: the VLA's step would catch it.)
+            clip = self.vla.clipper
+            if clip is None or not (np.all(msg.position >= clip.lower) and np.all(msg.position <= clip.upper)):
+                self.violations.append(msg)
             self.sim.on_message(command.name, msg)
 
     def commands(self) -> list[JointState]:
@@ -96,6 +102,7 @@ class Loop:
     def close(self) -> None:
         self.vla.on_shutdown()
         self.sim.on_shutdown()
+        assert self.violations == [], "commands outside the joint limits reached the arm"
 
 
 @pytest.fixture
