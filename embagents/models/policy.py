@@ -176,7 +176,7 @@ class LocalPolicyClient:
             out = self._client.infer("act", {"observation": dict(observation)})
         except ModelUnavailable as exc:
             if type(exc) is ModelUnavailable:
-                raise PolicyLate(f"policy {self.name!r} gave no actions within {timeout_s:.3g} s") from exc
+                raise PolicyLate(f"policy {self.name!r} gave no actions within {timeout_s:.3g} s ({exc})") from exc
             raise
         return np.asarray(out["actions"], np.float32)
 

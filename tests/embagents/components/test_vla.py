@@ -276,3 +276,32 @@ def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_runni
         assert ends == [("first", "replaced"), ("second", "succeeded")] and not lp.vla.running
     finally:
         lp.close()
+
+
+def test_a_policy_actor_that_dies_stops_motion_and_the_vla_resumes_when_it_is_back(reach_policy: str) -> None:
+    import signal
+
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "fragile", "policy", reach_policy, {"threads": 1}, True, wait=60)
+        lp = Loop(policy="fragile", policy_timeout_s=0.05)  # each tick without it waits this long
+        try:
+            lp.vla.manipulate("reach", 500)
+            lp.tick(3)
+            asys.signal("fragile", signal.SIGKILL)
+            assert asys.procs["fragile"].exited.wait(10)
+            lp.tick(8)
+            assert lp.vla.health.status == HealthStatus.SYSTEM_FAILURE and "motion stopped" in lp.vla.health.text
+            assert "'fragile'" in lp.vla.health.text and lp.vla.running
+            held = lp.q()
+            lp.tick(5)
+            assert np.abs(lp.q() - held).max() < 0.02  # it holds while the policy is away
+            asys.stop("fragile")
+            asys.spawn(ModelActor, "fragile", "policy", reach_policy, {"threads": 1}, True, wait=60)
+            for _ in range(100):  # the client's socket reconnects on its own
+                lp.tick(1)
+                if lp.vla.health.status == HealthStatus.HEALTHY:
+                    break
+            lp.tick(5)
+            assert lp.vla.health.status == HealthStatus.HEALTHY and np.abs(lp.q() - held).max() > 0.05
+        finally:
+            lp.close()
