@@ -270,6 +270,10 @@ class VLA(Component):
         except _Halt as halt:
             self._halt(halt, inputs)
             return
+        except Exception:
+            self._reset_motion()
+            self._send_stop(inputs)  # whatever broke, the arm holds; the runtime reports the failure
+            raise
         if self._halted_for:
             self.logger.info("%s: moving again (was stopped: %s)", self._label(), self._halted_for)
             self._halted_for = ""
@@ -322,6 +326,9 @@ class VLA(Component):
             raise _Halt(f"policy {name!r} unreachable: {exc}; motion stopped, asking again", "system") from None
         except (ModelError, ValueError) as exc:
             raise _Halt(f"policy {name!r} refused the observation: {exc}") from None
+        except Exception as exc:  # any other client's failure (a gRPC error, say): stop, say what it was
+            raise _Halt(f"policy {name!r} failed: {type(exc).__name__}: {exc}; motion stopped, asking again",
+                        "system") from None
         chunk = np.asarray(chunk)
         n = len(self.joints)
         if chunk.ndim != 2 or chunk.shape[1] != n or chunk.shape[0] < 1 or not np.isfinite(chunk).all():

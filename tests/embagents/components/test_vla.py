@@ -45,18 +45,18 @@ def write_three_actions(path: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def policies(reach_policy: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+def policies(reach_policy: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[ActorSystem]:
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "reach", "policy", reach_policy, {"threads": 1}, True, wait=60)
         asys.spawn(ModelActor, "three", "policy", write_three_actions(tmp_path_factory.mktemp("p") / "three.onnx"),
                    {"threads": 1}, True, wait=60)
-        yield
+        yield asys
 
 
 class Loop:
     """A Sim and a VLA wired in this process: each VLA tick gets a fresh state, its command drives 5 physics steps."""
 
-    def __init__(self, policy: str = "reach", images: bool = False, stop_event: Event | None = None,
+    def __init__(self, policy: Any = "reach", images: bool = False, stop_event: Event | None = None,
                  **config: Any) -> None:
         self.sim = Sim(name="sim", inputs=[command], outputs=[states, camera],
                        config=SimConfig(camera_width=32, camera_height=24))
@@ -68,7 +68,8 @@ class Loop:
         if images:
             cfg["camera_inputs_map"] = {"front": camera.name}
         self.vla = VLA(name="vla", inputs=[states, camera] if images else [states],
-                       outputs=[command, chunks, feedback], policy=LocalPolicyClient(policy), config=VLAConfig(**cfg),
+                       outputs=[command, chunks, feedback], config=VLAConfig(**cfg),
+                       policy=LocalPolicyClient(policy) if isinstance(policy, str) else policy,
                        stop_event=stop_event)
         self.sent: list[tuple[str, Any]] = []
         self.violations: list[JointState] = []
@@ -106,7 +107,7 @@ class Loop:
 
 
 @pytest.fixture
-def loop(policies: None) -> Iterator[Loop]:
+def loop(policies: ActorSystem) -> Iterator[Loop]:
     lp = Loop()
     yield lp
     lp.close()
@@ -129,7 +130,7 @@ def test_the_policy_drives_the_arm_to_its_target_and_the_task_ends_by_step_count
     assert traj.positions.shape == (10, 7) and traj.joint_names == JOINTS
 
 
-def test_a_command_beyond_a_limit_is_clipped_and_logged_once_per_joint(policies: None,
+def test_a_command_beyond_a_limit_is_clipped_and_logged_once_per_joint(policies: ActorSystem,
                                                                         caplog: pytest.LogCaptureFixture) -> None:
     # A target beyond joint 4's upper limit (0.0) and faster than any joint may move: velocity limits bite too.
     lp = Loop(joint_limits={"panda_joint4": {"upper": -2.1}})
@@ -175,7 +176,7 @@ def test_a_stale_observation_stops_motion(loop: Loop) -> None:
     assert np.allclose(hold.position, loop.sim.joint_state().position[:7], atol=0.05)  # hold where it is
 
 
-def test_an_image_of_the_wrong_shape_stops_motion_and_says_what_is_expected(policies: None) -> None:
+def test_an_image_of_the_wrong_shape_stops_motion_and_says_what_is_expected(policies: ActorSystem) -> None:
     lp = Loop(images=True, policy="reach")
     try:
         lp.vla.manipulate("reach", 100)
@@ -187,7 +188,7 @@ def test_an_image_of_the_wrong_shape_stops_motion_and_says_what_is_expected(poli
         lp.close()
 
 
-def test_a_policy_output_of_the_wrong_shape_names_expected_and_actual(policies: None) -> None:
+def test_a_policy_output_of_the_wrong_shape_names_expected_and_actual(policies: ActorSystem) -> None:
     lp = Loop(policy="three")
     try:
         lp.vla.manipulate("reach", 100)
@@ -216,7 +217,7 @@ def test_a_policy_that_answers_late_stops_motion_says_why_and_resumes(loop: Loop
     assert loop.vla.health.status == HealthStatus.HEALTHY and np.abs(loop.q() - q).max() > 0.05
 
 
-def test_stop_and_a_stop_event_halt_at_once(policies: None) -> None:
+def test_stop_and_a_stop_event_halt_at_once(policies: ActorSystem) -> None:
     lp = Loop(stop_event=Event("halt", on(halt).field("data") == "now"))
     try:
         lp.vla.manipulate("reach", 100)
@@ -233,7 +234,7 @@ def test_stop_and_a_stop_event_halt_at_once(policies: None) -> None:
         lp.close()
 
 
-def test_average_merging_blends_overlapping_chunks(policies: None) -> None:
+def test_average_merging_blends_overlapping_chunks(policies: ActorSystem) -> None:
     lp = Loop(chunk_merge="average", merge_weight=0.5, observation_rate_hz=50.0)
     try:
         lp.vla.manipulate("reach", 40)
@@ -260,7 +261,7 @@ def test_a_string_on_a_task_input_starts_that_task() -> None:
                             "clipped": {"panda_joint1": 0}}
 
 
-def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_running_one(policies: None) -> None:
+def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_running_one(policies: ActorSystem) -> None:
     done = Topic("grasped", String)
     lp = Loop()
     lp.vla = VLA(name="vla", inputs=[states], outputs=[command, feedback], policy=LocalPolicyClient("reach"),
@@ -278,30 +279,56 @@ def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_runni
         lp.close()
 
 
-def test_a_policy_actor_that_dies_stops_motion_and_the_vla_resumes_when_it_is_back(reach_policy: str) -> None:
+def test_a_policy_actor_that_dies_stops_motion_and_the_vla_resumes_when_it_is_back(policies: ActorSystem,
+                                                                                    reach_policy: str) -> None:
     import signal
 
-    with ActorSystem() as asys:
+    asys = policies
+    asys.spawn(ModelActor, "fragile", "policy", reach_policy, {"threads": 1}, True, wait=60)
+    lp = Loop(policy="fragile", policy_timeout_s=0.05)  # each tick without it waits this long
+    try:
+        lp.vla.manipulate("reach", 500)
+        lp.tick(3)
+        asys.signal("fragile", signal.SIGKILL)
+        assert asys.procs["fragile"].exited.wait(10)
+        lp.tick(8)
+        assert lp.vla.health.status == HealthStatus.SYSTEM_FAILURE and "motion stopped" in lp.vla.health.text
+        assert "'fragile'" in lp.vla.health.text and lp.vla.running
+        held = lp.q()
+        lp.tick(5)
+        assert np.abs(lp.q() - held).max() < 0.02  # it holds while the policy is away
+        asys.stop("fragile")
         asys.spawn(ModelActor, "fragile", "policy", reach_policy, {"threads": 1}, True, wait=60)
-        lp = Loop(policy="fragile", policy_timeout_s=0.05)  # each tick without it waits this long
-        try:
-            lp.vla.manipulate("reach", 500)
-            lp.tick(3)
-            asys.signal("fragile", signal.SIGKILL)
-            assert asys.procs["fragile"].exited.wait(10)
-            lp.tick(8)
-            assert lp.vla.health.status == HealthStatus.SYSTEM_FAILURE and "motion stopped" in lp.vla.health.text
-            assert "'fragile'" in lp.vla.health.text and lp.vla.running
-            held = lp.q()
-            lp.tick(5)
-            assert np.abs(lp.q() - held).max() < 0.02  # it holds while the policy is away
-            asys.stop("fragile")
-            asys.spawn(ModelActor, "fragile", "policy", reach_policy, {"threads": 1}, True, wait=60)
-            for _ in range(100):  # the client's socket reconnects on its own
-                lp.tick(1)
-                if lp.vla.health.status == HealthStatus.HEALTHY:
-                    break
-            lp.tick(5)
-            assert lp.vla.health.status == HealthStatus.HEALTHY and np.abs(lp.q() - held).max() > 0.05
-        finally:
-            lp.close()
+        for _ in range(100):  # the client's socket reconnects on its own
+            lp.tick(1)
+            if lp.vla.health.status == HealthStatus.HEALTHY:
+                break
+        lp.tick(5)
+        assert lp.vla.health.status == HealthStatus.HEALTHY and np.abs(lp.q() - held).max() > 0.05
+    finally:
+        lp.close()
+        asys.stop("fragile")
+
+
+class Broken:
+    """A policy client (another kind than the ONNX one) whose calls fail with an error of its own."""
+
+    name = "broken"
+
+    def infer(self, observation: Any, task: str, timeout_s: float) -> np.ndarray:
+        raise RuntimeError("StatusCode.UNAVAILABLE: connection refused")
+
+    def close(self) -> None:
+        pass
+
+
+def test_any_policy_client_failure_stops_motion_and_is_named(policies: ActorSystem) -> None:
+    lp = Loop(policy=Broken())
+    try:
+        lp.vla.manipulate("reach", 10)
+        lp.tick(2)
+        assert lp.vla.health.status == HealthStatus.SYSTEM_FAILURE
+        assert "policy 'broken' failed: RuntimeError: StatusCode.UNAVAILABLE" in lp.vla.health.text
+        assert lp.commands() and lp.vla.step == 0  # only holds went out
+    finally:
+        lp.close()
