@@ -57,7 +57,7 @@ class Loop:
     """A Sim and a VLA wired in this process: each VLA tick gets a fresh state, its command drives 5 physics steps."""
 
     def __init__(self, policy: Any = "reach", images: bool = False, stop_event: Event | None = None,
-                 **config: Any) -> None:
+                 done_event: Event | None = None, **config: Any) -> None:
         self.sim = Sim(name="sim", inputs=[command], outputs=[states, camera],
                        config=SimConfig(camera_width=32, camera_height=24))
         self.sim.attach(lambda topic, msg: None)
@@ -70,7 +70,7 @@ class Loop:
         self.vla = VLA(name="vla", inputs=[states, camera] if images else [states],
                        outputs=[command, chunks, feedback], config=VLAConfig(**cfg),
                        policy=LocalPolicyClient(policy) if isinstance(policy, str) else policy,
-                       stop_event=stop_event)
+                       stop_event=stop_event, done_event=done_event)
         self.sent: list[tuple[str, Any]] = []
         self.violations: list[JointState] = []
         self.vla.attach(self._out)
@@ -263,10 +263,7 @@ def test_a_string_on_a_task_input_starts_that_task() -> None:
 
 def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_running_one(policies: ActorSystem) -> None:
     done = Topic("grasped", String)
-    lp = Loop()
-    lp.vla = VLA(name="vla", inputs=[states], outputs=[command, feedback], policy=LocalPolicyClient("reach"),
-                 config=lp.vla.config, done_event=Event("grasped", on(done).field("data") == "yes"))
-    lp.vla.attach(lp._out)
+    lp = Loop(done_event=Event("grasped", on(done).field("data") == "yes"))
     try:
         lp.vla.manipulate("first", 100)
         lp.tick(3)
