@@ -68,7 +68,9 @@ def _vec3(value: object) -> tuple[float, float, float]:
     return (x, y, z)
 
 
-def _positions(value: object) -> dict[str, float]:
+def _positions(value: object) -> dict[str, float] | None:
+    if value is None:
+        return None
     if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
         raise ConfigError(f"initial_positions must be a dict of joint name -> position, got {value!r}")
     return {k: float(v) for k, v in value.items()}
@@ -83,7 +85,8 @@ PANDA_READY = {"panda_joint1": 0.0, "panda_joint2": -0.6, "panda_joint3": 0.0, "
 class SimConfig(BaseComponentConfig):
     """Settings of :class:`Sim` (see the module docstring).
 
-    - ``robot``: the arm's URDF (a path or a ``pybullet_data`` name); ``initial_positions`` by joint name.
+    - ``robot``: the arm's URDF (a path or a ``pybullet_data`` name); ``initial_positions`` by joint name
+      (default: the Panda's ready pose on a Panda, else the URDF's zeros).
     - ``mobile_base``: a base's URDF (``"husky/husky.urdf"``, ``"r2d2.urdf"``) driven by ``Twist``; None: none.
     - ``joint_state_hz``, ``camera_hz``: publishing rates; the physics rate is the trigger (default 240 Hz).
     - ``camera_width`` / ``camera_height`` / ``camera_eye`` / ``camera_target`` / ``camera_fov``: the camera.
@@ -94,7 +97,7 @@ class SimConfig(BaseComponentConfig):
     """
 
     robot: str = "franka_panda/panda.urdf"
-    initial_positions: dict[str, float] = field(factory=lambda: dict(PANDA_READY), converter=_positions)
+    initial_positions: dict[str, float] | None = field(default=None, converter=_positions)
     mobile_base: str | None = None
     joint_state_hz: float = field(default=50.0, converter=positive_float)
     camera_hz: float = field(default=5.0, converter=positive_float)
@@ -158,11 +161,8 @@ class Sim(Component):
                 name = info[1].decode()
                 self.joints[name] = i
                 self.max_force[name] = float(info[10]) if info[10] > 0 else 100.0
-        unknown = sorted(set(cfg.initial_positions) - set(self.joints))
-        if unknown:
-            raise ValueError(f"{self._label()}: initial_positions names joints {unknown} that {cfg.robot} does not have; "
-                             f"its joints: {', '.join(self.joints)}")
-        for name, q in cfg.initial_positions.items():
+        self.initial = self._initial_positions()
+        for name, q in self.initial.items():
             pb.resetJointState(self.robot, self.joints[name], q, physicsClientId=cid)
         self._hold(list(self.joints), [self._q(n) for n in self.joints])
         self.base: int | None = None
@@ -175,6 +175,17 @@ class Sim(Component):
                                                    physicsClientId=cid)
         self.logger.info("%s: %s with joints %s%s, physics %.0f Hz", self._label(), cfg.robot, ", ".join(self.joints),
                          f", base {cfg.mobile_base}" if cfg.mobile_base else "", self.rate_hz or 0)
+
+    def _initial_positions(self) -> dict[str, float]:
+        """``initial_positions``; by default the Panda's ready pose on a Panda, else the URDF's zeros."""
+        given = self.config.initial_positions
+        if given is None:
+            return dict(PANDA_READY) if set(PANDA_READY) <= set(self.joints) else {}
+        unknown = sorted(set(given) - set(self.joints))
+        if unknown:
+            raise ValueError(f"{self._label()}: initial_positions names joints {unknown} that {self.config.robot} does "
+                             f"not have; its joints: {', '.join(self.joints)}")
+        return dict(given)
 
     def on_activate(self) -> None:
         now = time.monotonic()
@@ -321,7 +332,7 @@ class Sim(Component):
 
     def reset_joints(self, positions: dict[str, float] | None = None) -> list[str]:
         """Put the joints at ``positions`` (default: ``initial_positions``) at once; returns the joints set."""
-        positions = dict(self.config.initial_positions if positions is None else positions)
+        positions = dict(self.initial if positions is None else positions)
         unknown = sorted(set(positions) - set(self.joints))
         if unknown:
             raise ValueError(f"{self._label()}: no joints {unknown}; its joints: {', '.join(self.joints)}")

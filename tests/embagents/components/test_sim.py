@@ -106,3 +106,15 @@ def test_save_frame_writes_a_png(sim: tuple[Sim, list], tmp_path) -> None:  # no
     s, _ = sim
     path = s.save_frame(str(tmp_path / "frame.png"))
     assert cv2.imread(path).shape == (48, 64, 3)
+
+
+def test_another_arm_of_pybullet_data_loads_and_moves() -> None:
+    s, sent = make(robot="kuka_iiwa/model.urdf", initial_positions={"lbr_iiwa_joint_2": 0.3})
+    try:
+        s.on_message(command.name, JointState(name=["lbr_iiwa_joint_1"], position=[0.4]))
+        run(s, 480)
+        js = s.joint_state()
+        assert js.name[0] == "lbr_iiwa_joint_1" and len(js.name) == 7
+        assert js.position[0] == pytest.approx(0.4, abs=0.01) and js.position[1] == pytest.approx(0.3, abs=0.02)
+    finally:
+        s.on_shutdown()
