@@ -3,7 +3,8 @@
 ``vla_system(policy)`` is the closed loop as users run it: the Sim (its own
 process, 240 Hz physics), the VLA (its own process, 50 Hz actions, a chunk of 10
 every 5 ticks from the ``bench_reach`` policy actor) and the policy's model
-actor; the Sim notes when each command arrives. ``gil_system()`` is a 100 Hz
+actor, all three ``realtime=True``; the Sim notes when each command arrives. The
+in-process baseline raises its one loop's priority alike. ``gil_system()`` is a 100 Hz
 :class:`Ticker` next to a :class:`Busy` component that runs pure Python on
 request. The ``*_SCRIPT`` strings are the baselines, run with ``python -c``
 (onnxruntime and extra threads never load in the bench process, whose later
@@ -23,9 +24,12 @@ from typing import Any
 from embagents.components import VLA, Component, Sim, SimConfig, VLAConfig
 from embagents.components.sim import PANDA_READY
 from embagents.msgs import JointState
+from embagents.priority import raise_priority
 from embagents.topic import Topic
 
-__all__ = ["GIL_SCRIPT", "INPROCESS_VLA_SCRIPT", "Busy", "Ticker", "TimedSim", "gil_system", "jitter_ms", "vla_system"]
+__all__ = [
+    "GIL_SCRIPT", "INPROCESS_VLA_SCRIPT", "Busy", "Ticker", "TimedSim", "gil_system", "jitter_ms", "vla_system",
+]
 
 #: Far enough from the ready pose that the arm moves during the whole measurement.
 TARGET = [2.0, 1.0, 2.0, -0.5, 2.0, 3.0, 2.0]
@@ -59,14 +63,14 @@ def vla_system(policy: str) -> Any:
     from embagents.system import System
 
     states, command = Topic("bench_arm/joint_states", JointState), Topic("bench_arm/command", JointState)
-    model = PolicyModel(name="bench_reach", local_model_path=policy, threads=1)
+    model = PolicyModel(name="bench_reach", local_model_path=policy, threads=1, realtime=True)
     joints = list(PANDA_READY)
     return System([
-        TimedSim(name="bench_sim", inputs=[command], outputs=[states], config=SimConfig(joint_state_hz=50.0),
-                 trigger=240.0),
+        TimedSim(name="bench_sim", inputs=[command], outputs=[states], trigger=240.0,
+                 config=SimConfig(joint_state_hz=50.0, realtime=True)),
         VLA(name="bench_vla", inputs=[states], outputs=[command], policy=LocalPolicyClient(model), trigger=50.0,
             config=VLAConfig(joint_names_map={f"j{i}": j for i, j in enumerate(joints)}, urdf="franka_panda/panda.urdf",
-                             actions_per_chunk=10, observation_rate_hz=10.0, max_steps=10**9)),
+                             actions_per_chunk=10, observation_rate_hz=10.0, max_steps=10**9, realtime=True)),
     ], models=[model], name="bench_arm")
 
 
@@ -78,7 +82,14 @@ class Ticker(Component):
 
     def __init__(self, **kw: Any) -> None:
         self._ticks: list[float] = []
+        self.priority = "normal"
         super().__init__(**kw)
+
+    def on_activate(self) -> None:
+        self.priority = raise_priority()  # on the actor's loop thread, which runs the ticks
+
+    def got_priority(self) -> str:
+        return self.priority
 
     def _execution_step(self, **inputs: Any) -> None:
         self._ticks.append(time.monotonic())
@@ -125,8 +136,11 @@ from embagents.components.joint_limits import limits_from_urdf
 from embagents.components.sim import PANDA_READY
 from embagents.models.policy import PolicyServing
 from embagents.msgs import JointState
+from embagents.priority import raise_priority
 from embagents.topic import Topic
 policy, seconds = sys.argv[1], float(sys.argv[2])
+from embagents.priority import raise_priority
+raise_priority(whole_process=True)  # as the Sim and the VLA of the runtime's loop get (realtime=True)
 joints = list(PANDA_READY)
 sim = Sim(name="sim", inputs=[Topic("c", JointState)], outputs=[Topic("s", JointState)])
 sim.attach(lambda t, m: None); sim.on_configure(); sim.on_activate()
@@ -150,16 +164,18 @@ print(" ".join(map(str, stamps)))
 """
 
 #: A 100 Hz ticker and a pure-Python busy loop as two pykka threads of one process (how a single-process
-#: framework runs them); prints the tick times. argv: seconds, niceness of the process.
+#: framework runs them); prints the ticker thread's priority, then the tick times. argv: seconds.
 GIL_SCRIPT = """
-import os, sys, time
+import sys, time
 import pykka
 from embagents.bench.arm_parts import spin
-seconds, nice = float(sys.argv[1]), int(sys.argv[2])
-if nice:
-    os.nice(nice)
+from embagents.priority import raise_priority
+seconds = float(sys.argv[1])
 
 class Ticker(pykka.ThreadingActor):
+    def on_start(self):
+        self.priority = raise_priority()  # this thread only, as the actor process's loop thread
+
     def run(self, seconds):
         stamps, deadline, end = [], time.monotonic(), time.monotonic() + seconds
         while time.monotonic() < end:
@@ -175,7 +191,8 @@ class Busy(pykka.ThreadingActor):
 ticker, busy = Ticker.start().proxy(), Busy.start().proxy()
 work = busy.spin(seconds + 0.5)
 stamps = ticker.run(seconds).get()
+priority = ticker.priority.get()
 work.get()
 pykka.ActorRegistry.stop_all()
-print(" ".join(map(str, stamps)))
+print(priority.replace(" ", "+"), " ".join(map(str, stamps)))
 """

@@ -34,7 +34,7 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.component import Component, ComponentProblem
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
 from embagents.msgs import Image, JointState, Odometry, Twist
 from embagents.rate import next_deadline
 
@@ -91,6 +91,7 @@ class SimConfig(BaseComponentConfig):
     - ``joint_state_hz``, ``camera_hz``: publishing rates; the physics rate is the trigger (default 240 Hz).
     - ``camera_width`` / ``camera_height`` / ``camera_eye`` / ``camera_target`` / ``camera_fov``: the camera.
     - ``command_timeout_s``: a velocity command older than this is replaced by zero (a watchdog).
+    - ``realtime``: its process at a control loop's priority (:func:`~embagents.priority.raise_priority`).
 
     >>> SimConfig(camera_eye=[1, 1, 1]).camera_eye
     (1.0, 1.0, 1.0)
@@ -109,6 +110,7 @@ class SimConfig(BaseComponentConfig):
     frame_id: str = "camera"
     command_timeout_s: float = field(default=0.5, converter=positive_float)
     max_catchup_steps: int = field(default=20, converter=int_at_least(1))
+    realtime: bool = field(default=False, converter=to_bool)
 
 
 class Sim(Component):
@@ -188,6 +190,10 @@ class Sim(Component):
         return dict(given)
 
     def on_activate(self) -> None:
+        if self.config.realtime:
+            from embagents.priority import raise_priority
+
+            self.logger.info("%s: stepping at %s", self._label(), raise_priority(whole_process=True))
         now = time.monotonic()
         self._sim_start, self._sim_steps = now, 0
         self._js_due = now

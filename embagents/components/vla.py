@@ -48,7 +48,7 @@ from attrs import define, field
 
 from embagents.components.component import Component, ComponentProblem
 from embagents.components.joint_limits import Clipper, merge_limits
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
 from embagents.events import Event
 from embagents.models.policy import STATE_KEY, PolicyLate, image_key
 from embagents.models.protocol import ModelError, ModelUnavailable
@@ -93,6 +93,7 @@ class VLAConfig(BaseComponentConfig):
     - ``input_timeout_s``: an input older than this stops motion; ``policy_timeout_s``: the longest wait for a chunk.
     - ``urdf`` / ``joint_limits``: where limits come from (a dict per joint wins over the URDF).
     - ``max_steps``: a task's default length.
+    - ``realtime``: its process at a control loop's priority (:func:`~embagents.priority.raise_priority`).
 
     >>> VLAConfig(joint_names_map={"a": "b"}, chunk_merge="average").merge_weight
     0.5
@@ -111,6 +112,7 @@ class VLAConfig(BaseComponentConfig):
     urdf: str | None = None
     joint_limits: dict[str, dict[str, float]] = field(factory=dict)
     max_steps: int = field(default=500, converter=int_at_least(1))
+    realtime: bool = field(default=False, converter=to_bool)
 
 
 class _Halt(Exception):
@@ -186,6 +188,12 @@ class VLA(Component):
             for t in ev.topics if isinstance(ev, Event) else ():
                 seen.setdefault(t.name, t)
         return tuple(seen.values())
+
+    def on_activate(self) -> None:
+        if self.config.realtime:
+            from embagents.priority import raise_priority
+
+            self.logger.info("%s: action loop at %s", self._label(), raise_priority(whole_process=True))
 
     # --- tasks ----------------------------------------------------------------------------
     def manipulate(self, task: str, max_steps: int | None = None) -> dict[str, Any]:

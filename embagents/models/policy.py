@@ -71,13 +71,16 @@ class PolicyModel(Model):
 
     ``local_model_path``: the .onnx file (a path, or a Hugging Face ``owner/name:file.onnx``);
     ``threads``: intra-op threads (policies are small: 1 keeps latency steady);
-    ``providers``: execution providers (None: TensorRT or CUDA when present, else CPU).
+    ``providers``: execution providers (None: TensorRT or CUDA when present, else CPU);
+    ``realtime``: its actor's process at a control loop's priority (:func:`~embagents.priority.raise_priority`),
+    as a VLA with ``realtime=True`` waits on it.
     """
 
     kind: ClassVar[str] = "policy"
     local_model_path: str = ""
     threads: int | None = 1
     providers: list[str] | None = None
+    realtime: bool = False
 
     def resolve(self) -> str:
         from embagents.modelfiles import resolve_model_path
@@ -94,7 +97,7 @@ class PolicyModel(Model):
         return local_file_problem(self.local_model_path)
 
     def options(self) -> dict[str, Any]:
-        return {"threads": self.threads, "providers": self.providers}
+        return {"threads": self.threads, "providers": self.providers, "realtime": self.realtime}
 
 
 class PolicyServing:
@@ -107,10 +110,16 @@ class PolicyServing:
         from embagents.models.backends.onnx import OnnxSession
 
         self.session = OnnxSession(path, threads=options.get("threads"), providers=options.get("providers"))
+        self.realtime = bool(options.get("realtime"))
         self.expected = {i.name: (list(i.shape), self._NP.get(i.type, np.float32)) for i in self.session.inputs}
 
     def load(self) -> None:
-        pass  # the session loads when it is made
+        if self.realtime:  # the session (and its threads) exist: the whole process
+            import logging
+
+            from embagents.priority import raise_priority
+
+            logging.getLogger("embagents.model").info("serving at %s", raise_priority(whole_process=True))
 
     def warmup(self) -> None:
         obs = {k: np.zeros([d if isinstance(d, int) else 1 for d in shape[1:]], dtype) for k, (shape, dtype)
