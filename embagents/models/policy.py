@@ -94,7 +94,12 @@ class PolicyModel(Model):
 
         if not self.local_model_path:
             return f"policy {self.name!r}: needs local_model_path (an .onnx policy file)"
-        return local_file_problem(self.local_model_path)
+        problem = local_file_problem(self.local_model_path)
+        if problem and "not found" in problem:
+            return (f"policy {self.name!r}: ONNX file {self.local_model_path!r} not found; export your policy to ONNX "
+                    "(inputs named by observation keys, e.g. 'observation.state') or build the example's with "
+                    "embagents.models.backends.reach_policy.write_reach_policy")
+        return problem
 
     def options(self) -> dict[str, Any]:
         return {"threads": self.threads, "providers": self.providers, "realtime": self.realtime}

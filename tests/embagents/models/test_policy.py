@@ -60,3 +60,8 @@ def test_a_policy_that_cannot_answer_in_time_is_late_and_the_next_ask_works(serv
 
 def test_a_policy_model_without_a_file_says_what_it_needs() -> None:
     assert "needs local_model_path" in (PolicyModel(name="p").file_problem() or "")
+
+
+def test_a_missing_policy_file_says_how_to_get_one() -> None:
+    problem = PolicyModel(name="p", local_model_path="/nowhere/p.onnx").file_problem() or ""
+    assert "ONNX file '/nowhere/p.onnx' not found" in problem and "write_reach_policy" in problem
