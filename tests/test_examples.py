@@ -1,6 +1,7 @@
 """Every example system passes `embagents check`; the chat-memory example keeps its conversation;
 the vision example finds the astronaut's face and cuts two motion clips; the manager examples run their
-missions to the end, the pick-and-place one through a SIGKILL of its manager mid-mission."""
+missions to the end, the pick-and-place one through a SIGKILL of its manager mid-mission; the arm example
+reaches its target."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
 @pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py",
-                                  "manager_pick_place.py", "manager_modes.py"])
+                                  "manager_pick_place.py", "manager_modes.py", "arm.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)
@@ -121,3 +122,17 @@ def test_modes_example_goes_through_its_modes_to_the_goal() -> None:
                      ("navigation", "arrived")], out.stdout
     x, y = (float(v) for v in re.search(r"arrived at \((\S+), (\S+)\)", out.stdout).groups())  # type: ignore[union-attr]
     assert abs(x - 1.5) < 0.1 and abs(y - 1.0) < 0.1, out.stdout
+def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py"):
+        pytest.importorskip(module, reason="the example needs the sim extra (pip install 'embagents[sim]')")
+    env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
+                         capture_output=True, text=True, timeout=180, env=env)
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    errors = [float(x.split()[2]) for x in lines if x.startswith("joint error:")]
+    assert len(errors) >= 2 and errors[0] > 0.05 and errors[-1] <= 0.01, out.stdout  # it moved, then got there
+    assert errors == sorted(errors, reverse=True), out.stdout  # closer every second
+    assert lines[-1] == "done: reached the target" and any(x.startswith("describe: skipped: ") for x in lines)
+    assert (tmp_path / "out" / "arm.png").stat().st_size > 1000
+    assert "task 'reach the target pose' started" in out.stderr  # the event called manipulate in the VLA's process

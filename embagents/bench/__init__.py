@@ -53,6 +53,7 @@ from typing import Any
 # sockets or threads between cases: every case closes its contexts and joins its threads.
 from embagents.bench import (  # noqa: F401 - importing a case module registers its cases
     cases_actors,
+    cases_arm,
     cases_chaos,
     cases_llm,
     cases_manager,

@@ -119,6 +119,10 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
          "x", 1.0),
         ("manager_restart_resume", "manager SIGKILLed mid-mission: resumed in its state (max)", "resume_ms", "<=",
          100.0, "ms", 1.0),
+        ("vla_control_loop", "VLA 50 Hz command period p99 jitter", "p99_jitter_ms", "<=", 2.0, "ms", 1.0),
+        ("vla_control_loop", "VLA p99 jitter minus in-process", "jitter_over_inprocess_ms", "<=", 1.0, "ms", 1.0),
+        ("gil_isolation", "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads", "ratio", "<=",
+         0.2, "x", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))

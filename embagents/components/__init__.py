@@ -16,31 +16,41 @@ from embagents.components.component import (
     HealthStatus,
     lenient_construction,
 )
+from embagents.components.joint_limits import Clipper, JointLimit, limits_from_urdf
 from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
 from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
+from embagents.components.sim import Sim, SimConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
+from embagents.components.vla import VLA, VLAConfig
 
 __all__ = [
     "LLM",
+    "VLA",
     "UNSET",
     "Camera",
     "CameraConfig",
     "ChatClient",
+    "Clipper",
     "Component",
     "ComponentError",
     "Health",
     "HealthStatus",
+    "JointLimit",
     "LLMConfig",
     "ModelComponent",
     "SpeechToText",
     "SpeechToTextConfig",
+    "Sim",
+    "SimConfig",
     "VideoMakerConfig",
     "VideoMessageMaker",
     "Vision",
     "VisionConfig",
+    "VLAConfig",
     "client_name",
     "lenient_construction",
+    "limits_from_urdf",
     "tool_schema",
 ]

@@ -24,6 +24,7 @@ from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
 from embagents.models.declarations import DetectorModel, LlamaModel, Model, SpeechToTextModel
 from embagents.models.inventory import models_of
+from embagents.models.policy import LocalPolicyClient, PolicyClient, PolicyLate, PolicyModel
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
 
@@ -33,10 +34,14 @@ __all__ = [
     "DetectorModel",
     "LlamaModel",
     "LocalModelClient",
+    "LocalPolicyClient",
     "Model",
     "ModelCrashed",
     "ModelError",
     "ModelUnavailable",
+    "PolicyClient",
+    "PolicyLate",
+    "PolicyModel",
     "RemoteModelClient",
     "RemoteRefused",
     "SpeechToTextModel",

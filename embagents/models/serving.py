@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'llama', 'stt']
+    ['detector', 'llama', 'policy', 'stt']
 """
 
 from __future__ import annotations
@@ -140,8 +140,15 @@ def _stt(path: str, options: dict[str, Any]) -> Any:
     return SpeechToTextServing(path, options)
 
 
-_KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {"llama": ChatServing, "detector": DetectorServing,
-                                                           "stt": _stt}
+def _policy(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.policy import PolicyServing
+
+    return PolicyServing(path, options)
+
+
+_KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
+    "llama": ChatServing, "detector": DetectorServing, "policy": _policy, "stt": _stt,
+}
 
 
 def serving_kinds() -> list[str]:

@@ -51,3 +51,14 @@ def tiny_paraformer(tmp_path_factory: pytest.TempPathFactory) -> str:
     from tests.embagents.tiny_paraformer import make_tiny_paraformer
 
     return make_tiny_paraformer(str(tmp_path_factory.mktemp("models") / "tiny-paraformer"))
+#: The Panda's ready pose and a reachable target, joints 1..7 (rad).
+PANDA_TARGET = [0.3, -0.3, 0.2, -2.0, 0.1, 1.8, 0.9]
+
+
+@pytest.fixture(scope="session")
+def reach_policy(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A real ONNX policy for the Panda's 7 joints: a P controller toward PANDA_TARGET, 10 actions per chunk."""
+    pytest.importorskip("onnx")
+    from embagents.models.backends.reach_policy import write_reach_policy
+
+    return write_reach_policy(str(tmp_path_factory.mktemp("models") / "reach.onnx"), PANDA_TARGET, gain=0.2, chunk=10)
