@@ -19,8 +19,8 @@ from embagents.components.component import (
 from embagents.components.joint_limits import Clipper, JointLimit, limits_from_urdf
 from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
-from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
 from embagents.components.sim import Sim, SimConfig
+from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
 from embagents.components.vla import VLA, VLAConfig
