@@ -184,6 +184,8 @@ class ForkServer:
         self.sock = parent
         self.sock.setblocking(False)
         self._send_lock = threading.Lock()
+        #: True once the server's end of the socket closed: it died (or was killed).
+        self.lost = False
 
     def fileno(self) -> int:
         return self.sock.fileno()
@@ -199,15 +201,31 @@ class ForkServer:
                     select.select([], [self.sock], [], 1.0)
 
     def recv_all(self) -> list[list[Any]]:
+        """Every note waiting from the server; on its end of the socket closing, sets :attr:`lost`."""
         out: list[list[Any]] = []
         while True:
             try:
                 data = self.sock.recv(_MAX)
             except BlockingIOError:
                 return out
-            if not data:
+            except OSError:
+                data = b""
+            if not data:  # the server is gone (its end closed): it will never say anything again
+                self.lost = True
                 return out
             out.append(msgpack.unpackb(data))
+
+    def exit_status(self) -> str:
+        """How the (lost) server ended, as far as ``waitpid`` can tell without waiting."""
+        try:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+        except ChildProcessError:
+            return "already reaped"
+        if pid == 0:
+            return "still running, its socket closed"
+        if os.WIFSIGNALED(status):
+            return f"killed by signal {os.WTERMSIG(status)}"
+        return f"exit code {os.waitstatus_to_exitcode(status)}"
 
     def close(self, timeout: float = 5.0) -> None:
         with contextlib.suppress(OSError):

@@ -9,6 +9,7 @@ client IO thread.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from collections.abc import Callable
@@ -19,10 +20,12 @@ import zmq
 
 from actors import wire
 from actors.codec import Codec
-from actors.errors import ActorNotFound
+from actors.errors import ActorError, ActorNotFound
 from actors.link import Link
 from actors.loop import Loop
 from actors.shm import ShmPool, ShmReader
+
+log = logging.getLogger("actors.runtime")
 
 __all__ = ["Runtime", "current", "registry_path"]
 
@@ -55,6 +58,7 @@ class Runtime:
         self._owner_loop: dict[int, Loop] = {}
         self._client: Loop | None = None
         self._client_thread: threading.Thread | None = None
+        self._client_error: BaseException | None = None  # what stopped the IO thread, if anything
         self._lock = threading.Lock()
         self.closed = False
         #: Set by an actor host: lets library code waiting on something say "alive, working".
@@ -111,8 +115,13 @@ class Runtime:
                     self._client = loop
                     self.adopt_loop(loop)
                     ready.set()
-                    while not self.closed:
-                        loop.run()
+                    try:
+                        while not self.closed:
+                            loop.run()
+                    except BaseException as exc:
+                        # A handler raised: callers waiting in on_client get this, not a silent hang.
+                        self._client_error = exc
+                        log.critical("the actors IO thread stopped on an error", exc_info=True)
 
                 t = threading.Thread(target=main, name="actors-io", daemon=True)
                 t.start()
@@ -137,7 +146,11 @@ class Runtime:
             done.set()
 
         loop.call_soon_threadsafe(call)
-        done.wait()
+        thread = self._client_thread
+        while not done.wait(1.0):
+            if thread is not None and not thread.is_alive() and not done.is_set():
+                raise ActorError(f"the actors IO thread of this process is gone ({self._client_error!r}), so "
+                                 "nothing can be sent or received: see the log above; stop the run and start it again")
         ok, value = box[0]
         if not ok:
             raise value

@@ -103,6 +103,8 @@ class ActorSystem:
         self.before_shutdown: list[Callable[[], None]] = []
         self.event_listeners: list[Callable[[list[Any]], None]] = []
         self.closed = False
+        #: Why no process can be started any more (the fork server died), else None.
+        self.forkserver_failure: str | None = None
         self.rt.on_client(self._setup_loop)
 
     # -- root IO (runs on the client loop thread) ---------------------------
@@ -150,10 +152,30 @@ class ActorSystem:
                 info = self.procs.get(name)
                 if info is None or info.pid != pid:
                     continue
-                info.exit_code = code
-                info.exited.set()
-                for fn in self.exit_listeners:
-                    fn(info)
+                self._exited(info, code)
+        if self.forkserver.lost and self.forkserver_failure is None:
+            self._forkserver_lost()
+
+    def _exited(self, info: ProcessInfo, code: int | None, failure: str | None = None) -> None:
+        if failure is not None and info.failure is None:
+            info.failure = failure
+        info.exit_code = code
+        info.exited.set()
+        for fn in self.exit_listeners:
+            fn(info)
+
+    def _forkserver_lost(self) -> None:
+        """The fork server died: its children died with it (PDEATHSIG); say so instead of waiting forever."""
+        self.loop.remove(self.forkserver.fileno())  # its closed end would stay readable: no spinning
+        self.forkserver_failure = (
+            f"the run's fork server (pid {self.forkserver.pid}) died ({self.forkserver.exit_status()}), "
+            "and every actor process with it: this run can start no process; stop it and start it again"
+        )
+        log.error("%s", self.forkserver_failure)
+        self._spawning.clear()
+        for info in list(self.procs.values()):
+            if not info.exited.is_set():
+                self._exited(info, -signal.SIGKILL, self.forkserver_failure)
 
     # -- processes ----------------------------------------------------------
     def start_process(self, spec: dict[str, Any]) -> ProcessInfo:
@@ -167,8 +189,11 @@ class ActorSystem:
 
         def go() -> None:
             self.procs[name] = info
-            self._spawning[token] = info
             info.started_at = time.monotonic()
+            if self.forkserver_failure is not None:  # a start that fails at once, with the reason
+                self._exited(info, None, self.forkserver_failure)
+                return
+            self._spawning[token] = info
             self.forkserver.send(["spawn", token, spec])
 
         self.rt.on_client(go)
@@ -284,7 +309,7 @@ class ActorSystem:
     def signal(self, name: str, sig: int) -> None:
         """Send a signal to actor ``name``'s process (tests and the supervisor use it)."""
         info = self.procs[name]
-        if info.pid is not None:
+        if info.pid is not None and self.forkserver_failure is None and not info.exited.is_set():
             self.forkserver.send(["kill", info.pid, int(sig)])
 
     def ctrl(self, name: str, cmd: str, *args: Any, timeout: float = 5.0) -> Any:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 import msgpack
+import pykka
 import pytest
 
 from actors import ActorSystem
@@ -36,3 +37,44 @@ def test_actors_keep_devnull_handles_opened_before_the_fork_server_and_nothing_e
         devnull.close()
         os.close(r)
         os.close(w)
+
+
+def test_a_dead_fork_server_is_reported_and_no_start_or_ask_waits_forever() -> None:
+    import signal
+    import time
+
+    from actors.errors import ActorError
+
+    with ActorSystem() as system:
+        ref = system.spawn(Echo, "before")
+        assert ref.ask("hi", timeout=10).get() == "hi"
+        info = system.procs["before"]
+        os.kill(system.forkserver.pid, signal.SIGKILL)
+        assert info.exited.wait(10), "the actor's death (with its fork server) was never reported"
+        assert info.exit_code == -signal.SIGKILL and "fork server" in (info.failure or ""), info.failure
+        assert system.forkserver_failure is not None and "killed by signal 9" in system.forkserver_failure
+        # A start now fails at once with the reason, instead of waiting for a server that is gone.
+        later = system.start_process(system.make_spec(Echo, "after", (), {}))
+        assert later.exited.is_set() and "start it again" in (later.failure or "")
+        t0 = time.monotonic()
+        with pytest.raises((ActorError, pykka.Timeout)):  # the actor is gone: no answer, in bounded time
+            ref.ask("hi", timeout=2).get()
+        assert time.monotonic() - t0 < 10
+
+
+def test_an_io_thread_stopped_by_an_error_fails_its_callers_instead_of_hanging(tmp_path: str) -> None:
+    from actors.errors import ActorError
+    from actors.runtime import Runtime
+
+    rt = Runtime(str(tmp_path), "t")
+    try:
+        rt.on_client(lambda: None)  # starts the IO thread
+
+        def broken() -> None:
+            raise RuntimeError("a handler bug")
+
+        rt.client_loop().call_soon_threadsafe(broken)
+        with pytest.raises(ActorError, match="IO thread of this process is gone"):
+            rt.on_client(lambda: None)
+    finally:
+        rt.closed = True
