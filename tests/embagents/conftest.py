@@ -46,8 +46,17 @@ def speech_clip() -> tuple[object, int]:
 
 @pytest.fixture(scope="session")
 def tiny_paraformer(tmp_path_factory: pytest.TempPathFactory) -> str:
-    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_paraformer.py)."""
+    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_asr.py)."""
     pytest.importorskip("onnx")
-    from tests.embagents.tiny_paraformer import make_tiny_paraformer
+    from tests.embagents.tiny_asr import make_tiny_paraformer
 
     return make_tiny_paraformer(str(tmp_path_factory.mktemp("models") / "tiny-paraformer"))
+
+
+@pytest.fixture(scope="session")
+def tiny_transducer(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB transducer model directory that hears "hello robot" (see tests/embagents/tiny_asr.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_asr import make_tiny_transducer
+
+    return make_tiny_transducer(str(tmp_path_factory.mktemp("models") / "tiny-transducer"))
