@@ -60,3 +60,12 @@ def tiny_transducer(tmp_path_factory: pytest.TempPathFactory) -> str:
     from tests.embagents.tiny_asr import make_tiny_transducer
 
     return make_tiny_transducer(str(tmp_path_factory.mktemp("models") / "tiny-transducer"))
+
+
+@pytest.fixture(scope="session")
+def tiny_moonshine(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB Moonshine model directory that hears "hello robot" (see tests/embagents/tiny_asr.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_asr import make_tiny_moonshine
+
+    return make_tiny_moonshine(str(tmp_path_factory.mktemp("models") / "tiny-moonshine"))

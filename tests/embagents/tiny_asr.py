@@ -1,4 +1,4 @@
-"""Few-KB sherpa-onnx model directories (Paraformer, transducer) that hear "hello robot" in any audio.
+"""Few-KB sherpa-onnx model directories (Paraformer, transducer, Moonshine) that hear "hello robot" in any audio.
 
 They test a user's non-Whisper model end to end (no such model ships on PyPI):
 every code path is real (load, features, decode, tokens), the words are fixed.
@@ -12,7 +12,11 @@ reads ``encoder.onnx`` (``x``, ``x_lens`` -> ``encoder_out``, ``encoder_out_lens
 metadata ``model_type``), ``decoder.onnx`` (``y`` (N, context) -> ``decoder_out``;
 metadata ``vocab_size``, ``context_size``) and ``joiner.onnx`` (-> ``logit``):
 this one's joiner emits the token that follows the last one emitted
-(blank -> hello -> robot -> blank).
+(blank -> hello -> robot -> blank). Its Moonshine reads ``preprocess.onnx``
+(audio -> features), ``encode.onnx``, ``uncached_decode.onnx`` and
+``cached_decode.onnx`` (token, encoder output, length, states -> logits,
+states): this one's decoders score the token that follows the last one
+(<s> -> hello -> robot -> </s>).
 """
 
 from __future__ import annotations
@@ -102,4 +106,33 @@ def make_tiny_transducer(folder: str) -> str:
           [h.make_tensor_value_info("logit", T.FLOAT, ["N", v])], {"zero": np.float32(0)}, {})
     with open(os.path.join(folder, "tokens.txt"), "w") as f:
         f.writelines(f"{s} {i}\n" for i, s in enumerate(["<blk>", "<sos/eos>", "<unk>", "\u2581hello", "\u2581robot"]))
+    return folder
+
+
+def make_tiny_moonshine(folder: str) -> str:
+    from onnx import TensorProto as T
+    from onnx import helper as h
+
+    v = len(TOKENS)
+    os.makedirs(folder, exist_ok=True)
+    _save(folder, "preprocess", [h.make_node("Unsqueeze", ["audio", "last_axis"], ["features"])],
+          [h.make_tensor_value_info("audio", T.FLOAT, [1, "S"])],
+          [h.make_tensor_value_info("features", T.FLOAT, [1, "S", 1])], {"last_axis": np.array([2], np.int64)}, {})
+    _save(folder, "encode", [h.make_node("Identity", ["features"], ["encoder_out"])],
+          [h.make_tensor_value_info("features", T.FLOAT, [1, "S", 1]),
+           h.make_tensor_value_info("features_len", T.INT32, [1])],
+          [h.make_tensor_value_info("encoder_out", T.FLOAT, [1, "S", 1])], {}, {})
+    follows = np.full((v, v), -10.0, np.float32)  # row: the last token; column: the next one's score
+    follows[[0, 1, 2, 3, 4], [2, 3, 2, 4, 2]] = 10.0  # <s> -> hello -> robot -> </s>
+    inputs = [h.make_tensor_value_info("tokens", T.INT32, [1, 1]),
+              h.make_tensor_value_info("encoder_out", T.FLOAT, [1, "S", 1]),
+              h.make_tensor_value_info("seq_len", T.INT32, [1])]
+    for name, state_in in (("uncached_decode", []), ("cached_decode", ["state"])):
+        nodes = [h.make_node("Gather", ["follows", "tokens"], ["logits"]),
+                 h.make_node("Cast", ["seq_len"], ["state_out"], to=T.FLOAT)]  # a state, as a real decoder's cache
+        _save(folder, name, nodes, inputs + [h.make_tensor_value_info(n, T.FLOAT, [1]) for n in state_in],
+              [h.make_tensor_value_info("logits", T.FLOAT, [1, 1, v]),
+               h.make_tensor_value_info("state_out", T.FLOAT, [1])], {"follows": follows}, {})
+    with open(os.path.join(folder, "tokens.txt"), "w") as f:
+        f.writelines(f"{s} {i}\n" for i, s in enumerate(["<unk>", "<s>", "</s>", "\u2581hello", "\u2581robot"]))
     return folder

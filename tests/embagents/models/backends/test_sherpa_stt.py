@@ -115,7 +115,8 @@ def test_vad_settings_are_checked() -> None:
         SpeechSegmenter("/nonexistent/silero.onnx")
 
 
-@pytest.mark.parametrize(("fixture", "family"), [("tiny_paraformer", "paraformer"), ("tiny_transducer", "transducer")])
+@pytest.mark.parametrize(("fixture", "family"), [("tiny_paraformer", "paraformer"), ("tiny_transducer", "transducer"),
+                                                ("tiny_moonshine", "moonshine")])
 def test_a_user_model_directory_of_another_family_loads_and_decodes(fixture: str, family: str,
                                                                     request: pytest.FixtureRequest) -> None:
     stt = SherpaRecognizer(request.getfixturevalue(fixture))
