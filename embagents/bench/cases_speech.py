@@ -59,7 +59,7 @@ class SttHost(Actor):
 
         self.stt = SpeechToText(name=self.name, inputs=[Topic("bench_audio", Audio, keep="all")],
                                 outputs=[Topic("bench_heard", String)], model_client=LocalModelClient(MODEL),
-                                config=SpeechToTextConfig(min_silence_ms=MIN_SILENCE_MS))
+                                config=SpeechToTextConfig(min_silence_ms=MIN_SILENCE_MS, log_level="warning"))
         self.stt.attach(lambda topic, msg: self.context.publish(topic, msg))
         self.stt.on_configure()
         self.context.subscribe("bench_audio", self._on_audio, queue_size=1000, keep="all")

@@ -46,11 +46,31 @@ def speech_clip() -> tuple[object, int]:
 
 @pytest.fixture(scope="session")
 def tiny_paraformer(tmp_path_factory: pytest.TempPathFactory) -> str:
-    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_paraformer.py)."""
+    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_asr.py)."""
     pytest.importorskip("onnx")
-    from tests.embagents.tiny_paraformer import make_tiny_paraformer
+    from tests.embagents.tiny_asr import make_tiny_paraformer
 
     return make_tiny_paraformer(str(tmp_path_factory.mktemp("models") / "tiny-paraformer"))
+
+
+@pytest.fixture(scope="session")
+def tiny_transducer(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB transducer model directory that hears "hello robot" (see tests/embagents/tiny_asr.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_asr import make_tiny_transducer
+
+    return make_tiny_transducer(str(tmp_path_factory.mktemp("models") / "tiny-transducer"))
+
+
+@pytest.fixture(scope="session")
+def tiny_moonshine(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB Moonshine model directory that hears "hello robot" (see tests/embagents/tiny_asr.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_asr import make_tiny_moonshine
+
+    return make_tiny_moonshine(str(tmp_path_factory.mktemp("models") / "tiny-moonshine"))
+
+
 #: The Panda's ready pose and a reachable target, joints 1..7 (rad).
 PANDA_TARGET = [0.3, -0.3, 0.2, -2.0, 0.1, 1.8, 0.9]
 

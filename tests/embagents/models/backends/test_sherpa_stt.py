@@ -115,7 +115,10 @@ def test_vad_settings_are_checked() -> None:
         SpeechSegmenter("/nonexistent/silero.onnx")
 
 
-def test_a_user_model_directory_of_another_family_loads_and_decodes(tiny_paraformer: str) -> None:
-    stt = SherpaRecognizer(tiny_paraformer)
-    assert stt.family == "paraformer" and stt.files["paraformer"].endswith("model.onnx")
+@pytest.mark.parametrize(("fixture", "family"), [("tiny_paraformer", "paraformer"), ("tiny_transducer", "transducer"),
+                                                ("tiny_moonshine", "moonshine")])
+def test_a_user_model_directory_of_another_family_loads_and_decodes(fixture: str, family: str,
+                                                                    request: pytest.FixtureRequest) -> None:
+    stt = SherpaRecognizer(request.getfixturevalue(fixture))
+    assert stt.family == family
     assert stt.transcribe(np.zeros(16000, np.float32)) == "hello robot"
