@@ -20,10 +20,13 @@ from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
+from embagents.components.vlm import MLLM, VLM, NoImageYet, VLMConfig
 
 __all__ = [
     "LLM",
+    "MLLM",
     "UNSET",
+    "VLM",
     "Camera",
     "CameraConfig",
     "ChatClient",
@@ -33,10 +36,12 @@ __all__ = [
     "HealthStatus",
     "LLMConfig",
     "ModelComponent",
+    "NoImageYet",
     "VideoMakerConfig",
     "VideoMessageMaker",
     "Vision",
     "VisionConfig",
+    "VLMConfig",
     "client_name",
     "lenient_construction",
     "tool_schema",

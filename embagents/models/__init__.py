@@ -22,7 +22,7 @@ Example::
 
 from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
-from embagents.models.declarations import DetectorModel, LlamaModel, Model
+from embagents.models.declarations import DetectorModel, LlamaModel, Model, VLMModel
 from embagents.models.inventory import models_of
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
@@ -39,6 +39,7 @@ __all__ = [
     "ModelUnavailable",
     "RemoteModelClient",
     "RemoteRefused",
+    "VLMModel",
     "collect_stream",
     "models_of",
 ]
