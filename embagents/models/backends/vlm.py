@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 
 from embagents.models.backends.llama import LlamaBackend
-from embagents.models.chat import collect_stream
+from embagents.models.chat import collect_stream, with_images
 from embagents.models.declarations import VLM_HANDLERS
 
-__all__ = ["VLMBackend", "handler_class", "ppm_bytes", "with_images"]
+__all__ = ["VLMBackend", "handler_class", "ppm_bytes"]
 
 _FRAME_URL = "embagents://frame/{}/{}/"  # request, index: no key is a prefix of another
 _requests = itertools.count(1)
@@ -45,24 +45,6 @@ def ppm_bytes(image: np.ndarray) -> bytes:
     """
     h, w = image.shape[:2]
     return b"P6\n%d %d\n255\n" % (w, h) + np.ascontiguousarray(image, np.uint8).tobytes()
-
-
-def with_images(messages: list[dict[str, Any]], urls: Sequence[str]) -> list[dict[str, Any]]:
-    """``messages`` with ``urls`` as OpenAI ``image_url`` parts before the text of the last user message.
-
-    >>> with_images([{"role": "user", "content": "what?"}], ["u0"])[0]["content"]
-    [{'type': 'image_url', 'image_url': {'url': 'u0'}}, {'type': 'text', 'text': 'what?'}]
-    """
-    if not urls:
-        return messages
-    last = max((i for i, m in enumerate(messages) if m.get("role") == "user"), default=None)
-    if last is None:
-        raise ValueError("images need a user message to go with; the messages have none")
-    out = [dict(m) for m in messages]
-    content = out[last].get("content") or ""
-    parts = content if isinstance(content, list) else [{"type": "text", "text": content}]
-    out[last]["content"] = [{"type": "image_url", "image_url": {"url": u}} for u in urls] + list(parts)
-    return out
 
 
 def handler_class(name: str) -> type:
