@@ -107,6 +107,11 @@ class VLM(LLM):
         if not self.image_topics:
             problems.append(("missing-input", f"{self._label()}: needs an input topic of type Image or "
                                               "CompressedImage (the camera it answers about)"))
+        for key, client in self.clients.items():
+            kind = getattr(getattr(client, "model", None), "kind", "vlm")
+            if kind != "vlm":
+                problems.append(("bad-client", f"{self._label()}: model client {key!r} serves a {kind!r} model, which "
+                                               "takes no images; give it LocalModelClient(VLMModel(...))"))
         return problems
 
     def run_warmup(self) -> None:

@@ -124,6 +124,11 @@ def test_a_vlm_needs_an_image_input_and_mllm_is_the_same_component() -> None:
     assert MLLM is VLM
     with pytest.raises(ComponentError, match="needs an input topic of type Image or CompressedImage"):
         VLM(name="vlm", inputs=[question], outputs=[answer], model_client=Grounder())
+    from embagents.models import LlamaModel
+
+    with pytest.raises(ComponentError, match="serves a 'llama' model, which takes no images; give it LocalModelClient"):
+        VLM(name="vlm", inputs=[question, camera], outputs=[answer],
+            model_client=LocalModelClient(LlamaModel(name="talk")))
 
 
 @pytest.mark.parametrize(("text", "boxes", "labels"), [
