@@ -151,3 +151,34 @@ def test_a_vlm_needs_an_image_input_and_mllm_is_the_same_component() -> None:
 def test_box_formats_of_real_vlms_are_read_in_pixels(text: str, boxes: list, labels: list) -> None:
     got, names = parse_boxes(text, 640, 480)
     assert np.allclose(got, np.array(boxes, np.float32).reshape(-1, 4)) and names == labels
+
+
+class Recorder:
+    """A chat client that keeps what it was sent (what the LLM's history and templates build, with the frames)."""
+
+    name = "recorder"
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[list[dict], list]] = []
+
+    def chat_stream(self, messages: list[dict], images: Any = (), **options: Any) -> Iterator[dict]:
+        self.sent.append((messages, list(images)))
+        yield {"delta": f"answer {len(self.sent)}"}
+        yield {"done": True, "finish_reason": "stop", "tool_calls": None}
+
+
+def test_history_system_prompt_and_template_are_the_llms_and_frames_go_with_the_last_question() -> None:
+    rec = Recorder()
+    comp, _ = vlm(rec, chat_history=True, system_prompt="You see through the robot's camera.",
+                  prompt_template="Look closely. {text}")
+    comp.on_message("camera", FRAME)
+    step(comp, "question", String("what is it?"))
+    step(comp, "camera", Image(data=np.zeros((10, 20, 3), np.uint8)))
+    step(comp, "question", String("and now?"))
+    messages, images = rec.sent[-1]
+    assert messages == [{"role": "system", "content": "You see through the robot's camera."},
+                        {"role": "user", "content": "Look closely. what is it?"},
+                        {"role": "assistant", "content": "answer 1"},
+                        {"role": "user", "content": "Look closely. and now?"}]
+    assert [i.shape for i in images] == [(10, 20, 3)]  # the latest frame only, once
+    assert comp.snapshot()["history"][-1] == {"role": "assistant", "content": "answer 2"}
