@@ -14,6 +14,7 @@ from another terminal)::
 
     embagents call vlm describe camera "What is on the table?"
     embagents publish question "Where is the cup? Answer with a bounding box."
+    embagents publish look "look"      # an event: call(vlm, "describe", "camera", ...)
 
 The model: ``EMBAGENTS_VLM_MODEL`` / ``EMBAGENTS_VLM_PROJECTOR`` (paths or Hugging
 Face ``owner/name:glob`` ids), ``EMBAGENTS_VLM_HANDLER`` (default ``moondream``);
@@ -26,6 +27,7 @@ import os
 from typing import Any
 
 from embagents.components import VLM, Component, VLMConfig
+from embagents.events import Event, call, on
 from embagents.launch import SYSTEM_STOP
 from embagents.models import LocalModelClient, VLMModel
 from embagents.msgs import Detections, Image, String
@@ -38,6 +40,7 @@ frames = Topic("camera", Image)
 question = Topic("question", String)
 answer = Topic("answer", String, queue_size=100, keep="all")
 found = Topic("found", Detections, queue_size=100, keep="all")
+look = Topic("look", String)  # any message on it: the event below asks the VLM to describe the camera
 stop = Topic(SYSTEM_STOP, String)
 
 
@@ -96,14 +99,19 @@ model = VLMModel(
     chat_handler=os.environ.get("EMBAGENTS_VLM_HANDLER", "moondream"),
 )
 
+vlm = VLM(name="vlm", inputs=[question, frames], outputs=[answer, found], model_client=LocalModelClient(model),
+          config=VLMConfig(max_new_tokens=64, temperature=0.0))
+
 system = System(
     [
         PhotoCamera(name="camera", outputs=[frames], trigger=2.0),
         Asker(name="asker", inputs=[frames], outputs=[question], trigger=frames),
-        VLM(name="vlm", inputs=[question, frames], outputs=[answer, found], model_client=LocalModelClient(model),
-            config=VLMConfig(max_new_tokens=64, temperature=0.0)),
+        vlm,
         Printer(name="printer", inputs=[answer, found], outputs=[stop], trigger=[answer, found]),
     ],
     models=[model],
+    events={Event("look", on(look).field("data") != "", on_change=False):
+            call(vlm, "describe", "camera", "Describe what you see.")},
+    external=[look],
     name="vlm",
 )

@@ -1,4 +1,6 @@
-"""``embagents call``: a component's action in a running system, from another process (examples/vlm.py)."""
+"""``embagents call``: a component's action in a running system, from another process (examples/vlm.py).
+
+The same action runs from an event of the example (a message on ``look``)."""
 
 from __future__ import annotations
 
@@ -48,6 +50,8 @@ def test_describe_from_the_cli_answers_about_the_camera_of_the_running_vlm_examp
         assert out.returncode == 0, out.stderr
         assert out.stdout.startswith("vlm.describe -> '")
         assert next_answer() == out.stdout.strip()[len("vlm.describe -> '"):-1]  # published on answer too
+        assert _cli("publish", "look", "look", env=env).returncode == 0  # the event calls describe
+        assert next_answer()
 
         bad = _cli("call", "vlm", "describe", "question", env=env)
         assert bad.returncode == 1
