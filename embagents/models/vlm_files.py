@@ -44,7 +44,8 @@ def model_specs(model: str | None, projector: str | None) -> tuple[str, str]:
 
 def resolve_pair(model: str, projector: str) -> tuple[str, str]:
     """Both files as local paths (downloaded once, with a progress bar, when they are repo ids)."""
-    return resolve_model_path(model, filename_glob="*.gguf"), resolve_model_path(projector, filename_glob=_PROJECTOR_GLOB)
+    # A bare repo id takes LlamaModel's default quantisation (*Q4_K_M.gguf); `owner/name:glob` picks another.
+    return resolve_model_path(model), resolve_model_path(projector, filename_glob=_PROJECTOR_GLOB)
 
 
 def _repo_problem(spec: str) -> str | None:
@@ -56,7 +57,7 @@ def _repo_problem(spec: str) -> str | None:
     except ImportError:
         return "huggingface_hub is not installed (pip install 'embagents[hub]')"
     repo, _, pattern = spec.partition(":")
-    if _cached_hub_file(hub, repo, None, pattern or "*.gguf"):
+    if _cached_hub_file(hub, repo, None, pattern or "*Q4_K_M.gguf"):  # resolve_model_path's default
         return None
     return _hub_unreachable_reason()
 
