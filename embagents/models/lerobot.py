@@ -263,16 +263,15 @@ class LeRobotPolicyClient:
         import grpc
 
         deadline = time.monotonic() + float(timeout_s)
-        m = messages()
         try:
-            if not self._ready:
-                self._hello(deadline)
-            self._timestep += 1
-            payload = self._encode_observation(observation, task, self._timestep)
-            self._rpc("stream_unary", "SendObservations", "Empty")(chunks(payload), timeout=_left(deadline))
-            get = self._rpc("unary_unary", "GetActions", "Actions")
-            while not (data := get(m["Empty"](), timeout=_left(deadline)).data):
-                pass  # the server had no observation in time (LeRobot answers Empty): ask until the deadline
+            try:
+                data = self._exchange(observation, task, deadline)
+            except grpc.RpcError as exc:
+                if exc.code() != grpc.StatusCode.FAILED_PRECONDITION:
+                    raise
+                # The server forgot our setup (it restarted, or another client said Ready): hello again, once.
+                self._ready = False
+                data = self._exchange(observation, task, deadline)
         except grpc.RpcError as exc:
             raise self._error(exc, float(timeout_s)) from None  # _ready is still False if the setup failed
         except _Late:
@@ -280,6 +279,19 @@ class LeRobotPolicyClient:
             raise PolicyLate(f"policy server {self.address} gave no actions within {timeout_s:.3f} s; "
                              "motion should stop until the next chunk") from None
         return self._check_chunk(self._decode_actions(data), observation)
+
+    def _exchange(self, observation: Mapping[str, np.ndarray], task: str, deadline: float) -> bytes:
+        """Hello (when needed), the observation out, its chunk's bytes back."""
+        m = messages()
+        if not self._ready:
+            self._hello(deadline)
+        self._timestep += 1
+        payload = self._encode_observation(observation, task, self._timestep)
+        self._rpc("stream_unary", "SendObservations", "Empty")(chunks(payload), timeout=_left(deadline))
+        get = self._rpc("unary_unary", "GetActions", "Actions")
+        while not (data := get(m["Empty"](), timeout=_left(deadline)).data):
+            pass  # the server had no observation in time (LeRobot answers Empty): ask until the deadline
+        return bytes(data)
 
     def _error(self, exc: Any, timeout_s: float) -> Exception:
         import grpc

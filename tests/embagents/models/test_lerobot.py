@@ -131,6 +131,23 @@ def test_a_server_that_is_down_is_a_clear_error_and_the_client_reconnects_when_i
         client.close()
 
 
+def test_a_server_that_forgot_the_setup_is_told_again_within_the_same_call(server: str) -> None:
+    import grpc
+
+    from embagents.models.lerobot import messages, method
+
+    client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
+    try:
+        assert client.infer({"observation.state": STATE}, "reach", 5.0).shape == (CHUNK, 7)
+        m = messages()
+        with grpc.insecure_channel(server) as other:  # another client's Ready: the server forgets our setup
+            other.unary_unary(method("Ready"), request_serializer=lambda x: x.SerializeToString(),
+                              response_deserializer=m["Empty"].FromString)(m["Empty"](), timeout=5)
+        assert np.allclose(client.infer({"observation.state": STATE}, "reach", 5.0), expected_chunk(STATE, TARGET, CHUNK))
+    finally:
+        client.close()
+
+
 def test_a_late_answer_is_a_timeout_error(policy: str) -> None:
     port = _free_port()
     with serving(policy, port, "--latency-s", "1.5"):
