@@ -18,6 +18,8 @@ from embagents.components import (
     HealthStatus,
     LLMConfig,
     ModelComponent,
+    SpeechToText,
+    SpeechToTextConfig,
     VideoMakerConfig,
     VideoMessageMaker,
     Vision,
@@ -25,7 +27,14 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
-from embagents.models import DetectorModel, LlamaModel, LocalModelClient, RemoteModelClient
+from embagents.manager import Agent, HandshakeRule, Manager, Node, StateMachineHandler
+from embagents.models import (
+    DetectorModel,
+    LlamaModel,
+    LocalModelClient,
+    RemoteModelClient,
+    SpeechToTextModel,
+)
 from embagents.msgs import (
     Audio,
     CompressedImage,
@@ -49,6 +58,7 @@ set_app_name("embagents")
 __all__ = [
     "LLM",
     "Action",
+    "Agent",
     "Audio",
     "BaseComponentConfig",
     "Camera",
@@ -59,6 +69,7 @@ __all__ = [
     "DetectorModel",
     "Event",
     "Fallback",
+    "HandshakeRule",
     "Health",
     "HealthStatus",
     "Image",
@@ -66,11 +77,17 @@ __all__ = [
     "LLMConfig",
     "LlamaModel",
     "LocalModelClient",
+    "Manager",
     "ModelComponent",
+    "Node",
     "OccupancyGrid",
     "Odometry",
     "RemoteModelClient",
+    "SpeechToText",
+    "SpeechToTextConfig",
+    "SpeechToTextModel",
     "StreamingString",
+    "StateMachineHandler",
     "String",
     "System",
     "Topic",

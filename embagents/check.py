@@ -125,6 +125,12 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
             use(t.name, t.msg_type, f"output of component {c.name!r}", c.name)
         for t in c.subscriptions:
             use(t.name, t.msg_type, f"input of component {c.name!r}", c.name)
+    for m in system.managers:
+        for node in m.nodes:
+            for t in node.outputs.values():
+                use(t.name, t.msg_type, f"output of node {node.name!r} of manager {m.name!r}", m.name)
+            for t in node.subscriptions:
+                use(t.name, t.msg_type, f"input of node {node.name!r} of manager {m.name!r}", m.name)
     for name, msg_type in ros_provided:
         use(name, msg_type, "RosInput")
     for t in system.external:
@@ -145,6 +151,22 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
 
     provided = {t.name for c in system.components for t in c.outputs}
     provided |= {name for name, _ in ros_provided} | {t.name for t in system.external}
+    provided |= {t for m in system.managers for node in m.nodes for t in node.outputs}
+    for m in system.managers:
+        heard = {t.name for node in m.nodes for t in node.subscriptions}
+        for rule in m.handshake:
+            if rule.topic is not None and rule.topic not in heard:
+                out.append(Problem(m.name, "handshake-topic",
+                                   f"manager {m.name!r}: handshake rule {rule.name!r} waits for a message on "
+                                   f"{rule.topic!r}, which none of its nodes subscribes to (it would never hold); "
+                                   f"add the topic to a Node(subscribe=[...]) of the manager"))
+        for node in m.nodes:
+            for t in node.subscriptions:
+                if t.name not in provided:
+                    out.append(Problem(m.name, "unknown-topic",
+                                       f"manager {m.name!r}: node {node.name!r} subscribes to {t.name!r} "
+                                       f"({t.type_name}), which nothing in this system publishes; if it comes "
+                                       "from outside, list it in System(external=[...])", "warning"))
     for c in system.components:
         for t in c.subscriptions:
             if t.name not in provided:

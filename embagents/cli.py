@@ -63,6 +63,8 @@ def _check(args: argparse.Namespace) -> int:
         return 1
     assert system is not None  # no errors means it loaded
     summary = f"OK: {counted(len(system.components), 'component')}, {counted(len(system.topics), 'topic')}"
+    if system.managers:
+        summary += f", {counted(len(system.managers), 'manager')}"
     print(summary + (f" ({counted(len(problems), 'warning')})" if problems else ""))
     return 0
 

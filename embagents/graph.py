@@ -117,6 +117,17 @@ def _graph(system: System) -> tuple[dict[str, Node], list[Edge]]:
             edges.append(Edge(topic(t.name, t.type_name), cid))
         for t in c.outputs:
             edges.append(Edge(cid, topic(t.name, t.type_name)))
+    for m in getattr(system, "managers", ()):
+        mid = f"c:{m.name}"
+        lines = [m.name, f"Manager, {m.rate_hz:g} Hz"]
+        if m.agents:
+            lines.append("agents: " + ", ".join(f"{a.name}{' (isolated)' if a.isolated else ''}" for a in m.agents))
+        nodes[mid] = Node(mid, "component", lines)
+        for node in m.nodes:
+            for t in node.subscriptions:
+                edges.append(Edge(topic(t.name, t.type_name), mid))
+            for t in node.outputs.values():
+                edges.append(Edge(mid, topic(t.name, t.type_name)))
     for t in system.external:
         topic(t.name, t.type_name)
     by_name = {f"c:{c.name}" for c in system.components}

@@ -68,8 +68,10 @@ def run_system(path: str) -> int:
         ))
         control.add_command("publish", publish_command(asys, system))  # `embagents publish TOPIC TEXT`
         control.add_command("call", call_command(asys, system))  # `embagents call COMPONENT METHOD ARGS`
+        managers = f"{counted(len(system.managers), 'manager')}, " if system.managers else ""
         print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
-              f"{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr, flush=True)
+              f"{managers}{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr,
+              flush=True)
 
     return serve(spec, system_name=system.name, on_ready=on_ready)
 

@@ -32,10 +32,12 @@ __all__ = [
     "HealthStatus",
     "Image",
     "JointState",
+    "JointTrajectory",
     "Odometry",
     "OccupancyGrid",
     "String",
     "StreamingString",
+    "TaskFeedback",
     "Trackings",
     "Twist",
     "Video",
@@ -245,6 +247,33 @@ class JointState:
     stamp: float = 0.0
 
 
+@message("embagents/JointTrajectory")
+@attrs.define(eq=False)
+class JointTrajectory:
+    """A chunk of joint commands: ``positions`` / ``velocities`` (T, N) for ``joint_names``, point t due
+    ``time_from_start[t]`` seconds after ``stamp``. Either array may be empty (shape (0, N))."""
+
+    joint_names: list[str] = attrs.field(factory=list)
+    positions: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0)), converter=_array("float64", 2))
+    velocities: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0)), converter=_array("float64", 2))
+    time_from_start: np.ndarray = _column("float64")
+    stamp: float = 0.0
+
+
+@message("embagents/TaskFeedback")
+@attrs.define
+class TaskFeedback:
+    """Progress of a long-running task (a VLA's ``manipulate``): ``step`` of ``max_steps``;
+    ``done`` marks the last, ``outcome`` says how it ended (succeeded, max_steps, stopped, replaced)."""
+
+    task: str = ""
+    step: int = 0
+    max_steps: int = 0
+    done: bool = False
+    outcome: str = ""
+    stamp: float = 0.0
+
+
 class HealthStatus(enum.IntEnum):
     """How a component is doing; failures drive :class:`~embagents.events.Fallback` rules."""
 
@@ -286,6 +315,6 @@ MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (
         String, StreamingString, Image, CompressedImage, Audio, Detections, Trackings, Video, Twist, Odometry,
-        OccupancyGrid, JointState, Health,
+        OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health,
     )
 }

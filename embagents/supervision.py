@@ -1,4 +1,4 @@
-"""The supervision tree that runs a System: model actors, the ROS bridge, components, events.
+"""The supervision tree that runs a System: model actors, the ROS bridge, components, managers, events.
 
 ``embagents supervise`` starts it; ``embagents check`` builds it too, so a
 system that passes the check passes every rule of :mod:`supervisor.spec`
@@ -56,6 +56,17 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S
         children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=heartbeat,
                                   lifecycle="active", snapshot_interval=0.5, start_timeout=120))
+    for mgr in getattr(system, "managers", ()):
+        from embagents.runtime.agent_actor import AgentActor
+        from embagents.runtime.manager_actor import ManagerActor
+
+        for agent in mgr.agents:
+            if agent.isolated:  # started first: the manager's first call finds it
+                children.append(ChildSpec(agent.actor_name, (AgentActor, (path, mgr.name, agent.name)),
+                                          heartbeat=agent.heartbeat, nice=agent.nice, start_timeout=120))
+        # The loop beats every tick: a tick longer than hang_timeout is a hang. Snapshots after each changed tick.
+        children.append(ChildSpec(mgr.name, (ManagerActor, (path, mgr.name)), heartbeat=mgr.hang_timeout,
+                                  lifecycle="active", snapshot_interval=0.0, start_timeout=120))
     if system.events or any(getattr(c, "fallback", None) for c in system.components):
         children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
     sup = system.supervision

@@ -98,6 +98,8 @@ class System:
     - ``ros``: ``RosInput`` / ``RosOutput`` declarations of the ROS bridge (carried).
     - ``external``: topics published from outside (a test harness, another system);
       they count as provided in checks.
+    - ``managers``: :class:`~embagents.manager.Manager` loops (each a supervised actor; its
+      isolated agents actors of their own, started before it).
     - ``supervision``: ``{"strategy", "intensity", "period"}`` of the root supervisor, defaults in
       :data:`SUPERVISION_DEFAULTS`; checked by building the supervision tree (``embagents check``).
 
@@ -115,6 +117,7 @@ class System:
         external: Sequence[Topic] = (),
         supervision: Mapping[str, Any] | None = None,
         name: str = "system",
+        managers: Sequence[Any] = (),
     ) -> None:
         if isinstance(components, Component) or not isinstance(components, Sequence):
             raise TypeError(f"System components must be a list of components, got {components!r}")
@@ -124,6 +127,11 @@ class System:
         for t in external:
             if not isinstance(t, Topic):
                 raise TypeError(f"System external must be Topics, got {t!r}")
+        from embagents.manager import Manager
+
+        for m in managers:
+            if not isinstance(m, Manager):
+                raise TypeError(f"System managers must be Manager objects, got {m!r}")
         if not isinstance(name, str) or not name:
             raise ValueError(f"System name must be a non-empty str, got {name!r}")
         self.components = list(components)
@@ -134,6 +142,7 @@ class System:
         self.external = list(external)
         self.supervision = _supervision(supervision)
         self.name = name
+        self.managers = list(managers)
 
     def __repr__(self) -> str:
         return f"System(name={self.name!r}, components={[c.name for c in self.components]})"
@@ -145,6 +154,14 @@ class System:
                 return c
         known = ", ".join(str(c.name) for c in self.components) or "none"
         raise KeyError(f"no component named {name!r} in system {self.name!r}; components: {known}")
+
+    def manager(self, name: str) -> Any:
+        """The manager called ``name``."""
+        for m in self.managers:
+            if m.name == name:
+                return m
+        known = ", ".join(m.name for m in self.managers) or "none"
+        raise KeyError(f"no manager named {name!r} in system {self.name!r}; managers: {known}")
 
     @property
     def topics(self) -> dict[str, Topic]:
@@ -160,6 +177,10 @@ class System:
         for event, _ in self.events:
             for t in event.topics:
                 out.setdefault(t.name, t)
+        for m in self.managers:
+            for node in m.nodes:
+                for t in (*node.outputs.values(), *node.subscriptions):
+                    out.setdefault(t.name, t)
         for t in self.external:
             out.setdefault(t.name, t)
         return out

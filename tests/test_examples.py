@@ -1,12 +1,16 @@
 """Every example system passes `embagents check`; the chat-memory example keeps its conversation;
-the vision example finds the astronaut's face and cuts two motion clips."""
+the vision example finds the astronaut's face and cuts two motion clips; the manager examples run their
+missions to the end, the pick-and-place one through a SIGKILL of its manager mid-mission; the arm example
+reaches its target."""
 
 from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -14,7 +18,8 @@ import pytest
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
-@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py"])
+@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py",
+                                  "manager_pick_place.py", "manager_modes.py", "arm.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)
@@ -56,3 +61,78 @@ def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: 
     clips = sorted(tmp_path.glob("motion_clip_*.mp4"))
     assert [c.name for c in clips] == ["motion_clip_1.mp4", "motion_clip_2.mp4"], out.stdout
     assert out.stdout.splitlines()[-1] == f"done: 2 clips in {tmp_path}", out.stdout
+
+
+def test_listen_example_hears_the_six_phrases_of_the_clip() -> None:
+    pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "listen.py")],
+                         capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    heard = [re.sub(r"[^a-z ]", "", x[len("heard: "):].lower()) for x in out.stdout.splitlines() if x.startswith("heard: ")]
+    assert heard == ["ever tried", "ever failed", "no matter", "try again", "fail again", "fail better"], out.stdout
+    assert any(x.startswith("  (hearing: ") for x in out.stdout.splitlines()), out.stdout  # partial transcripts
+    assert out.stdout.splitlines()[-1] == "done: 6 phrases heard", out.stdout
+
+
+def test_pick_place_resumes_its_state_machine_after_a_sigkill_of_the_manager() -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "manager_pick_place.py")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err: list[str] = []
+    killed = threading.Event()
+
+    def read_stderr() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            err.append(line)
+            pid = re.search(r"embagents.manager.pick_place: pid (\d+):", line)
+            if pid:
+                manager = int(pid[1])
+            if not killed.is_set() and "PickPlace: grasp -> carry" in line:
+                # Mid-mission, carrying the first cube (it takes over a second), after the tick that entered
+                # 'carry' has ended and been snapshotted: a kill inside a tick resumes from the tick before.
+                killed.set()
+                threading.Timer(0.3, os.kill, (manager, signal.SIGKILL)).start()
+
+    reader = threading.Thread(target=read_stderr)
+    reader.start()
+    timer = threading.Timer(90, proc.kill)  # a safety net: the mission takes about ten seconds
+    timer.start()
+    try:
+        assert proc.stdout is not None
+        out = proc.stdout.read()  # this thread reads stdout only: the reader above owns stderr
+        proc.wait()
+    finally:
+        timer.cancel()
+        proc.kill()
+        reader.join()
+    log = "".join(err)
+    assert proc.returncode == 0 and killed.is_set(), out + log[-3000:]
+    assert "restarted: resuming at tick" in log and "handler 'PickPlace' in state 'carry'" in log, log[-3000:]
+    assert out.splitlines()[-1] == "done: the table is clear (3 cubes in the bin)", out
+    placed = [x for x in out.splitlines() if x.startswith("placed the")]
+    assert len(placed) == 3, out  # each cube once: the restart neither lost nor repeated a step
+
+
+def test_modes_example_goes_through_its_modes_to_the_goal() -> None:
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "manager_modes.py")],
+                         capture_output=True, text=True, timeout=90)
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    modes = re.findall(r"mode (\w+) -> (\w+)", out.stdout)
+    assert modes == [("None", "cold_start"), ("cold_start", "turn"), ("turn", "navigation"),
+                     ("navigation", "arrived")], out.stdout
+    x, y = (float(v) for v in re.search(r"arrived at \((\S+), (\S+)\)", out.stdout).groups())  # type: ignore[union-attr]
+    assert abs(x - 1.5) < 0.1 and abs(y - 1.0) < 0.1, out.stdout
+def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py"):
+        pytest.importorskip(module, reason="the example needs the sim extra (pip install 'embagents[sim]')")
+    env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
+                         capture_output=True, text=True, timeout=180, env=env)
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    errors = [float(x.split()[2]) for x in lines if x.startswith("joint error:")]
+    assert len(errors) >= 2 and errors[0] > 0.05 and errors[-1] <= 0.01, out.stdout  # it moved, then got there
+    assert errors == sorted(errors, reverse=True), out.stdout  # closer every second
+    assert lines[-1] == "done: reached the target" and any(x.startswith("describe: skipped: ") for x in lines)
+    assert (tmp_path / "out" / "arm.png").stat().st_size > 1000
+    assert "task 'reach the target pose' started" in out.stderr  # the event called manipulate in the VLA's process

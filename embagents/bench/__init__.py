@@ -53,14 +53,17 @@ from typing import Any
 # sockets or threads between cases: every case closes its contexts and joins its threads.
 from embagents.bench import (  # noqa: F401 - importing a case module registers its cases
     cases_actors,
+    cases_arm,
     cases_chaos,
     cases_llm,
+    cases_manager,
     cases_mpqueue,
     cases_pyzmq,
     cases_rclpy,
     cases_remote,
     cases_ros_bridge,
     cases_ros_recovery,
+    cases_speech,
     cases_supervisor,
     cases_vision,
     idle,

@@ -108,10 +108,21 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("llm_stream_overhead", "LLM tokens/s through the runtime / in-process", "ratio", ">=", 0.95, "x", 1.0),
         ("vision_pipeline", "Vision 1080p frame p50 through the runtime / in-process", "ratio", "<=", 1.10, "x", 1.0),
         ("model_actor_batching", "one detector actor: fps of 4 components / 1", "ratio", ">=", 1.5, "x", 1.0),
+        ("stt_overhead", "STT real-time factor through the runtime / in-process", "ratio", "<=", 1.05, "x", 1.0),
         ("ros_bridge_image", "ROS bridge 6.2MB image p50 / plain rclpy", "ratio", "<=", 1.5, "x", 1.0),
         ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
         ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
+        ("manager_loop_jitter", "manager 100 Hz tick jitter p99, 50 ms agent isolated", "p99_jitter_ms", "<=", 2.0,
+         "ms", 1.0),
+        ("manager_loop_jitter", "manager tick jitter p99: isolated / attached agent", "jitter_ratio", "<=", 0.2,
+         "x", 1.0),
+        ("manager_restart_resume", "manager SIGKILLed mid-mission: resumed in its state (max)", "resume_ms", "<=",
+         100.0, "ms", 1.0),
+        ("vla_control_loop", "VLA 50 Hz command period p99 jitter", "p99_jitter_ms", "<=", 2.0, "ms", 1.0),
+        ("vla_control_loop", "VLA p99 jitter minus in-process", "jitter_over_inprocess_ms", "<=", 1.0, "ms", 1.0),
+        ("gil_isolation", "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads", "ratio", "<=",
+         0.2, "x", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))
@@ -238,7 +249,8 @@ def format_report(doc: dict[str, Any]) -> str:
     if doc.get("bars"):
         bar_rows = []
         for b in doc["bars"]:
-            target = f"{b['op']} {_num(float(b['target']), 2 if float(b['target']) < 1 else 1)} {b['unit']}"
+            t = float(b["target"])
+            target = f"{b['op']} {_num(t, 2 if t < 1 or round(t, 1) != t else 1)} {b['unit']}"
             verdict = ("not graded" if doc.get("quick") else "n/a") if b["pass"] is None else ("PASS" if b["pass"] else "FAIL")
             bar_rows.append([b["name"], _num(b["value"], 2), target, verdict])
         out.append(table(["bar", "measured", "target", "result"], bar_rows, "lrrl"))

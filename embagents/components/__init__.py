@@ -16,33 +16,46 @@ from embagents.components.component import (
     HealthStatus,
     lenient_construction,
 )
+from embagents.components.joint_limits import Clipper, JointLimit, limits_from_urdf
 from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
+from embagents.components.sim import Sim, SimConfig
+from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
+from embagents.components.vla import VLA, VLAConfig
 from embagents.components.vlm import MLLM, VLM, NoImageYet, VLMConfig
 
 __all__ = [
     "LLM",
     "MLLM",
+    "VLA",
     "UNSET",
     "VLM",
     "Camera",
     "CameraConfig",
     "ChatClient",
+    "Clipper",
     "Component",
     "ComponentError",
     "Health",
     "HealthStatus",
+    "JointLimit",
     "LLMConfig",
     "ModelComponent",
     "NoImageYet",
+    "SpeechToText",
+    "SpeechToTextConfig",
+    "Sim",
+    "SimConfig",
     "VideoMakerConfig",
     "VideoMessageMaker",
     "Vision",
     "VisionConfig",
+    "VLAConfig",
     "VLMConfig",
     "client_name",
     "lenient_construction",
+    "limits_from_urdf",
     "tool_schema",
 ]

@@ -2,7 +2,9 @@
 
 For users of the ROS Base style. A :class:`Manager` waits for its handshake
 rules, then runs its handlers at a fixed rate; nodes and pykka agents can
-be attached to share its process, and are released in reverse order.
+be attached to share its process, and are released in reverse order. In a
+System (``System(managers=[...])``) it is a supervised actor: :class:`Node`
+objects reach topics, :class:`Agent` objects run attached or isolated.
 
 Example::
 
@@ -15,6 +17,7 @@ Example::
     (2, 2)
 """
 
+from embagents.manager.agents import Agent, AgentCrashed, AgentError, AgentFuture, AgentNotRunning
 from embagents.manager.attached import AttachedActor, AttachedNode, Resource
 from embagents.manager.handler import (
     FunctionHandler,
@@ -23,10 +26,16 @@ from embagents.manager.handler import (
     StateMachineHandler,
 )
 from embagents.manager.handshake import HandshakeRule, HandshakeTimeout
-from embagents.manager.loop import ErrorPolicy, Manager
+from embagents.manager.loop import ErrorPolicy, Manager, RestartPolicy
+from embagents.manager.nodes import Node, NodeNotBound
 from embagents.manager.state import State
 
 __all__ = [
+    "Agent",
+    "AgentCrashed",
+    "AgentError",
+    "AgentFuture",
+    "AgentNotRunning",
     "AttachedActor",
     "AttachedNode",
     "ErrorPolicy",
@@ -36,7 +45,10 @@ __all__ = [
     "HandshakeTimeout",
     "InvalidTransition",
     "Manager",
+    "Node",
+    "NodeNotBound",
     "Resource",
+    "RestartPolicy",
     "State",
     "StateMachineHandler",
 ]

@@ -62,6 +62,14 @@ class Handler:
     def on_stop(self, state: State) -> None:
         """Called once at shutdown, in reverse registration order (halt motors here)."""
 
+    def snapshot(self) -> Any:
+        """What a restarted manager needs to resume this handler (msgpack-able); None: nothing."""
+        return None
+
+    def restore(self, saved: Any) -> str | None:
+        """Resume from :meth:`snapshot`'s value, before ``on_start``; returns a phrase for the log."""
+        return None
+
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r}>"
 
@@ -158,6 +166,22 @@ class StateMachineHandler(Handler):
 
     def on_start(self, state: State) -> None:
         self._enter_initial(state)
+
+    def snapshot(self) -> Any:
+        return {"current": self.current, "history": list(self._history)[-20:]}
+
+    def restore(self, saved: Any) -> str | None:
+        """Resume in the saved state: ``on_enter_<state>`` does not run again (it ran before the restart)."""
+        current = saved.get("current") if isinstance(saved, dict) else None
+        if current not in self.known_states:
+            logger.warning("%s: saved state %r is not one of %s; starting from %r",
+                           self.name, current, ", ".join(self.known_states), self.current)
+            return None
+        self.current = current
+        self._history.clear()
+        self._history.extend(saved.get("history") or [current])
+        self._entered = True
+        return f"in state {current!r}"
 
     def on_tick(self, state: State, tick: int) -> None:
         self._enter_initial(state)

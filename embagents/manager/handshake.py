@@ -24,12 +24,13 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import attrs
 
 from embagents.manager.state import State
 
-__all__ = ["HandshakeRule", "HandshakeTimeout", "wait_for_handshake"]
+__all__ = ["HandshakeProgress", "HandshakeRule", "HandshakeTimeout", "wait_for_handshake"]
 
 
 @attrs.frozen
@@ -39,6 +40,8 @@ class HandshakeRule:
     name: str
     predicate: Callable[[State], bool]
     description: str = ""
+    #: The topic a :meth:`first_message` rule waits for (a node of the manager must subscribe to it).
+    topic: str | None = None
 
     @classmethod
     def message_received(
@@ -60,6 +63,20 @@ class HandshakeRule:
             name=name or f"{key}_set",
             predicate=lambda state: state.get(key) is not None,
             description=description or f"a value for state[{key!r}]",
+        )
+
+    @classmethod
+    def first_message(
+        cls, topic: Any, *, name: str | None = None, description: str | None = None
+    ) -> HandshakeRule:
+        """Holds once a message arrived on ``topic`` (a Topic or its name) for one of the manager's nodes."""
+        key = getattr(topic, "name", topic)
+        key = key[1:] if isinstance(key, str) and key.startswith("/") else key
+        return cls(
+            name=name or f"first_message_on_{str(key).replace('/', '_')}",
+            predicate=lambda state: bool(state.received.get(key)),
+            description=description or f"a first message on {key}",
+            topic=str(key),
         )
 
     def check(self, state: State) -> bool:
@@ -97,6 +114,44 @@ def _error_text(error: BaseException | None) -> str:
     return f"its check raised {type(error).__name__}: {error}" if error is not None else ""
 
 
+class HandshakeProgress:
+    """The handshake as a state that is checked now and then (no waiting of its own).
+
+    The manager's actor calls :meth:`check` from a timer at the loop rate;
+    :func:`wait_for_handshake` calls it in a blocking loop. Each rule is
+    logged once when met.
+    """
+
+    def __init__(self, rules: Sequence[HandshakeRule], logger: logging.Logger) -> None:
+        self.rules = tuple(rules)
+        self.pending = list(rules)
+        self.errors: dict[str, BaseException | None] = {}
+        self.logger = logger
+        self.start = time.monotonic()
+        if self.pending:
+            logger.info("handshake: waiting for %s", ", ".join(r.explain() for r in self.pending))
+
+    def check(self, state: State) -> bool:
+        """Evaluate the rules still pending; True once every rule has held."""
+        if not self.pending:
+            return True
+        results = [(rule, *rule.evaluate(state)) for rule in self.pending]
+        now = time.monotonic()
+        for rule, ok, _ in results:
+            if ok:
+                self.logger.info("handshake: %s met after %.2f s", rule.name, now - self.start)
+        self.pending = [rule for rule, ok, _ in results if not ok]
+        self.errors = {rule.name: err for rule, ok, err in results if not ok}
+        if not self.pending:
+            self.logger.info("handshake complete after %.2f s", now - self.start)
+            return True
+        return False
+
+    def timeout_error(self, timeout: float) -> HandshakeTimeout:
+        """The error naming every rule still unmet."""
+        return HandshakeTimeout([(r, self.errors.get(r.name)) for r in self.pending], timeout)
+
+
 def wait_for_handshake(
     rules: Sequence[HandshakeRule],
     state: State,
@@ -112,24 +167,13 @@ def wait_for_handshake(
     stop meanwhile. Returns True when all rules hold, False when stopped;
     raises :class:`HandshakeTimeout` after ``timeout`` seconds (None: never).
     """
-    start = time.monotonic()
-    pending = list(rules)
-    if pending:
-        logger.info("handshake: waiting for %s", ", ".join(r.explain() for r in pending))
+    progress = HandshakeProgress(rules, logger)
     while True:
-        results = [(rule, *rule.evaluate(state)) for rule in pending]
-        now = time.monotonic()
-        for rule, ok, _ in results:
-            if ok:
-                logger.info("handshake: %s met after %.2f s", rule.name, now - start)
-        pending = [rule for rule, ok, _ in results if not ok]
-        if not pending:
-            if rules:
-                logger.info("handshake complete after %.2f s", now - start)
+        if progress.check(state):
             return True
-        remaining = None if timeout is None else start + timeout - now
+        remaining = None if timeout is None else progress.start + timeout - time.monotonic()
         if remaining is not None and remaining <= 0:
-            raise HandshakeTimeout([(r, err) for r, ok, err in results if not ok], timeout)
+            raise progress.timeout_error(timeout)  # type: ignore[arg-type]
         # Never sleep past the timeout, so the last check lands right on it.
         if sleep(period if remaining is None else min(period, remaining)):
             return False

@@ -33,15 +33,18 @@ from typing import Any, Literal, TypeVar
 
 import pykka
 
+from embagents.manager.agents import Agent
 from embagents.manager.attached import Attachments, R
 from embagents.manager.handler import Handler, as_handler
 from embagents.manager.handshake import HandshakeRule, wait_for_handshake
+from embagents.manager.nodes import Node
 from embagents.manager.state import State
 from embagents.rate import next_deadline
 
-__all__ = ["ErrorPolicy", "Manager"]
+__all__ = ["ErrorPolicy", "Manager", "RestartPolicy"]
 
-ErrorPolicy = Literal["log", "raise", "stop"]
+ErrorPolicy = Literal["log", "raise", "crash", "stop"]
+RestartPolicy = Literal["resume", "initial"]
 H = TypeVar("H", bound="Handler | Callable[[State, int], object]")
 
 #: Seconds between log lines for a handler that keeps failing (after its first traceback).
@@ -57,7 +60,17 @@ class Manager:
     ``log_rate_every`` set, the achieved rate and overruns are logged that
     often to ``embagents.manager.<name>``. ``on_handler_error`` says what a
     handler exception does: ``"log"`` it and go on, ``"raise"`` it out of
-    :meth:`run` (after shutdown), or log it and ``"stop"`` the loop.
+    :meth:`run` (after shutdown; under a supervisor ``"crash"``, its alias,
+    crashes the manager's actor so that the supervisor restarts it), or log it
+    and ``"stop"`` the loop.
+
+    In a System (``System(managers=[manager])``, run by ``embagents
+    supervise``) the manager is a supervised actor: ``nodes`` reach the
+    system's topics, ``agents`` run attached or isolated, ``hang_timeout``
+    is its heartbeat deadline (a tick longer than that is a hang, killed and
+    restarted), and ``on_restart`` says whether a restarted manager
+    ``"resume"``s its state machines, shared state and tick counter from its
+    snapshot or starts from the ``"initial"`` state.
     """
 
     def __init__(
@@ -69,6 +82,11 @@ class Manager:
         log_rate_every: float | None = None,
         on_handler_error: ErrorPolicy = "log",
         name: str = "manager",
+        handlers: Sequence[Handler | Callable[[State, int], object]] = (),
+        nodes: Sequence[Node] = (),
+        agents: Sequence[Agent] = (),
+        on_restart: RestartPolicy = "resume",
+        hang_timeout: float = 5.0,
     ) -> None:
         try:
             rate = float(rate_hz)
@@ -82,10 +100,14 @@ class Manager:
         ]:
             if value is not None and not value > 0:
                 raise ValueError(f"{label} must be positive seconds or None, got {value!r}")
-        if on_handler_error not in ("log", "raise", "stop"):
+        if on_handler_error not in ("log", "raise", "crash", "stop"):
             raise ValueError(
-                f"on_handler_error must be 'log', 'raise' or 'stop', got {on_handler_error!r}"
+                f"on_handler_error must be 'log', 'raise' (alias 'crash') or 'stop', got {on_handler_error!r}"
             )
+        if on_restart not in ("resume", "initial"):
+            raise ValueError(f"on_restart must be 'resume' or 'initial', got {on_restart!r}")
+        if not (isinstance(hang_timeout, (int, float)) and hang_timeout > 0):
+            raise ValueError(f"hang_timeout must be positive seconds, got {hang_timeout!r}")
         for rule in handshake:
             if not isinstance(rule, HandshakeRule):
                 raise TypeError(f"handshake rules must be HandshakeRule instances, got {rule!r}")
@@ -118,6 +140,17 @@ class Manager:
         self._finished = threading.Event()
         self._thread: threading.Thread | None = None
         self._thread_error: BaseException | None = None
+        self.on_restart: RestartPolicy = on_restart
+        self.hang_timeout = float(hang_timeout)
+        self._nodes: dict[str, Node] = {}
+        self._agents: dict[str, Agent] = {}
+        self._agents_started: list[Agent] = []
+        for h in handlers:
+            self.add_handler(h)
+        for node in nodes:
+            self.add_node(node)
+        for agent in agents:
+            self.add_agent(agent)
 
     # Building ------------------------------------------------------------
 
@@ -132,6 +165,41 @@ class Manager:
                 raise RuntimeError(f"manager {self.name!r}: add handlers before run()")
             self._handlers.append(as_handler(handler))
         return handler
+
+    def add_node(self, node: Node) -> Node:
+        """Add a :class:`~embagents.manager.nodes.Node` (bound to topics when run in a System)."""
+        if not isinstance(node, Node):
+            raise TypeError(f"manager {self.name!r}: expected a Node, got {node!r}")
+        if node.name in self._nodes:
+            raise ValueError(f"manager {self.name!r} already has a node named {node.name!r}")
+        self._nodes[node.name] = node
+        return node
+
+    def add_agent(self, agent: Agent) -> Agent:
+        """Add an :class:`~embagents.manager.agents.Agent`; it starts with the loop."""
+        if not isinstance(agent, Agent):
+            raise TypeError(f"manager {self.name!r}: expected an Agent, got {agent!r}")
+        if agent.name in self._agents:
+            raise ValueError(f"manager {self.name!r} already has an agent named {agent.name!r}")
+        agent.actor_name = f"{self.name}.{agent.name}"
+        self._agents[agent.name] = agent
+        return agent
+
+    @property
+    def nodes(self) -> tuple[Node, ...]:
+        return tuple(self._nodes.values())
+
+    @property
+    def agents(self) -> tuple[Agent, ...]:
+        return tuple(self._agents.values())
+
+    def agent(self, name: str) -> Agent:
+        """The agent called ``name``."""
+        try:
+            return self._agents[name]
+        except KeyError:
+            raise KeyError(f"manager {self.name!r} has no agent {name!r}; agents: "
+                           f"{', '.join(self._agents) or 'none'}") from None
 
     @property
     def handlers(self) -> tuple[Handler, ...]:
@@ -211,11 +279,16 @@ class Manager:
     def _run(self, max_ticks: int | None) -> int:
         self._loop_ident = threading.get_ident()
         try:
+            isolated = [a.name for a in self._agents.values() if a.isolated]
+            if isolated:
+                raise RuntimeError(
+                    f"manager {self.name!r}: isolated agents ({', '.join(isolated)}) are actor processes; run the "
+                    "manager in a System (System(managers=[...]), `embagents supervise system.py`) or attach them"
+                )
+            self.start_agents()
             if not self._wait_for_handshake():
                 return 0
-            for handler in self._handlers:
-                handler.on_start(self.state)
-                self._started.append(handler)
+            self.start_handlers()
             return self._spin(max_ticks)
         finally:
             try:
@@ -278,6 +351,12 @@ class Manager:
             except Exception:
                 self.logger.exception("handler %r failed in on_stop", handler.name)
         self._started.clear()
+        for agent in reversed(self._agents_started):
+            try:
+                agent.stop()
+            except Exception:
+                self.logger.exception("agent %r failed to stop", agent.name)
+        self._agents_started.clear()
         self._attachments.close()
 
     def __enter__(self) -> Manager:
@@ -329,12 +408,11 @@ class Manager:
                 begun = time.monotonic()
                 if begun - window_start >= self.log_rate_every:
                     window = begun - window_start
-                    self._log_rate(window_ticks / window, window_overruns, window)
+                    self.log_rate(window_ticks / window, window_overruns, window)
                     window_start, window_ticks, window_overruns = begun, 0, 0
                 window_ticks += 1
             ticks += 1
-            self.tick += 1
-            if not self._run_handlers(handlers):
+            if not self.tick_once(handlers):
                 break
             now = time.monotonic()
             deadline, overran = next_deadline(deadline, self.period, now)  # the rate rule: embagents.rate
@@ -348,13 +426,60 @@ class Manager:
             self.logger.info("stopped after tick %d", self.tick)
         return ticks
 
+    # Stepping (used by run() and by the manager's actor) -------------------
+
+    def start_agents(self) -> None:
+        """Start every agent (attached ones build their object here, in this process)."""
+        for agent in self._agents.values():
+            agent.start()
+            self._agents_started.append(agent)
+
+    def start_handlers(self) -> None:
+        """Handlers' ``on_start``, once, after the handshake."""
+        for handler in self._handlers:
+            if handler not in self._started:
+                handler.on_start(self.state)
+                self._started.append(handler)
+
+    def tick_once(self, handlers: tuple[Handler, ...] | None = None) -> bool:
+        """Count a tick and run every handler once; False if the loop must end now."""
+        self.tick += 1
+        return self._run_handlers(self.handlers if handlers is None else handlers)
+
+    def snapshot(self) -> dict[str, Any]:
+        """What a restarted manager resumes from: the tick, the state's kept values, each handler's state."""
+        return {
+            "tick": self.tick,
+            "state": self.state.kept(),
+            "handlers": [[h.name, h.snapshot()] for h in self._handlers],
+        }
+
+    def restore(self, saved: dict[str, Any]) -> None:
+        """Resume from :meth:`snapshot` (``on_restart="resume"``) and say so in the log."""
+        if self.on_restart == "initial":
+            self.logger.info("restarted: starting from the initial state (on_restart='initial'; the snapshot at "
+                             "tick %s is ignored)", saved.get("tick"))
+            return
+        self.tick = int(saved.get("tick") or 0)
+        self.state.update(saved.get("state") or {})
+        by_name = {h.name: h for h in self._handlers}
+        resumed = []
+        for name, snap in saved.get("handlers") or []:
+            handler = by_name.get(name)
+            if handler is not None and snap is not None:
+                phrase = handler.restore(snap)
+                if phrase:
+                    resumed.append(f"handler {name!r} {phrase}")
+        self.logger.warning("restarted: resuming at tick %d%s", self.tick,
+                            (": " + ", ".join(resumed)) if resumed else "")
+
     def _run_handlers(self, handlers: tuple[Handler, ...]) -> bool:
         """One tick over all handlers; False if the loop must end now."""
         for index, handler in enumerate(handlers):
             try:
                 handler.on_tick(self.state, self.tick)
             except Exception as exc:
-                if self.on_handler_error == "raise":
+                if self.on_handler_error in ("raise", "crash"):
                     if hasattr(exc, "add_note"):  # Python 3.11+
                         exc.add_note(f"in handler {handler.name!r} on tick {self.tick}")
                     raise
@@ -391,7 +516,8 @@ class Manager:
             logged = now
         self._failures[index] = (kind, count + 1, logged)
 
-    def _log_rate(self, rate: float, overruns: int, window: float) -> None:
+    def log_rate(self, rate: float, overruns: int, window: float) -> None:
+        """Log the rate achieved over the last ``window`` s (a warning if ticks overran)."""
         self.achieved_rate = rate
         level = logging.WARNING if overruns else logging.INFO
         self.logger.log(

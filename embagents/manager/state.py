@@ -39,6 +39,7 @@ class State(MutableMapping[str, Any]):
         object.__setattr__(self, "_lock", threading.RLock())
         object.__setattr__(self, "_data", {})
         object.__setattr__(self, "_received", {})
+        object.__setattr__(self, "_version", 0)
         self.update(values or {}, **kwargs)
 
     @property
@@ -51,6 +52,25 @@ class State(MutableMapping[str, Any]):
         """Read-only view: ``received[key]`` is True once :meth:`receive` stored ``key``."""
         return MappingProxyType(self._received)  # type: ignore[attr-defined]
 
+    @property
+    def revision(self) -> int:
+        """Counts writes of values (not :meth:`receive`), so a snapshot is taken only after a change."""
+        return self._version  # type: ignore[attr-defined,no-any-return]
+
+    def _bump(self) -> None:
+        object.__setattr__(self, "_version", self._version + 1)  # type: ignore[attr-defined]
+
+    def mark_received(self, key: str) -> None:
+        """Mark ``key`` received without storing anything (a topic's first message, say)."""
+        with self.lock:
+            self._received[key] = True  # type: ignore[attr-defined]
+
+    def kept(self) -> dict[str, Any]:
+        """The values handlers wrote, without received messages (they are stale after a restart)."""
+        with self.lock:
+            received = self._received  # type: ignore[attr-defined]
+            return {k: v for k, v in self._data.items() if k not in received}  # type: ignore[attr-defined]
+
     def receive(self, key: str, message: Any) -> None:
         """Store an incoming ``message`` under ``key`` and mark it received."""
         with self.lock:
@@ -62,6 +82,7 @@ class State(MutableMapping[str, Any]):
         new = dict(values, **kwargs)
         with self.lock:
             self._data.update(new)  # type: ignore[attr-defined]
+            self._bump()
 
     def snapshot(self) -> dict[str, Any]:
         """A plain-dict copy of the values (shallow), consistent at one instant."""
@@ -74,6 +95,8 @@ class State(MutableMapping[str, Any]):
 
     def setdefault(self, key: str, default: Any = None) -> Any:
         with self.lock:
+            if key not in self._data:  # type: ignore[attr-defined]
+                self._bump()
             return self._data.setdefault(key, default)  # type: ignore[attr-defined]
 
     # Mapping protocol ----------------------------------------------------
@@ -85,11 +108,13 @@ class State(MutableMapping[str, Any]):
     def __setitem__(self, key: str, value: Any) -> None:
         with self.lock:
             self._data[key] = value  # type: ignore[attr-defined]
+            self._bump()
 
     def __delitem__(self, key: str) -> None:
         with self.lock:
             del self._data[key]  # type: ignore[attr-defined]
             self._received.pop(key, None)  # type: ignore[attr-defined]
+            self._bump()
 
     def __iter__(self) -> Iterator[str]:
         # Iterate a copy: another thread may add keys meanwhile.

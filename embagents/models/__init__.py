@@ -1,6 +1,6 @@
 """The model layer: declarations, the inference protocol, clients, model actors, serving.
 
-A model is data (:class:`LlamaModel`, :class:`DetectorModel`). ``embagents
+A model is data (:class:`LlamaModel`, :class:`DetectorModel`, :class:`SpeechToTextModel`). ``embagents
 supervise`` starts one model actor per model (:mod:`embagents.models.actor`):
 a process that loads it once and serves inference requests from any number
 of components (:mod:`embagents.models.protocol`: arrays through shared
@@ -23,10 +23,16 @@ Example::
 
 from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
-from embagents.models.declarations import DetectorModel, LlamaModel, Model, VLMModel
+from embagents.models.declarations import (
+    DetectorModel,
+    LlamaModel,
+    Model,
+    SpeechToTextModel,
+    VLMModel,
+)
 from embagents.models.inventory import models_of
 from embagents.models.lerobot import LeRobotPolicyClient, PolicyError, PolicyUnavailable
-from embagents.models.policy import PolicyClient, PolicyLate
+from embagents.models.policy import LocalPolicyClient, PolicyClient, PolicyLate, PolicyModel
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
 
@@ -37,6 +43,7 @@ __all__ = [
     "LeRobotPolicyClient",
     "LlamaModel",
     "LocalModelClient",
+    "LocalPolicyClient",
     "Model",
     "ModelCrashed",
     "ModelError",
@@ -44,9 +51,11 @@ __all__ = [
     "PolicyClient",
     "PolicyError",
     "PolicyLate",
+    "PolicyModel",
     "PolicyUnavailable",
     "RemoteModelClient",
     "RemoteRefused",
+    "SpeechToTextModel",
     "VLMModel",
     "collect_stream",
     "models_of",

@@ -20,6 +20,7 @@ from __future__ import annotations
 import itertools
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -123,11 +124,13 @@ class LocalModelClient:
         rid = next(_req_ids)
         codec = self._codec(rt)
         data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
+        asked: float | None = time.monotonic()  # the first answer is due within timeout of the ask, not of the end of the send
         self._send(rt, conn, data)
         finished = False
         try:
             while True:
-                answer = self._next(rt, conn, rid)
+                answer = self._next(rt, conn, rid, asked)
+                asked = None  # each later frame: within timeout of the one before
                 if isinstance(answer, InferError):
                     finished = True
                     if answer.kind == "bad_request":
@@ -195,10 +198,12 @@ class LocalModelClient:
         """See a monitor event first (``before``: from before the request); True: it says nothing about it."""
         return False
 
-    def _next(self, rt: Any, conn: _Conn, rid: int) -> Any:
-        waited = 0.0
+    def _next(self, rt: Any, conn: _Conn, rid: int, since: float | None = None) -> Any:
+        deadline = (time.monotonic() if since is None else since) + self.timeout
         while True:
-            ready = dict(conn.poller.poll(1000))
+            # Waits in steps of at most 1 s (beats between them); a sub-second timeout is kept to the ms.
+            left = deadline - time.monotonic()
+            ready = dict(conn.poller.poll(min(1.0, max(0.0, left)) * 1000)) if left > 0 else {}
             if conn.monitor in ready:
                 event = recv_monitor_message(conn.monitor)
                 if self._on_event(conn, event["event"]):
@@ -213,9 +218,8 @@ class LocalModelClient:
                     )
                 continue
             if conn.sock not in ready:
-                waited += 1.0
                 rt.beat()  # waiting on the model is work, not a hang
-                if waited >= self.timeout:  # the caller's finally cancels the request in the actor
+                if time.monotonic() >= deadline:  # the caller's finally cancels the request in the actor
                     raise ModelUnavailable(
                         f"model {self.name!r} sent nothing for {self.timeout} s: is its actor running? "
                         "(see `embagents status`)"
@@ -253,3 +257,6 @@ class LocalModelClient:
         """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``."""
         return self.infer("detect", {"image": image}, **options)
 
+    def transcribe(self, audio: Any, **options: Any) -> dict[str, Any]:
+        """The text said in ``audio`` (1-D 16 kHz float32 or int16 samples): ``{"text", "seconds"}``."""
+        return self.infer("transcribe", {"audio": audio}, **options)

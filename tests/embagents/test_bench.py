@@ -246,3 +246,15 @@ def test_quick_run_measures_the_remote_model_case_both_ways(quick_run: tuple[dic
     assert row["local_tokens_per_s"] > 0 and row["remote_tokens_per_s"] > 0
     names = {b["name"] for b in doc["bars"]}
     assert {"LLM tokens/s via TCP + CURVE / via ipc", "640x480 detection p50 via TCP + CURVE / via ipc"} <= names
+
+
+@pytest.mark.skipif(find_spec("pybullet") is None or find_spec("pykka") is None, reason="the arm cases need the sim extra")
+def test_quick_run_measures_the_arm_control_loop_and_gil_isolation(quick_run: tuple[dict, str, str]) -> None:
+    doc, _, _ = quick_run
+    rows = {r["name"]: r for r in doc["cases"]}
+    vla, gil = rows["vla_control_loop"], rows["gil_isolation"]
+    assert vla["commands"] > 10 and type(vla["p99_jitter_ms"]) is float and type(vla["inprocess_p99_jitter_ms"]) is float
+    assert type(gil["p99_jitter_ms"]) is float and gil["threads_p99_jitter_ms"] > 0 and gil["msgs_per_s"] > 50
+    names = {b["name"] for b in doc["bars"]}
+    assert {"VLA 50 Hz command period p99 jitter", "VLA p99 jitter minus in-process",
+            "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads"} <= names

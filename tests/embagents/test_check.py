@@ -287,3 +287,33 @@ def test_a_system_of_one_component_is_counted_in_the_singular(tmp_path, capsys):
     write(tmp_path, 'camera = Camera(name="camera", outputs=[image], trigger=15.0)\nsystem = System([camera])\n')
     assert main(["check", str(tmp_path / "system.py")]) == 0
     assert capsys.readouterr().out.strip() == "OK: 1 component, 1 topic"
+
+
+def test_a_managers_node_topics_count_in_the_check() -> None:
+    from embagents.manager import Manager, Node
+    from embagents.msgs import Image, String
+    from embagents.system import System
+    from embagents.topic import Topic
+
+    heard, said = Topic("heard", String), Topic("said", String)
+    node = Node("io", subscribe=[heard, Topic("said", Image)], publish=[said])
+    problems = check_system(System([], managers=[Manager(10, name="boss", nodes=[node])]))
+    by_code = {p.code: p for p in problems}
+    assert by_code["unknown-topic"].message.startswith("manager 'boss': node 'io' subscribes to 'heard' (String), "
+                                                       "which nothing in this system publishes")
+    assert "topic 'said' is used with 2 message types" in by_code["topic-type-conflict"].message
+
+
+def test_a_handshake_on_a_topic_no_node_subscribes_to_is_an_error() -> None:
+    from embagents.manager import HandshakeRule, Manager
+    from embagents.msgs import Image
+    from embagents.system import System
+    from embagents.topic import Topic
+
+    image = Topic("camera/image_raw", Image)
+    boss = Manager(10, name="boss", handshake=[HandshakeRule.first_message(image)])
+    [problem] = check_system(System([], managers=[boss], external=[image]))
+    assert problem.level == "error" and problem.message == (
+        "manager 'boss': handshake rule 'first_message_on_camera_image_raw' waits for a message on 'camera/image_raw', "
+        "which none of its nodes subscribes to (it would never hold); add the topic to a Node(subscribe=[...]) of "
+        "the manager")

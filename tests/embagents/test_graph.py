@@ -82,3 +82,18 @@ def test_cli_graph(tmp_path, capsys):
     assert f"wrote {out}" in capsys.readouterr().out and out.stat().st_size > 500
     assert main(["graph", str(sys_py), "-o", str(tmp_path / "g.gif")]) == 1
     assert "use one of" in capsys.readouterr().err
+
+
+def test_a_manager_is_drawn_with_its_rate_agents_and_node_topics() -> None:
+    from embagents.graph import layout_system
+    from embagents.manager import Agent, Manager, Node
+    from embagents.msgs import String
+    from embagents.system import System
+    from embagents.topic import Topic
+
+    heard, said = Topic("heard", String), Topic("said", String)
+    boss = Manager(20, name="boss", nodes=[Node("io", subscribe=[heard], publish=[said])],
+                   agents=[Agent("planner", dict, isolated=True)])
+    layout = layout_system(System([], managers=[boss], external=[heard]))
+    assert layout.nodes["c:boss"].lines == ["boss", "Manager, 20 Hz", "agents: planner (isolated)"]
+    assert {(e.src, e.dst) for e in layout.edges} == {("t:heard", "c:boss"), ("c:boss", "t:said")}

@@ -179,3 +179,15 @@ def test_a_misspelt_name_keeps_pythons_did_you_mean_and_shows_the_line_as_source
     first, source = str(err.value).split("\n")
     assert first == f"{path}:9: NameError: name 'LMM' is not defined. Did you mean: 'LLM'?"
     assert source == '    llm = LMM(name="talker",'
+
+
+def test_managers_are_checked_and_found_by_name() -> None:
+    from embagents.manager import Manager
+
+    boss = Manager(10, name="boss")
+    system = System([], managers=[boss])
+    assert system.manager("boss") is boss
+    with pytest.raises(KeyError, match="no manager named 'x' in system 'system'; managers: boss"):
+        system.manager("x")
+    with pytest.raises(TypeError, match="System managers must be Manager objects, got 'boss'"):
+        System([], managers=["boss"])

@@ -2,7 +2,7 @@
 
 A VLM is two GGUF files: the language model and its vision projector
 (``mmproj``), joined by one of llama-cpp-python's chat handlers (LLaVA-1.5,
-Moondream, Qwen2.5-VL...: :data:`~embagents.models.declarations.VLM_HANDLERS`,
+Moondream, Qwen2.5-VL...: :data:`~embagents.models.vlm_handlers.VLM_HANDLERS`,
 whichever the installed version offers). Images arrive as (H, W, 3) uint8
 arrays (in a model actor: views of the client's shared memory); each is copied
 once into a binary PPM that llama.cpp decodes itself, so no image is encoded
@@ -29,7 +29,7 @@ import numpy as np
 
 from embagents.models.backends.llama import LlamaBackend
 from embagents.models.chat import collect_stream, with_images
-from embagents.models.declarations import VLM_HANDLERS
+from embagents.models.vlm_handlers import VLM_HANDLERS
 
 __all__ = ["VLMBackend", "handler_class", "ppm_bytes"]
 

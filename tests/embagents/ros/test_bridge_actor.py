@@ -242,3 +242,29 @@ def test_a_restarted_bridge_looks_again_for_the_peers_it_had(tmp_path: Path, ros
         assert f"new DDS participant ({attempt} of {REDISCOVER_TRIES})" in log, log
     assert "no ROS peer seen again on /ping, /pong" in log, log
     assert sup.returncode == 0
+
+
+MANAGER_SYSTEM = '''
+import sys
+from embagents import Manager, Node, String, System, Topic
+from embagents.ros import RosInput, RosOutput
+
+text_in, text_out = Topic("text_in", String), Topic("text_out", String)
+io = Node("io", subscribe=[text_in], publish=[text_out])
+
+def echo(state, tick):
+    msg = io.latest(text_in)
+    if msg is not None and msg.data != state.get("last"):
+        state["last"] = msg.data
+        io.publish(text_out, String(data=f"{msg.data.upper()} rclpy_here={'rclpy' in sys.modules}"))
+
+system = System(
+    [], managers=[Manager(50, name="echo", nodes=[io], handlers=[echo])],
+    ros=[RosInput("/text_in", "std_msgs/String"), RosOutput("text_out", ros_type="std_msgs/String")],
+)
+'''
+
+
+def test_a_managers_node_talks_to_ros_through_the_bridge_without_rclpy(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    out = _run(MANAGER_SYSTEM, tmp_path, ros_env, "text")
+    assert re.search(r"GOT 'HELLO \d+ rclpy_here=False'", out), out

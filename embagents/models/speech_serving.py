@@ -1,0 +1,73 @@
+"""Speech-to-text behind the inference protocol's ``transcribe`` task (a model actor serves it).
+
+A request carries ``{"audio": 1-D 16 kHz samples}`` (float32 in [-1, 1] or
+int16; arrays of 64 KB and more cross through shared memory); the answer is
+``{"text": str, "seconds": float}`` (the audio's length). Audio of another
+shape, dtype or rate is refused at once with what to do about it; empty
+audio is answered with ``""``.
+
+Example::
+
+    >>> serving = SpeechToTextServing(whisper_tiny_en_dir(), {})            # doctest: +SKIP
+    >>> next(serving.run("transcribe", {"audio": samples}, {}))["text"]      # doctest: +SKIP
+    'Ever tried, ever failed.'
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from embagents.models.protocol import BadRequest
+
+__all__ = ["TRANSCRIBE_OPTIONS", "SpeechToTextServing"]
+
+#: Options a ``transcribe`` request may carry.
+TRANSCRIBE_OPTIONS = ("sample_rate",)
+
+
+class SpeechToTextServing:
+    """A :class:`~embagents.models.backends.sherpa_stt.SherpaRecognizer` behind the ``transcribe`` task."""
+
+    batchable = False
+
+    def __init__(self, path: str, options: dict[str, Any]) -> None:
+        self.path, self.options = path, {k: v for k, v in options.items() if v is not None}
+        self.recognizer: Any = None
+
+    def load(self) -> None:
+        from embagents.models.backends.sherpa_stt import SherpaRecognizer
+
+        self.recognizer = SherpaRecognizer(self.path, **self.options)
+
+    def warmup(self) -> None:
+        self.recognizer.transcribe(np.zeros(8000, np.float32))
+
+    def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
+        from embagents.models.backends.sherpa_stt import check_samples
+
+        if task != "transcribe":
+            raise BadRequest(f"a speech-to-text model serves task 'transcribe', not {task!r}")
+        unknown = sorted(set(options) - set(TRANSCRIBE_OPTIONS))
+        if unknown:
+            raise BadRequest(f"unknown option(s) {', '.join(unknown)}; this model takes {', '.join(TRANSCRIBE_OPTIONS)}")
+        rate = options.get("sample_rate", 16000)
+        if rate != 16000:
+            raise BadRequest(f"audio must be 16000 Hz, got sample_rate={rate!r}; resample it first "
+                             "(the SpeechToText component does)")
+        try:
+            check_samples(inputs.get("audio"))
+        except ValueError as exc:
+            raise BadRequest(str(exc)) from None
+
+    def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
+        audio = inputs["audio"]
+        yield {"text": self.recognizer.transcribe(audio), "seconds": len(audio) / 16000.0, "done": True}
+
+    def run_batch(self, task: str, batch: list[dict[str, Any]], options: dict[str, Any]) -> list[dict[str, Any]]:
+        raise NotImplementedError("the recognizer serves one utterance at a time")
+
+    def close(self) -> None:
+        self.recognizer = None

@@ -1,0 +1,52 @@
+"""A control loop's scheduling priority: real-time where the machine allows it.
+
+A robot's control loop (the arm's driver, a VLA's action loop) should be
+served first when it wakes. :func:`raise_priority` gives the calling thread
+real-time FIFO scheduling, else nice -10, else leaves it as it is, and says
+which it got. On Linux both act on the calling thread only: a neighbour in the
+same process keeps its normal priority (though not, in Python, its own GIL).
+Components offer it as ``realtime=True`` in their config (:class:`~embagents.components.Sim`,
+:class:`~embagents.components.VLA`).
+
+Example::
+
+    >>> raise_priority() in ("SCHED_FIFO 10", "nice -10", "normal")   # doctest: +SKIP
+    True
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+__all__ = ["raise_priority"]
+
+
+def _threads(whole_process: bool) -> list[int]:
+    if not whole_process:
+        return [threading.get_native_id()]
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [threading.get_native_id()]
+
+
+def raise_priority(fifo: int = 10, nice: int = -10, whole_process: bool = False) -> str:
+    """Real-time FIFO at ``fifo`` for the calling thread, else ``nice``, else nothing; returns what it got.
+
+    ``whole_process``: every thread of this process as it is now (a component's process: its loop
+    and the messaging library's I/O threads, which carry its commands).
+    """
+    tids = _threads(whole_process)
+    try:
+        for tid in tids:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(fifo))
+        return f"SCHED_FIFO {fifo}"
+    except (OSError, AttributeError):  # no CAP_SYS_NICE (or RLIMIT_RTPRIO), or not Linux
+        pass
+    try:
+        for tid in tids:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+        return f"nice {nice}"
+    except OSError:
+        return "normal"
