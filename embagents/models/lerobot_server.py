@@ -46,27 +46,15 @@ Policy = Callable[[Mapping[str, np.ndarray], str], np.ndarray]
 
 
 def onnx_policy(path: str, threads: int | None = 1) -> Policy:
-    """An ONNX file as a policy function (see the module docstring for the input and output layout)."""
-    from embagents.models.backends.onnx import OnnxSession
+    """An ONNX file as a policy function: the model layer's ONNX policy serving (its checks name bad keys and shapes)."""
+    from embagents.models.policy import PolicyServing
 
-    session = OnnxSession(path, threads=threads)
-    inputs = [(i.name, list(i.shape)) for i in session.inputs]
+    serving = PolicyServing(path, {"threads": threads})
 
     def policy(observation: Mapping[str, np.ndarray], task: str) -> np.ndarray:
-        missing = [name for name, _ in inputs if name not in observation]
-        if missing:
-            raise KeyError(f"observation lacks {', '.join(missing)} (the policy's inputs: "
-                           f"{', '.join(n for n, _ in inputs)}); keys sent: {', '.join(observation) or 'none'}")
-        feeds = []
-        for name, shape in inputs:
-            a = np.asarray(observation[name], np.float32)
-            a = a[None] if a.ndim == len(shape) - 1 else a
-            if a.ndim != len(shape) or any(isinstance(w, int) and w != g for w, g in zip(shape, a.shape, strict=True)):
-                raise ValueError(f"{name} has shape {tuple(a.shape)}; the policy expects "
-                                 f"{tuple(shape)} (dims that are names are free)")
-            feeds.append(a)
-        out = session.run(*feeds)[0]
-        return np.asarray(out[0] if out.ndim == 3 and out.shape[0] == 1 else out, np.float32)
+        inputs = {"observation": dict(observation)}
+        serving.check("act", inputs, {})  # BadRequest (a ValueError) names the missing key or the wrong shape
+        return np.asarray(next(iter(serving.run("act", inputs, {})))["actions"], np.float32)
 
     return policy
 

@@ -26,7 +26,6 @@ from embagents.models.lerobot import (  # noqa: E402
     encode_payload,
 )
 from embagents.models.policy import PolicyClient, PolicyLate  # noqa: E402
-from tests.embagents.tiny_lerobot_policy import expected_chunk, make_tiny_policy  # noqa: E402
 from tests.helpers import wait_until  # noqa: E402
 
 TARGET = np.array([0.5, -0.3, 0.2, -1.5, 0.1, 1.2, 0.7], np.float32)
@@ -34,9 +33,28 @@ CHUNK = 8
 STATE = np.zeros(7, np.float32)
 
 
+GAIN = 0.2
+
+
 @pytest.fixture(scope="module")
 def policy(tmp_path_factory: pytest.TempPathFactory) -> str:
-    return make_tiny_policy(str(tmp_path_factory.mktemp("policy") / "reach.onnx"), TARGET, CHUNK)
+    """The model layer's reach policy (a P controller as an ONNX graph) that also takes a 480x640 camera image."""
+    from embagents.models.backends.reach_policy import write_reach_policy
+
+    return write_reach_policy(str(tmp_path_factory.mktemp("policy") / "reach.onnx"), TARGET, gain=GAIN, chunk=CHUNK,
+                              camera="front", image_size=(480, 640))
+
+
+def expected_chunk(state: np.ndarray) -> np.ndarray:
+    steps = (1.0 - (1.0 - GAIN) ** np.arange(1, CHUNK + 1))[:, None]
+    return (state[None, :] + steps * (TARGET - state)[None, :]).astype(np.float32)
+
+
+CAMERA = np.zeros((480, 640, 3), np.uint8)  # 900 KB: travels to onnxruntime in the policy server
+
+
+def obs(state: np.ndarray = STATE) -> dict[str, np.ndarray]:
+    return {"observation.state": state, "observation.images.front": CAMERA}
 
 
 def _free_port() -> int:
@@ -76,12 +94,11 @@ def test_a_chunk_comes_back_from_the_onnx_policy_behind_the_grpc_protocol(server
     assert isinstance(client, PolicyClient)
     try:
         state = np.linspace(-1, 1, 7).astype(np.float32)
-        camera = np.zeros((480, 640, 3), np.uint8)  # 900 KB: one chunk of the stream
-        chunk = client.infer({"observation.state": state, "observation.images.front": camera}, "reach", 5.0)
+        chunk = client.infer(obs(state), "reach", 5.0)  # the 900 KB frame: one chunk of the stream
         assert chunk.dtype == np.float32 and chunk.shape == (CHUNK, 7)
-        assert np.allclose(chunk, expected_chunk(state, TARGET, CHUNK), atol=1e-6)
-        big = np.zeros((1080, 1920, 3), np.uint8)  # 6 MB: streamed in 2 MB chunks as LeRobot does
-        assert client.infer({"observation.state": state, "observation.images.front": big}, "reach", 5.0).shape == (CHUNK, 7)
+        assert np.allclose(chunk, expected_chunk(state), atol=1e-6)
+        extra = np.zeros((1080, 1920, 3), np.uint8)  # 6 MB more: streamed in 2 MB chunks as LeRobot does
+        assert client.infer({**obs(state), "observation.images.top": extra}, "reach", 5.0).shape == (CHUNK, 7)
     finally:
         client.close()
 
@@ -89,9 +106,9 @@ def test_a_chunk_comes_back_from_the_onnx_policy_behind_the_grpc_protocol(server
 def test_an_observation_the_policy_cannot_take_is_refused_naming_the_keys(server: str) -> None:
     client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
     try:
-        with pytest.raises(BadRequest, match=r"observation lacks observation.state .* keys sent: joints"):
-            client.infer({"joints": STATE}, "reach", 5.0)
-        assert client.infer({"observation.state": STATE}, "reach", 5.0).shape == (CHUNK, 7)  # still serving
+        with pytest.raises(BadRequest, match=r"observation lacks 'observation.state' .* keys sent: joints"):
+            client.infer({"joints": STATE, "observation.images.front": CAMERA}, "reach", 5.0)
+        assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)  # still serving
     finally:
         client.close()
 
@@ -100,7 +117,7 @@ def test_a_chunk_of_the_wrong_shape_names_expected_and_actual(server: str) -> No
     client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK + 2)  # the policy makes chunks of 8
     try:
         with pytest.raises(PolicyError, match=r"chunk of shape \(8, 7\); expected \(10, 7\) \(actions_per_chunk, n_joints\)"):
-            client.infer({"observation.state": STATE}, "reach", 5.0)
+            client.infer(obs(), "reach", 5.0)
     finally:
         client.close()
 
@@ -108,8 +125,8 @@ def test_a_chunk_of_the_wrong_shape_names_expected_and_actual(server: str) -> No
 def test_a_state_of_the_wrong_size_is_refused_naming_expected_and_actual(server: str) -> None:
     client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
     try:
-        with pytest.raises(BadRequest, match=r"observation.state has shape \(1, 6\); the policy expects \(1, 7\)"):
-            client.infer({"observation.state": np.zeros(6, np.float32)}, "reach", 5.0)
+        with pytest.raises(BadRequest, match=r"observation 'observation.state' has shape \(6,\); the policy expects \(7,\)"):
+            client.infer(obs(np.zeros(6, np.float32)), "reach", 5.0)
     finally:
         client.close()
 
@@ -119,14 +136,14 @@ def test_a_server_that_is_down_is_a_clear_error_and_the_client_reconnects_when_i
     client = LeRobotPolicyClient(f"127.0.0.1:{port}", actions_per_chunk=CHUNK)
     try:
         with pytest.raises(PolicyUnavailable, match=rf"policy server 127.0.0.1:{port} is not reachable .*is it running"):
-            client.infer({"observation.state": STATE}, "reach", 2.0)
+            client.infer(obs(), "reach", 2.0)
         with serving(policy, port):
-            assert client.infer({"observation.state": STATE}, "reach", 5.0).shape == (CHUNK, 7)
+            assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)
         with pytest.raises(PolicyUnavailable):  # gone again
-            client.infer({"observation.state": STATE}, "reach", 2.0)
+            client.infer(obs(), "reach", 2.0)
         with serving(policy, port):  # a new server: a new hello and setup, then chunks again
-            assert np.allclose(client.infer({"observation.state": STATE}, "reach", 5.0),
-                               expected_chunk(STATE, TARGET, CHUNK))
+            assert np.allclose(client.infer(obs(), "reach", 5.0),
+                               expected_chunk(STATE))
     finally:
         client.close()
 
@@ -138,12 +155,12 @@ def test_a_server_that_forgot_the_setup_is_told_again_within_the_same_call(serve
 
     client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
     try:
-        assert client.infer({"observation.state": STATE}, "reach", 5.0).shape == (CHUNK, 7)
+        assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)
         m = messages()
         with grpc.insecure_channel(server) as other:  # another client's Ready: the server forgets our setup
             other.unary_unary(method("Ready"), request_serializer=lambda x: x.SerializeToString(),
                               response_deserializer=m["Empty"].FromString)(m["Empty"](), timeout=5)
-        assert np.allclose(client.infer({"observation.state": STATE}, "reach", 5.0), expected_chunk(STATE, TARGET, CHUNK))
+        assert np.allclose(client.infer(obs(), "reach", 5.0), expected_chunk(STATE))
     finally:
         client.close()
 
@@ -154,8 +171,8 @@ def test_a_late_answer_is_a_timeout_error(policy: str) -> None:
         client = LeRobotPolicyClient(f"127.0.0.1:{port}", actions_per_chunk=CHUNK)
         try:
             with pytest.raises(PolicyLate, match=r"gave no actions within 0.300 s; motion should stop"):
-                client.infer({"observation.state": STATE}, "reach", 0.3)
-            assert client.infer({"observation.state": STATE}, "reach", 5.0).shape == (CHUNK, 7)  # patient: served
+                client.infer(obs(), "reach", 0.3)
+            assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)  # patient: served
         finally:
             client.close()
 
