@@ -204,10 +204,40 @@ def _publish(args: argparse.Namespace) -> int:
     return 0
 
 
+def _call_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
+    parser.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the method to return")
+    parser.add_argument("component", help="a component of the running system, e.g. vlm")
+    parser.add_argument("method", help="its action, e.g. describe")
+    parser.add_argument("args", nargs="*", help="arguments: JSON when they parse (3, true, [1, 2]), else strings")
+    parser.add_argument("--kwargs", metavar="JSON", help='keyword arguments as a JSON object, e.g. \'{"query": "hi"}\'')
+
+
+def _call(args: argparse.Namespace) -> int:
+    import json
+
+    from actors import UnsafeFolder
+    from embagents.call import call, parse_args
+    from supervisor.client import ControlError
+
+    try:
+        kwargs = json.loads(args.kwargs) if args.kwargs else {}
+        if not isinstance(kwargs, dict):
+            raise ValueError(f"--kwargs must be a JSON object, got {args.kwargs!r}")
+        reply = call(args.component, args.method, parse_args(args.args), kwargs, run=args.run, timeout=args.timeout)
+    except (ControlError, UnsafeFolder, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"{args.component}.{args.method} -> {reply['result']!r}")
+    return 0
+
+
 def _register_runtime_commands() -> None:
     for cmd in ("status", "restart", "stop"):
         COMMANDS[cmd] = _control(cmd)
     COMMANDS["publish"] = Command(_publish_arguments, _publish, "publish a message on a topic of the running system")
+    COMMANDS["call"] = Command(_call_arguments, _call, "run a component's action in the running system "
+                               "(e.g. embagents call vlm describe camera 'what do you see?')")
     COMMANDS["supervise"] = Command(_supervise_arguments, _lazy("embagents.launch", "run"), "run a system.py under supervision")
     COMMANDS["keys"] = Command(
         _lazy("embagents.keys", "keys_arguments"), _lazy("embagents.keys", "run"),

@@ -22,6 +22,7 @@ from typing import Any
 
 from actors.child import configure_logging
 from actors.topics import Subscription
+from embagents.call import call_command
 from embagents.models import models_of
 from embagents.publish import publish_command
 from embagents.runtime.component_actor import remember_system
@@ -66,6 +67,7 @@ def run_system(path: str) -> int:
             Subscription(asys.rt, asys.loop, SUPERVISOR_REQUESTS, requests.on_request, queue_size=100, keep="all"),
         ))
         control.add_command("publish", publish_command(asys, system))  # `embagents publish TOPIC TEXT`
+        control.add_command("call", call_command(asys, system))  # `embagents call COMPONENT METHOD ARGS`
         managers = f"{counted(len(system.managers), 'manager')}, " if system.managers else ""
         print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
               f"{managers}{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr,

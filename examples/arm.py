@@ -12,24 +12,24 @@ every command clipped to the Panda's limits from its URDF. An event starts
 the task when the first joint state arrives. ``report`` prints the largest
 joint error each second; within ``TOLERANCE`` it saves the camera frame
 (``$EMBAGENTS_ARM_OUT``, default ``./arm_out``) and stops the system (exit 0).
-A ``describe`` of the camera needs a VLM and its model files; without them it
-prints why it is skipped.
+With a VLM (``EMBAGENTS_VLM_MODEL``, ``EMBAGENTS_VLM_PROJECTOR``, ``EMBAGENTS_VLM_HANDLER``
+as in examples/vlm.py) an event calls ``vlm.describe`` on the first camera frame and
+``report`` prints the answer before it stops; without one it prints why it is skipped.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import time
 from typing import Any
 
 import numpy as np
 
-from embagents.components import VLA, Component, Sim, SimConfig, VLAConfig
+from embagents.components import VLA, VLM, Component, Sim, SimConfig, VLAConfig, VLMConfig
 from embagents.components.sim import PANDA_READY
 from embagents.events import Event, call, on
 from embagents.launch import SYSTEM_STOP
-from embagents.models import LocalPolicyClient, PolicyModel
+from embagents.models import LocalModelClient, LocalPolicyClient, PolicyModel, VLMModel
 from embagents.msgs import Image, JointState, String, TaskFeedback
 from embagents.system import System
 from embagents.topic import Topic
@@ -40,6 +40,8 @@ JOINTS = list(PANDA_READY)  # panda_joint1..7
 TARGET = [1.0, 0.4, -0.5, -1.4, 0.5, 2.3, 0.2]  # rad, inside every limit
 TOLERANCE = 0.01  # rad
 GIVE_UP_S = 60.0
+VLM_FILE = os.environ.get("EMBAGENTS_VLM_MODEL")  # a VLM's language model (its projector beside it, or named)
+DESCRIBE_WAIT_S = 120.0  # after the reach, wait at most this long for the VLM's answer
 
 
 def reach_policy() -> str:
@@ -56,26 +58,45 @@ def reach_policy() -> str:
 class Report(Component):
     """Prints the joint error each second; saves the frame and stops the system within tolerance."""
 
-    allowed_inputs = {"Required": [JointState], "Optional": [Image, TaskFeedback]}
+    allowed_inputs = {"Required": [JointState], "Optional": [Image, TaskFeedback, String]}
     allowed_outputs = {"Required": [String]}
 
     def __init__(self, **kw: Any) -> None:
         self.started = time.monotonic()
         self.done = False
+        self.verdict: str | None = None
+        self.finished_at = 0.0
+        self.described = False
         super().__init__(**kw)
 
     def on_activate(self) -> None:
         self.started = time.monotonic()
         print(f"arm example: reaching {TARGET} (tolerance {TOLERANCE} rad); writing to {OUT}", flush=True)
-        if importlib.util.find_spec("embagents.components.vlm") is None:
-            print("describe: skipped: this embagents has no VLM component yet (issue 15, VLM part)", flush=True)
-        elif not os.environ.get("EMBAGENTS_VLM_MODEL"):
+        if VLM_FILE:
+            print("describe: asking the VLM about the first camera frame", flush=True)
+        else:
             print("describe: skipped: no VLM model present; set EMBAGENTS_VLM_MODEL (a GGUF) and "
-                  "EMBAGENTS_VLM_PROJECTOR (its mmproj GGUF), or run `embagents check` on a VLM system", flush=True)
+                  "EMBAGENTS_VLM_PROJECTOR (its mmproj GGUF), or run `embagents check examples/vlm.py` to see "
+                  "which files to get", flush=True)
 
     def _execution_step(self, **inputs: Any) -> None:
+        said = inputs.get("vlm/answer")
+        if said is not None and "vlm/answer" in self.fresh_inputs and not self.described:
+            self.described = True
+            print(f"describe: {said.data.strip()}", flush=True)
         if self.done:
             return
+        if self.verdict is None:
+            self._measure(inputs)
+        waited = time.monotonic() - self.finished_at
+        if self.verdict is not None and (self.described or not VLM_FILE or waited > DESCRIBE_WAIT_S):
+            if VLM_FILE and not self.described:
+                print(f"describe: no answer from the VLM within {DESCRIBE_WAIT_S:.0f} s", flush=True)
+            self.done = True
+            print(f"done: {self.verdict}", flush=True)
+            self.publish(stop, String(data=self.verdict))
+
+    def _measure(self, inputs: dict[str, Any]) -> None:
         js: JointState = inputs["arm/joint_states"]
         q = np.array([js.position[js.name.index(j)] for j in JOINTS])
         error = float(np.abs(q - TARGET).max())
@@ -84,7 +105,6 @@ class Report(Component):
         print(f"joint error: {error:.4f} rad (max over 7 joints){step}", flush=True)
         waited = time.monotonic() - self.started
         if error <= TOLERANCE or waited > GIVE_UP_S:
-            self.done = True
             frame = inputs.get("camera/image")
             if frame is not None:
                 import cv2
@@ -93,9 +113,8 @@ class Report(Component):
                 path = os.path.join(OUT, "arm.png")
                 cv2.imwrite(path, cv2.cvtColor(frame.data, cv2.COLOR_RGB2BGR))
                 print(f"camera frame: {path}", flush=True)
-            verdict = "reached the target" if error <= TOLERANCE else f"FAILED: error {error:.4f} rad after {waited:.0f} s"
-            print(f"done: {verdict}", flush=True)
-            self.publish(stop, String(data=verdict))
+            self.verdict = "reached the target" if error <= TOLERANCE else f"FAILED: error {error:.4f} rad after {waited:.0f} s"
+            self.finished_at = time.monotonic()
 
 
 joint_states = Topic("arm/joint_states", JointState)
@@ -114,15 +133,30 @@ vla = VLA(
     trigger=50.0,
 )
 first_state = Event("arm_ready", on(joint_states).field("stamp") > 0, once=True)
+events: dict[Event, Any] = {first_state: call(vla, "manipulate", "reach the target pose", 3000)}
+models: list[Any] = [reach]
+said = Topic("vlm/answer", String)
+question = Topic("vlm/question", String)  # `embagents publish vlm/question "..."` asks the VLM too
+seeing: list[Component] = []
+if VLM_FILE:  # a describe of the camera by a vision-language model (examples/vlm.py has the details)
+    eyes = VLMModel(name="eyes", local_model_path=VLM_FILE,
+                    projector_path=os.environ.get("EMBAGENTS_VLM_PROJECTOR") or None,
+                    chat_handler=os.environ.get("EMBAGENTS_VLM_HANDLER", "moondream"))
+    vlm = VLM(name="vlm", inputs=[question, image], outputs=[said],
+              model_client=LocalModelClient(eyes), config=VLMConfig(max_new_tokens=48, temperature=0.0))
+    seeing, models = [vlm], [reach, eyes]
+    events[Event("first_frame", on(image).field("stamp") >= 0, once=True)] = call(
+        vlm, "describe", image.name, "Describe what you see.")
 
 system = System(
     [
         Sim(name="sim", inputs=[command], outputs=[joint_states, image], config=SimConfig(camera_hz=5.0), trigger=240.0),
         vla,
-        Report(name="report", inputs=[joint_states, image, feedback], outputs=[stop], trigger=1.0),
+        *seeing,
+        Report(name="report", inputs=[joint_states, image, feedback, said], outputs=[stop], trigger=1.0),
     ],
-    events={first_state: call(vla, "manipulate", "reach the target pose", 3000)},
-    models=[reach],
-    external=[task],  # published from outside: the CLI, another system
+    events=events,
+    models=models,
+    external=[task, question if VLM_FILE else said],  # published from outside (the CLI, another system), or not at all
     name="arm",
 )

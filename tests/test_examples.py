@@ -136,3 +136,24 @@ def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
     assert lines[-1] == "done: reached the target" and any(x.startswith("describe: skipped: ") for x in lines)
     assert (tmp_path / "out" / "arm.png").stat().st_size > 1000
     assert "task 'reach the target pose' started" in out.stderr  # the event called manipulate in the VLA's process
+
+
+def test_arm_example_describes_its_camera_with_a_vlm_when_one_is_present(tmp_path: Path) -> None:
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "llama_cpp", "gguf"):
+        pytest.importorskip(module, reason="the example needs the sim and llm extras")
+    from tests.embagents.tiny_llama import make_tiny_llama_gguf
+    from tests.embagents.tiny_vlm import make_tiny_mmproj_gguf
+
+    tiny_vlm = make_tiny_llama_gguf(str(tmp_path / "vlm" / "tiny-llava-text.gguf"))
+    make_tiny_mmproj_gguf(str(tmp_path / "vlm" / "tiny-llava-mmproj.gguf"))  # found beside the language model
+    env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache"),
+           "EMBAGENTS_VLM_MODEL": tiny_vlm, "EMBAGENTS_VLM_HANDLER": "llava15"}  # the tiny LLaVA-style model
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
+                         capture_output=True, text=True, timeout=180, env=env)
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    described = [x for x in lines if x.startswith("describe: ")]
+    assert described[0] == "describe: asking the VLM about the first camera frame", out.stdout
+    assert len(described) == 2 and "skipped" not in described[1] and "no answer" not in described[1], out.stdout
+    assert lines[-1] == "done: reached the target"
+    assert "event 'first_frame' fired" in out.stderr  # the event called vlm.describe in the VLM's process

@@ -5,6 +5,8 @@ yields the same chunk shapes as ``embagents.models.backends.llama.LlamaBackend``
 a component can switch between a local model and a server without caring.
 Works with llama.cpp's servers (``python -m llama_cpp.server``,
 ``llama-server``), Ollama (``http://localhost:11434``), vLLM and OpenAI.
+Servers that take images (a vision-language model behind them) get
+``images=[array]`` as OpenAI ``image_url`` content parts with PNG ``data:`` URLs.
 
 Example::
 
@@ -16,20 +18,26 @@ Example::
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import json
+import struct
 import time
-from collections.abc import Iterator
+import zlib
+from collections.abc import Iterator, Sequence
 from typing import Any
+
+import numpy as np
 
 from embagents.models.chat import (
     ToolCallAccumulator,
     check_messages,
     collect_stream,
     tool_calls_from_text,
+    with_images,
 )
 
-__all__ = ["OpenAIHTTPClient", "OpenAIHTTPError"]
+__all__ = ["OpenAIHTTPClient", "OpenAIHTTPError", "png_data_url"]
 
 _BODY_EXCERPT = 500
 
@@ -139,8 +147,13 @@ class OpenAIHTTPClient:
         tools: list[dict] | None = None,
         tool_choice: str | dict | None = None,
         extra: dict | None = None,
+        images: Sequence[np.ndarray] | None = None,
     ) -> Iterator[dict]:
         """Yield ``{"delta": str}`` chunks, then one ``{"done": True, ...}`` chunk.
+
+        ``images``: (H, W, 3) uint8 RGB arrays, sent before the text of the
+        last user message as ``image_url`` parts (PNG ``data:`` URLs), for a
+        server with a vision-language model.
 
         Same shapes as ``LlamaBackend.chat_stream``; ``usage`` comes from the
         server when it reports it (``stream_options.include_usage``), else it
@@ -154,6 +167,8 @@ class OpenAIHTTPClient:
             ...     print(c.get("delta", ""), end="", flush=True)
         """
         check_messages(messages)
+        if images:
+            messages = with_images(messages, [png_data_url(img) for img in images])
         body: dict[str, Any] = {
             "model": self.model,
             "messages": messages,
@@ -229,6 +244,7 @@ class OpenAIHTTPClient:
         tools: list[dict] | None = None,
         tool_choice: str | dict | None = None,
         extra: dict | None = None,
+        images: Sequence[np.ndarray] | None = None,
     ) -> dict:
         """Whole reply as ``{"content", "tool_calls", "finish_reason", "usage", "timing"}``.
 
@@ -246,8 +262,29 @@ class OpenAIHTTPClient:
                 tools=tools,
                 tool_choice=tool_choice,
                 extra=extra,
+                images=images,
             )
         )
+
+
+def png_data_url(image: np.ndarray) -> str:
+    """An (H, W, 3) uint8 RGB image as a ``data:image/png;base64,...`` URL (PNG written with zlib alone).
+
+    >>> png_data_url(np.zeros((1, 1, 3), np.uint8))[:30]
+    'data:image/png;base64,iVBORw0K'
+    """
+    if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        got = f"shape {image.shape} dtype {image.dtype}" if isinstance(image, np.ndarray) else type(image).__name__
+        raise ValueError(f"an image for the server must be an (H, W, 3) uint8 RGB array, got {got}")
+    h, w = image.shape[:2]
+    rows = np.concatenate([np.zeros((h, 1), np.uint8), np.ascontiguousarray(image).reshape(h, w * 3)], axis=1)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(rows.tobytes(), 1)) + chunk(b"IEND", b""))
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
 def _json(text: str, url: str) -> dict:

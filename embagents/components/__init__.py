@@ -24,11 +24,14 @@ from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
 from embagents.components.vla import VLA, VLAConfig
+from embagents.components.vlm import MLLM, VLM, NoImageYet, VLMConfig
 
 __all__ = [
     "LLM",
+    "MLLM",
     "VLA",
     "UNSET",
+    "VLM",
     "Camera",
     "CameraConfig",
     "ChatClient",
@@ -40,6 +43,7 @@ __all__ = [
     "JointLimit",
     "LLMConfig",
     "ModelComponent",
+    "NoImageYet",
     "SpeechToText",
     "SpeechToTextConfig",
     "Sim",
@@ -49,6 +53,7 @@ __all__ = [
     "Vision",
     "VisionConfig",
     "VLAConfig",
+    "VLMConfig",
     "client_name",
     "lenient_construction",
     "limits_from_urdf",

@@ -325,7 +325,7 @@ class LLM(ModelComponent):
             parts: list[str] = []
             tool_calls = None
             for chunk in self.chat_stream(messages, max_tokens=cfg.max_new_tokens, temperature=cfg.temperature,
-                                          stop=cfg.stop or None, tools=tools):
+                                          stop=cfg.stop or None, tools=tools, **self._model_inputs()):
                 delta = chunk.get("delta")
                 if delta:
                     parts.append(delta)
@@ -343,6 +343,10 @@ class LLM(ModelComponent):
             messages += new
             turn += new
             rounds += 1
+
+    def _model_inputs(self) -> dict[str, Any]:
+        """More inputs of each model request besides the messages (a VLM's images); none here."""
+        return {}
 
     def _run_tool(self, call: Mapping[str, Any]) -> str:
         """Run one tool call; errors become the tool's answer so the model can recover."""

@@ -10,7 +10,8 @@ it; a :class:`RemoteModelClient` reaches one on another machine over
 CURVE (:mod:`embagents.models.remote`); :mod:`embagents.clients` reach servers elsewhere with the same chat
 interface (:mod:`embagents.models.chat`). Backends live in
 :mod:`embagents.models.backends` (llama.cpp, onnxruntime), model files in
-:mod:`embagents.modelfiles`.
+:mod:`embagents.modelfiles`. A :class:`LeRobotPolicyClient` reaches a LeRobot
+policy server over its async-inference gRPC protocol (:mod:`embagents.models.lerobot`).
 
 Example::
 
@@ -22,8 +23,15 @@ Example::
 
 from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
-from embagents.models.declarations import DetectorModel, LlamaModel, Model, SpeechToTextModel
+from embagents.models.declarations import (
+    DetectorModel,
+    LlamaModel,
+    Model,
+    SpeechToTextModel,
+    VLMModel,
+)
 from embagents.models.inventory import models_of
+from embagents.models.lerobot import LeRobotPolicyClient, PolicyError, PolicyUnavailable
 from embagents.models.policy import LocalPolicyClient, PolicyClient, PolicyLate, PolicyModel
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
@@ -32,6 +40,7 @@ __all__ = [
     "BadRequest",
     "ChatClient",
     "DetectorModel",
+    "LeRobotPolicyClient",
     "LlamaModel",
     "LocalModelClient",
     "LocalPolicyClient",
@@ -40,11 +49,14 @@ __all__ = [
     "ModelError",
     "ModelUnavailable",
     "PolicyClient",
+    "PolicyError",
     "PolicyLate",
     "PolicyModel",
+    "PolicyUnavailable",
     "RemoteModelClient",
     "RemoteRefused",
     "SpeechToTextModel",
+    "VLMModel",
     "collect_stream",
     "models_of",
 ]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any, Protocol
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "normalize_tool_call",
     "openai_tool_call",
     "tool_calls_from_text",
+    "with_images",
 ]
 
 #: The generation options every chat client takes (backends may take more).
@@ -220,3 +221,21 @@ def openai_tool_call(call: Mapping[str, Any], index: int = 0) -> dict[str, Any]:
     args = flat["arguments"]
     return {"id": flat["id"], "type": "function",
             "function": {"name": flat["name"], "arguments": args if isinstance(args, str) else json.dumps(args)}}
+
+
+def with_images(messages: list[dict[str, Any]], urls: Sequence[str]) -> list[dict[str, Any]]:
+    """``messages`` with ``urls`` as OpenAI ``image_url`` parts before the text of the last user message.
+
+    >>> with_images([{"role": "user", "content": "what?"}], ["u0"])[0]["content"]
+    [{'type': 'image_url', 'image_url': {'url': 'u0'}}, {'type': 'text', 'text': 'what?'}]
+    """
+    if not urls:
+        return messages
+    last = max((i for i, m in enumerate(messages) if m.get("role") == "user"), default=None)
+    if last is None:
+        raise ValueError("images need a user message to go with; the messages have none")
+    out = [dict(m) for m in messages]
+    content = out[last].get("content") or ""
+    parts = content if isinstance(content, list) else [{"type": "text", "text": content}]
+    out[last]["content"] = [{"type": "image_url", "image_url": {"url": u}} for u in urls] + list(parts)
+    return out

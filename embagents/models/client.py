@@ -236,13 +236,22 @@ class LocalModelClient:
                 rt.pool.acked(conn.orphans.pop(answer.id))
 
     # -- task-shaped forms -----------------------------------------------------------------
-    def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
-        """Chat chunks (:mod:`embagents.models.chat` shapes), token by token."""
-        return self.stream("chat", {"messages": messages}, **options)
+    def chat_stream(self, messages: list[dict[str, Any]], *, images: list[Any] | None = None,
+                    **options: Any) -> Iterator[dict[str, Any]]:
+        """Chat chunks (:mod:`embagents.models.chat` shapes), token by token.
 
-    def chat(self, messages: list[dict[str, Any]], **options: Any) -> dict[str, Any]:
+        ``images``: (H, W, 3) uint8 RGB arrays for a vision-language model
+        (:class:`~embagents.models.VLMModel`); they travel through shared memory.
+        """
+        inputs: dict[str, Any] = {"messages": messages}
+        if images:
+            inputs["images"] = list(images)
+        return self.stream("chat", inputs, **options)
+
+    def chat(self, messages: list[dict[str, Any]], *, images: list[Any] | None = None,
+             **options: Any) -> dict[str, Any]:
         """The whole reply: ``{"content", "tool_calls", "finish_reason", "usage", "timing"}``."""
-        return collect_stream(self.chat_stream(messages, **options))
+        return collect_stream(self.chat_stream(messages, images=images, **options))
 
     def detect(self, image: Any, **options: Any) -> dict[str, Any]:
         """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``."""

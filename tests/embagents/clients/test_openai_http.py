@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
 import socket
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import msgpack
 import pytest
@@ -40,17 +42,16 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """Base URL of a running ``python -m llama_cpp.server`` on the tiny model."""
+@contextlib.contextmanager
+def _llama_server(args: list[str], log_path: Path) -> Iterator[str]:
+    """Base URL of ``python -m llama_cpp.server ARGS`` on a free loopback port, stopped afterwards."""
     if _missing:
         pytest.skip(SKIP_REASON)
     port = _free_port()
-    log_path = tmp_path_factory.mktemp("server") / "server.log"
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "llama_cpp.server", "--model", tiny_gguf,
-             "--host", "127.0.0.1", "--port", str(port), "--n_ctx", "512"],
+            [sys.executable, "-m", "llama_cpp.server", *args, "--host", "127.0.0.1", "--port", str(port),
+             "--n_ctx", "512"],
             stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )  # fmt: skip
     base_url = f"http://127.0.0.1:{port}"
@@ -78,6 +79,13 @@ def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def server(tiny_gguf: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """Base URL of a running ``python -m llama_cpp.server`` on the tiny model."""
+    with _llama_server(["--model", tiny_gguf], tmp_path_factory.mktemp("server") / "server.log") as url:
+        yield url
 
 
 @pytest.mark.llama_in_process  # see tests/conftest.py
@@ -216,3 +224,30 @@ def test_truncated_stream_is_an_error_not_a_short_reply(canned: str) -> None:
     assert next(stream) == {"delta": "Hel"}
     with pytest.raises(ConnectionError, match="ended before the reply was complete"):
         next(stream)
+
+
+@pytest.fixture(scope="module")
+def vlm_server(tiny_vlm: tuple[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path]]:
+    """llama_cpp.server with the tiny LLaVA-style model (its clip model path and llava-1-5 format), and its log."""
+    log = tmp_path_factory.mktemp("vlm-server") / "server.log"
+    args = ["--model", tiny_vlm[0], "--clip_model_path", tiny_vlm[1], "--chat_format", "llava-1-5"]
+    with _llama_server(args, log) as url:
+        yield url, log
+
+
+def test_images_reach_a_vision_server_as_image_url_parts(vlm_server: tuple[str, Path]) -> None:
+    import numpy as np
+
+    url, log = vlm_server
+    client = OpenAIHTTPClient(url)
+
+    def encoded() -> int:  # the server's llama.cpp logs each image its projector encodes
+        return log.read_text(errors="replace").count("encoding image slice")
+
+    before = encoded()
+    frame = np.full((48, 64, 3), 100, np.uint8)
+    reply = client.chat([{"role": "user", "content": "what do you see?"}], images=[frame, frame], max_tokens=4)
+    assert reply["finish_reason"] == "length" and reply["content"]
+    wait_until(lambda: encoded() - before == 2, 5.0, "two images encoded by the server")
+    with pytest.raises(ValueError, match=r"\(H, W, 3\) uint8 RGB array, got shape \(48, 64\)"):
+        client.chat([{"role": "user", "content": "what?"}], images=[frame[:, :, 0]], max_tokens=2)

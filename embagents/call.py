@@ -1,0 +1,88 @@
+"""``embagents call COMPONENT METHOD [ARG ...]``: run a component's action in a running system, from a terminal.
+
+The root of ``embagents supervise`` serves a ``call`` control command
+(:func:`call_command`): it checks that the component exists and has that
+public method, asks the component's actor (the same
+:class:`~embagents.runtime.requests.Call` an event's ``call`` action sends)
+and answers with what the method returned. :func:`call` is the client side;
+each ``ARG`` is read as JSON when it parses (``3``, ``true``, ``[1, 2]``),
+else taken as a string.
+
+Example (examples/vlm.py running)::
+
+    $ embagents call vlm describe camera "What is on the table?"
+    vlm.describe -> 'A cup of coffee on a saucer.'
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from typing import Any
+
+__all__ = ["call", "call_command", "parse_args"]
+
+
+def parse_args(values: Sequence[str]) -> list[Any]:
+    """Command-line words as arguments: JSON when they parse, else strings.
+
+    >>> parse_args(["camera", "3", "what is it?", "[1, 2]"])
+    ['camera', 3, 'what is it?', [1, 2]]
+    """
+    out: list[Any] = []
+    for v in values:
+        try:
+            out.append(json.loads(v))
+        except ValueError:
+            out.append(v)
+    return out
+
+
+def _public_methods(component: Any) -> list[str]:
+    return sorted(n for n in dir(type(component)) if not n.startswith("_") and callable(getattr(component, n, None)))
+
+
+def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
+    """The root's handler of ``{"cmd": "call", "component", "method", "args", "kwargs", "timeout"}``."""
+    from actors import ActorRef
+    from embagents.runtime.requests import Call
+
+    def handle(req: dict[str, Any]) -> dict[str, Any]:
+        name, method = req.get("component"), req.get("method")
+        by_name = {str(c.name): c for c in system.components}
+        comp = by_name.get(name) if isinstance(name, str) else None
+        if comp is None:
+            return {"ok": False, "error": f"system {system.name!r} has no component {name!r}; "
+                    f"its components: {', '.join(sorted(by_name)) or 'none'}"}
+        if not isinstance(method, str) or method.startswith("_") or not callable(getattr(comp, method, None)):
+            return {"ok": False, "error": f"component {name!r} ({type(comp).__name__}) has no action {method!r}; "
+                    f"its methods: {', '.join(_public_methods(comp))}"}
+        args, kwargs = req.get("args") or [], req.get("kwargs") or {}
+        timeout = float(req.get("timeout") or 60.0)
+        try:
+            result = ActorRef(name).ask(Call(method, list(args), dict(kwargs)), timeout=timeout).get()
+        except Exception as exc:  # the method raised, the actor died, or it took too long: say which
+            return {"ok": False, "error": f"{name}.{method} failed: {type(exc).__name__}: {exc}"}
+        try:
+            json.dumps(result)
+        except (TypeError, ValueError):
+            result = repr(result)
+        return {"ok": True, "result": result}
+
+    return handle
+
+
+def call(component: str, method: str, args: Sequence[Any] = (), kwargs: dict[str, Any] | None = None, *,
+         run: str | None = None, timeout: float = 60.0) -> dict[str, Any]:
+    """Call ``component.method(*args, **kwargs)`` in the live run ``run`` (default: the only one).
+
+    Raises ``supervisor.client.ControlError`` with the root's reason (no run, unknown
+    component or method, the method's own error).
+    """
+    from supervisor.client import pick_run, request
+
+    found = pick_run(run)
+    msg = {"cmd": "call", "component": component, "method": method, "args": list(args),
+           "kwargs": dict(kwargs or {}), "timeout": timeout}
+    reply = request(found["run_dir"], msg, timeout + 5.0)
+    return {**reply, "run_id": found.get("run_id"), "system": found.get("system")}

@@ -1,0 +1,404 @@
+"""A LeRobot policy server, reached over its async-inference gRPC protocol (:class:`LeRobotPolicyClient`).
+
+LeRobot serves policies (ACT, SmolVLA, pi0...) with
+``python -m lerobot.async_inference.policy_server``; robots reach it over
+gRPC, service ``transport.AsyncInference``:
+
+- ``Ready(Empty) -> Empty``: a new client (the server forgets the previous one);
+- ``SendPolicyInstructions(PolicySetup{data}) -> Empty``: which policy, its
+  features, actions per chunk, device;
+- ``SendObservations(stream Observation{transfer_state, data}) -> Empty``: one
+  observation, in chunks of at most 2 MB (BEGIN / MIDDLE / END; a single chunk is END);
+- ``GetActions(Empty) -> Actions{data}``: the chunk for the latest observation
+  (empty data when none came in time).
+
+The messages are built here from their field numbers (:func:`messages`), no
+generated code. **Payloads**: LeRobot pickles them (``RemotePolicyConfig``,
+``TimedObservation`` and a list of ``TimedAction`` with torch tensors). A
+pickle can run code when it is loaded, so this client's own encoding is
+msgpack with numeric numpy arrays (``encoding="msgpack"``, what
+:mod:`embagents.models.lerobot_server` speaks), and LeRobot's server is reached
+with ``encoding="pickle"`` only when the user says they trust it
+(``allow_pickle=True``; it also needs the ``lerobot`` package for its classes).
+
+Errors: a server that is down raises :class:`PolicyUnavailable` (the next
+call reconnects and says hello again), one that answers too late
+:class:`~embagents.models.policy.PolicyLate`, a chunk of the wrong shape
+:class:`PolicyError` naming expected and actual.
+
+Example::
+
+    >>> client = LeRobotPolicyClient("127.0.0.1:8080", actions_per_chunk=10)
+    >>> client.infer({"observation.state": np.zeros(7, np.float32)}, "reach the cup", 0.5).shape  # doctest: +SKIP
+    (10, 7)
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from embagents.models.policy import STATE_KEY, PolicyLate
+from embagents.models.protocol import BadRequest, ModelError, ModelUnavailable
+
+__all__ = [
+    "CHUNK_BYTES",
+    "LeRobotPolicyClient",
+    "PolicyError",
+    "PolicyUnavailable",
+    "decode_payload",
+    "encode_payload",
+    "messages",
+    "method",
+]
+
+#: LeRobot's chunk size for streamed observations (and its 4 MB message limit above it).
+CHUNK_BYTES = 2 * 1024 * 1024
+SERVICE = "transport.AsyncInference"
+#: Marks our msgpack payloads, so either side tells them from pickles at once.
+FORMAT = "embagents-msgpack-1"
+_INSTALL_HINT = "pip install 'embagents[vla]' (grpcio, protobuf)"
+
+
+class PolicyUnavailable(ModelUnavailable):
+    """The policy server cannot be reached (down, restarting, wrong address)."""
+
+
+class PolicyError(ModelError):
+    """The policy server answered with an error, or with a chunk of the wrong shape."""
+
+
+@functools.lru_cache(maxsize=1)
+def messages() -> dict[str, Any]:
+    """The protocol's message classes (``Empty``, ``Observation``, ``Actions``, ``PolicySetup``) and ``TransferState``.
+
+    Built from their field numbers into a pool of their own (no clash with LeRobot's
+    generated module when both are imported).
+
+    >>> m = messages()
+    >>> m["Observation"](transfer_state=m["TRANSFER_END"], data=b"x").SerializeToString()
+    b'\\x08\\x03\\x12\\x01x'
+    """
+    try:
+        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    except ImportError as exc:
+        raise ModuleNotFoundError(f"the LeRobot client needs protobuf: {_INSTALL_HINT}") from exc
+    F = descriptor_pb2.FieldDescriptorProto
+    proto = descriptor_pb2.FileDescriptorProto(name="embagents/lerobot_transport.proto", package="transport",
+                                               syntax="proto3")
+    enum = proto.enum_type.add(name="TransferState")
+    for number, name in enumerate(("TRANSFER_UNKNOWN", "TRANSFER_BEGIN", "TRANSFER_MIDDLE", "TRANSFER_END")):
+        enum.value.add(name=name, number=number)
+    proto.message_type.add(name="Empty")
+    obs = proto.message_type.add(name="Observation")
+    obs.field.add(name="transfer_state", number=1, type=F.TYPE_ENUM, type_name=".transport.TransferState",
+                  label=F.LABEL_OPTIONAL)
+    obs.field.add(name="data", number=2, type=F.TYPE_BYTES, label=F.LABEL_OPTIONAL)
+    for name in ("Actions", "PolicySetup"):
+        proto.message_type.add(name=name).field.add(name="data", number=1, type=F.TYPE_BYTES, label=F.LABEL_OPTIONAL)
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(proto)
+    out: dict[str, Any] = {name: message_factory.GetMessageClass(pool.FindMessageTypeByName(f"transport.{name}"))
+                           for name in ("Empty", "Observation", "Actions", "PolicySetup")}
+    out.update({v.name: v.number for v in enum.value})
+    return out
+
+
+def method(name: str) -> str:
+    """The gRPC path of an AsyncInference method.
+
+    >>> method("GetActions")
+    '/transport.AsyncInference/GetActions'
+    """
+    return f"/{SERVICE}/{name}"
+
+
+def chunks(data: bytes) -> Iterator[Any]:
+    """``data`` as Observation messages of at most CHUNK_BYTES, transfer states as LeRobot sends them."""
+    m = messages()
+    sent = 0
+    while True:
+        piece = data[sent:sent + CHUNK_BYTES]
+        last = sent + CHUNK_BYTES >= len(data)
+        state = m["TRANSFER_END"] if last else m["TRANSFER_BEGIN"] if sent == 0 else m["TRANSFER_MIDDLE"]
+        yield m["Observation"](transfer_state=state, data=piece)
+        sent += len(piece)
+        if last:
+            return
+
+
+# -- our payload encoding: msgpack, numeric arrays only ----------------------------------------------------------
+
+
+def _pack(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "biuf":
+            raise TypeError(f"only numeric arrays travel to a policy server, not dtype {value.dtype}")
+        return {"__nd__": True, "dtype": value.dtype.str, "shape": list(value.shape),
+                "data": np.ascontiguousarray(value).tobytes()}
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot send a {type(value).__name__} to a policy server")
+
+
+def _unpack(obj: dict[str, Any]) -> Any:
+    if obj.get("__nd__") is True:
+        dtype = np.dtype(obj["dtype"])
+        if dtype.kind not in "biuf":
+            raise ValueError(f"refusing an array of dtype {dtype} (numeric arrays only)")
+        return np.frombuffer(obj["data"], dtype).reshape(obj["shape"])
+    return obj
+
+
+def encode_payload(value: Mapping[str, Any]) -> bytes:
+    """One payload (setup, observation or actions) as msgpack, marked with our format.
+
+    >>> decode_payload(encode_payload({"actions": np.ones((2, 3), np.float32)}))["actions"].shape
+    (2, 3)
+    """
+    return msgpack.packb({"format": FORMAT, **value}, default=_pack, use_bin_type=True)
+
+
+def decode_payload(data: bytes) -> dict[str, Any]:
+    """A payload :func:`encode_payload` wrote; ``ValueError`` for anything else (a pickle is never loaded).
+
+    >>> decode_payload(b"\\x80\\x04K\\x01.")
+    Traceback (most recent call last):
+    ...
+    ValueError: not an embagents-msgpack-1 payload (a pickle: LeRobot's own encoding, which this side never loads)
+    """
+    if data[:1] == b"\x80":  # pickle protocol 2+
+        raise ValueError(f"not an {FORMAT} payload (a pickle: LeRobot's own encoding, which this side never loads)")
+    try:
+        value = msgpack.unpackb(data, object_hook=_unpack, raw=False)
+    except Exception as exc:
+        raise ValueError(f"not an {FORMAT} payload ({type(exc).__name__}: {exc})") from None
+    if not isinstance(value, dict) or value.get("format") != FORMAT:
+        raise ValueError(f"not an {FORMAT} payload")
+    return value
+
+
+# -- the client --------------------------------------------------------------------------------------------------
+
+
+class LeRobotPolicyClient:
+    """A :class:`~embagents.models.policy.PolicyClient` for a LeRobot async-inference policy server.
+
+    - ``address``: ``host:port`` of the server;
+    - ``actions_per_chunk``: the chunk length asked for (and checked);
+    - ``policy_type``, ``pretrained_name_or_path``, ``device``, ``lerobot_features``,
+      ``rename_map``: the policy setup sent once per connection (LeRobot's ``RemotePolicyConfig``);
+    - ``encoding``: ``"msgpack"`` (embagents' policy server) or ``"pickle"`` (LeRobot's own
+      server; needs ``allow_pickle=True``, the ``lerobot`` package, and ``joint_names`` to turn
+      ``observation.state`` back into LeRobot's raw per-joint observation).
+    """
+
+    def __init__(self, address: str, *, actions_per_chunk: int, policy_type: str = "act",
+                 pretrained_name_or_path: str = "", device: str = "cpu",
+                 lerobot_features: Mapping[str, Any] | None = None, rename_map: Mapping[str, str] | None = None,
+                 encoding: str = "msgpack", allow_pickle: bool = False, joint_names: Sequence[str] | None = None,
+                 name: str = "lerobot") -> None:
+        if encoding not in ("msgpack", "pickle"):
+            raise ValueError(f"encoding must be 'msgpack' (embagents' server) or 'pickle' (LeRobot's), got {encoding!r}")
+        if encoding == "pickle" and not allow_pickle:
+            raise ValueError("LeRobot's policy server sends pickles, and loading a pickle can run any code: pass "
+                             "allow_pickle=True only for a server you trust, or serve the policy with "
+                             "embagents.models.lerobot_server (msgpack)")
+        if int(actions_per_chunk) < 1:
+            raise ValueError(f"actions_per_chunk must be >= 1, got {actions_per_chunk!r}")
+        self.address, self.name, self.encoding = address, name, encoding
+        self.actions_per_chunk = int(actions_per_chunk)
+        self.setup = {"policy_type": policy_type, "pretrained_name_or_path": pretrained_name_or_path,
+                      "device": device, "actions_per_chunk": self.actions_per_chunk,
+                      "lerobot_features": dict(lerobot_features or {}), "rename_map": dict(rename_map or {})}
+        self.joint_names = list(joint_names) if joint_names is not None else None
+        self._channel: Any = None
+        self._ready = False
+        self._timestep = 0
+
+    def __repr__(self) -> str:
+        return f"LeRobotPolicyClient({self.address!r})"
+
+    # -- connection ---------------------------------------------------------------------------------------------
+    def _rpc(self, kind: str, name: str, response: str) -> Any:
+        try:
+            import grpc
+        except ImportError as exc:
+            raise ModuleNotFoundError(f"the LeRobot client needs grpcio: {_INSTALL_HINT}") from exc
+        if self._channel is None:
+            self._channel = grpc.insecure_channel(self.address, options=[
+                ("grpc.max_receive_message_length", 4 * CHUNK_BYTES), ("grpc.max_send_message_length", 4 * CHUNK_BYTES)])
+        m = messages()
+        return getattr(self._channel, kind)(method(name), request_serializer=lambda msg: msg.SerializeToString(),
+                                            response_deserializer=m[response].FromString)
+
+    def _drop_channel(self) -> None:
+        # A fresh channel after a failure: gRPC's own reconnect backoff would keep a restarted server away for seconds.
+        channel, self._channel, self._ready = self._channel, None, False
+        if channel is not None:
+            channel.close()
+
+    def _hello(self, deadline: float) -> None:
+        m = messages()
+        self._rpc("unary_unary", "Ready", "Empty")(m["Empty"](), timeout=_left(deadline))
+        self._rpc("unary_unary", "SendPolicyInstructions", "Empty")(
+            m["PolicySetup"](data=self._encode_setup()), timeout=_left(deadline))
+        self._ready = True
+
+    # -- the policy ---------------------------------------------------------------------------------------------
+    def infer(self, observation: Mapping[str, np.ndarray], task: str, timeout_s: float) -> np.ndarray:
+        """The chunk of actions for ``observation`` (float32, (actions_per_chunk, n_joints)).
+
+        Raises :class:`PolicyUnavailable` (server down: the next call reconnects),
+        :class:`PolicyLate` (no chunk within ``timeout_s``), :class:`PolicyError`
+        (the server failed, or sent a chunk of the wrong shape), :class:`BadRequest`
+        (the server refused the observation, saying why).
+        """
+        import grpc
+
+        deadline = time.monotonic() + float(timeout_s)
+        try:
+            try:
+                data = self._exchange(observation, task, deadline)
+            except grpc.RpcError as exc:
+                if exc.code() != grpc.StatusCode.FAILED_PRECONDITION:
+                    raise
+                # The server forgot our setup (it restarted, or another client said Ready): hello again, once.
+                self._ready = False
+                data = self._exchange(observation, task, deadline)
+        except grpc.RpcError as exc:
+            raise self._error(exc, float(timeout_s)) from None  # _ready is still False if the setup failed
+        except _Late:
+            self._ready = False
+            raise PolicyLate(f"policy server {self.address} gave no actions within {timeout_s:.3f} s; "
+                             "motion should stop until the next chunk") from None
+        return self._check_chunk(self._decode_actions(data), observation)
+
+    def _exchange(self, observation: Mapping[str, np.ndarray], task: str, deadline: float) -> bytes:
+        """Hello (when needed), the observation out, its chunk's bytes back."""
+        m = messages()
+        if not self._ready:
+            self._hello(deadline)
+        self._timestep += 1
+        payload = self._encode_observation(observation, task, self._timestep)
+        self._rpc("stream_unary", "SendObservations", "Empty")(chunks(payload), timeout=_left(deadline))
+        get = self._rpc("unary_unary", "GetActions", "Actions")
+        while not (data := get(m["Empty"](), timeout=_left(deadline)).data):
+            pass  # the server had no observation in time (LeRobot answers Empty): ask until the deadline
+        return bytes(data)
+
+    def _error(self, exc: Any, timeout_s: float) -> Exception:
+        import grpc
+
+        code, details = exc.code(), exc.details() or ""
+        if code == grpc.StatusCode.DEADLINE_EXCEEDED:
+            self._ready = False  # the server may have restarted meanwhile: say hello again
+            return PolicyLate(f"policy server {self.address} gave no actions within {timeout_s:.3f} s; "
+                              "motion should stop until the next chunk")
+        if code == grpc.StatusCode.UNAVAILABLE:
+            self._drop_channel()
+            return PolicyUnavailable(
+                f"policy server {self.address} is not reachable ({details.splitlines()[0] if details else code.name}); "
+                "is it running? (LeRobot: python -m lerobot.async_inference.policy_server --host=HOST --port=PORT; "
+                "embagents: python -m embagents.models.lerobot_server --onnx POLICY.onnx --port PORT). "
+                "The next call reconnects")
+        in_setup, self._ready = not self._ready, False
+        if code == grpc.StatusCode.INVALID_ARGUMENT:
+            return BadRequest(f"policy server {self.address} refused the request: {details}")
+        hint = ""
+        if self.encoding == "msgpack" and code == grpc.StatusCode.UNKNOWN and in_setup:
+            hint = (" (LeRobot's own policy_server reads pickles only: reach it with encoding='pickle', "
+                    "allow_pickle=True)")
+        return PolicyError(f"policy server {self.address} failed: {code.name}: {details}{hint}")
+
+    def _check_chunk(self, actions: np.ndarray, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        state = observation.get(STATE_KEY)
+        joints = int(np.size(state)) if state is not None else None
+        want = f"({self.actions_per_chunk}, {joints if joints is not None else 'n_joints'})"
+        if actions.ndim != 2 or actions.shape[0] != self.actions_per_chunk or (joints is not None and actions.shape[1] != joints):
+            raise PolicyError(f"policy server {self.address} sent a chunk of shape {tuple(actions.shape)}; "
+                              f"expected {want} (actions_per_chunk, n_joints)")
+        return np.ascontiguousarray(actions, np.float32)
+
+    # -- payloads -----------------------------------------------------------------------------------------------
+    def _encode_setup(self) -> bytes:
+        if self.encoding == "msgpack":
+            return encode_payload(self.setup)
+        import pickle  # LeRobot's encoding, with the user's consent (allow_pickle)
+
+        helpers = _lerobot_helpers()
+        return pickle.dumps(helpers.RemotePolicyConfig(**self.setup))
+
+    def _encode_observation(self, observation: Mapping[str, np.ndarray], task: str, timestep: int) -> bytes:
+        if self.encoding == "msgpack":
+            return encode_payload({"timestep": timestep, "timestamp": time.time(), "task": task, "must_go": True,
+                                   "observation": {k: np.asarray(v) for k, v in observation.items()}})
+        import pickle
+
+        helpers = _lerobot_helpers()
+        raw = _raw_observation(observation, self.joint_names)
+        raw["task"] = task
+        return pickle.dumps(helpers.TimedObservation(timestamp=time.time(), timestep=timestep, observation=raw,
+                                                     must_go=True))
+
+    def _decode_actions(self, data: bytes) -> np.ndarray:
+        if self.encoding == "msgpack":
+            try:
+                answer = decode_payload(data)
+            except ValueError as exc:
+                raise PolicyError(f"policy server {self.address} sent an unreadable chunk: {exc}") from None
+            return np.asarray(answer.get("actions"), np.float32)
+        import pickle
+
+        chunk = pickle.load(io.BytesIO(data))  # noqa: S301 - allow_pickle: the user trusts this server
+        return np.stack([np.asarray(a.get_action(), np.float32) for a in chunk])
+
+    def close(self) -> None:
+        """Close the channel (a later call opens a new one)."""
+        self._drop_channel()
+
+
+class _Late(Exception):
+    pass
+
+
+def _left(deadline: float) -> float:
+    left = deadline - time.monotonic()
+    if left <= 0:
+        raise _Late()
+    return left
+
+
+def _lerobot_helpers() -> Any:
+    try:
+        from lerobot.async_inference import helpers
+    except ImportError as exc:
+        raise ModuleNotFoundError("encoding='pickle' builds LeRobot's own classes: pip install lerobot") from exc
+    return helpers
+
+
+def _raw_observation(observation: Mapping[str, np.ndarray], joint_names: Sequence[str] | None) -> dict[str, Any]:
+    """LeRobot's raw robot observation: one float per joint name, one image per camera name.
+
+    >>> _raw_observation({"observation.state": np.array([1.0, 2.0]), "observation.images.front": np.zeros(1)},
+    ...                  ["a", "b"])["b"]
+    2.0
+    """
+    raw: dict[str, Any] = {}
+    for key, value in observation.items():
+        if key == STATE_KEY:
+            if joint_names is None or len(joint_names) != np.size(value):
+                raise ValueError(f"encoding='pickle' needs joint_names, one per value of {STATE_KEY} "
+                                 f"({np.size(value)}), got {joint_names!r}")
+            raw.update({n: float(v) for n, v in zip(joint_names, np.ravel(value), strict=True)})
+        elif key.startswith("observation.images."):
+            raw[key.removeprefix("observation.images.")] = value
+        else:
+            raw[key] = value
+    return raw

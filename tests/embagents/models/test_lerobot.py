@@ -1,0 +1,216 @@
+"""LeRobotPolicyClient against a real gRPC policy server in another process, serving a tiny ONNX policy."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("grpc")
+pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+from embagents.models import BadRequest  # noqa: E402
+from embagents.models.lerobot import (  # noqa: E402
+    LeRobotPolicyClient,
+    PolicyError,
+    PolicyUnavailable,
+    decode_payload,
+    encode_payload,
+)
+from embagents.models.policy import PolicyClient, PolicyLate  # noqa: E402
+from tests.helpers import wait_until  # noqa: E402
+
+TARGET = np.array([0.5, -0.3, 0.2, -1.5, 0.1, 1.2, 0.7], np.float32)
+CHUNK = 8
+STATE = np.zeros(7, np.float32)
+
+
+GAIN = 0.2
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """The model layer's reach policy (a P controller as an ONNX graph) that also takes a 480x640 camera image."""
+    from embagents.models.backends.reach_policy import write_reach_policy
+
+    return write_reach_policy(str(tmp_path_factory.mktemp("policy") / "reach.onnx"), TARGET, gain=GAIN, chunk=CHUNK,
+                              camera="front", image_size=(480, 640))
+
+
+def expected_chunk(state: np.ndarray) -> np.ndarray:
+    steps = (1.0 - (1.0 - GAIN) ** np.arange(1, CHUNK + 1))[:, None]
+    return (state[None, :] + steps * (TARGET - state)[None, :]).astype(np.float32)
+
+
+CAMERA = np.zeros((480, 640, 3), np.uint8)  # 900 KB: travels to onnxruntime in the policy server
+
+
+def obs(state: np.ndarray = STATE) -> dict[str, np.ndarray]:
+    return {"observation.state": state, "observation.images.front": CAMERA}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextmanager
+def serving(policy: str, port: int, *extra: str) -> Iterator[subprocess.Popen]:
+    log = Path(policy).parent / f"server-{port}-{os.getpid()}.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "embagents.models.lerobot_server", "--onnx", policy,
+                                 "--port", str(port), *extra], stdout=out, stderr=subprocess.STDOUT,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        def listening() -> bool:
+            assert proc.poll() is None, f"the policy server exited: {log.read_text()}"
+            return "serving " in log.read_text()
+
+        wait_until(listening, 30.0, "the policy server listening", interval=0.05)
+        yield proc
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def server(policy: str) -> Iterator[str]:
+    port = _free_port()
+    with serving(policy, port):
+        yield f"127.0.0.1:{port}"
+
+
+def test_a_chunk_comes_back_from_the_onnx_policy_behind_the_grpc_protocol(server: str) -> None:
+    client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
+    assert isinstance(client, PolicyClient)
+    try:
+        state = np.linspace(-1, 1, 7).astype(np.float32)
+        chunk = client.infer(obs(state), "reach", 5.0)  # the 900 KB frame: one chunk of the stream
+        assert chunk.dtype == np.float32 and chunk.shape == (CHUNK, 7)
+        assert np.allclose(chunk, expected_chunk(state), atol=1e-6)
+        extra = np.zeros((1080, 1920, 3), np.uint8)  # 6 MB more: streamed in 2 MB chunks as LeRobot does
+        assert client.infer({**obs(state), "observation.images.top": extra}, "reach", 5.0).shape == (CHUNK, 7)
+    finally:
+        client.close()
+
+
+def test_an_observation_the_policy_cannot_take_is_refused_naming_the_keys(server: str) -> None:
+    client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
+    try:
+        with pytest.raises(BadRequest, match=r"observation lacks 'observation.state' .* keys sent: joints"):
+            client.infer({"joints": STATE, "observation.images.front": CAMERA}, "reach", 5.0)
+        assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)  # still serving
+    finally:
+        client.close()
+
+
+def test_a_chunk_of_the_wrong_shape_names_expected_and_actual(server: str) -> None:
+    client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK + 2)  # the policy makes chunks of 8
+    try:
+        with pytest.raises(PolicyError, match=r"chunk of shape \(8, 7\); expected \(10, 7\) \(actions_per_chunk, n_joints\)"):
+            client.infer(obs(), "reach", 5.0)
+    finally:
+        client.close()
+
+
+def test_a_state_of_the_wrong_size_is_refused_naming_expected_and_actual(server: str) -> None:
+    client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
+    try:
+        with pytest.raises(BadRequest, match=r"observation 'observation.state' has shape \(6,\); the policy expects \(7,\)"):
+            client.infer(obs(np.zeros(6, np.float32)), "reach", 5.0)
+    finally:
+        client.close()
+
+
+def test_a_server_that_is_down_is_a_clear_error_and_the_client_reconnects_when_it_is_back(policy: str) -> None:
+    port = _free_port()
+    client = LeRobotPolicyClient(f"127.0.0.1:{port}", actions_per_chunk=CHUNK)
+    try:
+        with pytest.raises(PolicyUnavailable, match=rf"policy server 127.0.0.1:{port} is not reachable .*is it running"):
+            client.infer(obs(), "reach", 2.0)
+        with serving(policy, port):
+            assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)
+        with pytest.raises(PolicyUnavailable):  # gone again
+            client.infer(obs(), "reach", 2.0)
+        with serving(policy, port):  # a new server: a new hello and setup, then chunks again
+            assert np.allclose(client.infer(obs(), "reach", 5.0),
+                               expected_chunk(STATE))
+    finally:
+        client.close()
+
+
+def test_a_server_that_forgot_the_setup_is_told_again_within_the_same_call(server: str) -> None:
+    import grpc
+
+    from embagents.models.lerobot import messages, method
+
+    client = LeRobotPolicyClient(server, actions_per_chunk=CHUNK)
+    try:
+        assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)
+        m = messages()
+        with grpc.insecure_channel(server) as other:  # another client's Ready: the server forgets our setup
+            other.unary_unary(method("Ready"), request_serializer=lambda x: x.SerializeToString(),
+                              response_deserializer=m["Empty"].FromString)(m["Empty"](), timeout=5)
+        assert np.allclose(client.infer(obs(), "reach", 5.0), expected_chunk(STATE))
+    finally:
+        client.close()
+
+
+def test_a_late_answer_is_a_timeout_error(policy: str) -> None:
+    port = _free_port()
+    with serving(policy, port, "--latency-s", "1.5"):
+        client = LeRobotPolicyClient(f"127.0.0.1:{port}", actions_per_chunk=CHUNK)
+        try:
+            with pytest.raises(PolicyLate, match=r"gave no actions within 0.300 s; motion should stop"):
+                client.infer(obs(), "reach", 0.3)
+            assert client.infer(obs(), "reach", 5.0).shape == (CHUNK, 7)  # patient: served
+        finally:
+            client.close()
+
+
+def test_pickles_are_never_loaded_unless_the_user_opts_in() -> None:
+    import pickle
+
+    with pytest.raises(ValueError, match="a pickle: LeRobot's own encoding, which this side never loads"):
+        decode_payload(pickle.dumps({"actions": [1.0]}))
+    with pytest.raises(ValueError, match="loading a pickle can run any code: pass allow_pickle=True only for a server you trust"):
+        LeRobotPolicyClient("127.0.0.1:1", actions_per_chunk=4, encoding="pickle")
+    with pytest.raises(TypeError, match="only numeric arrays"):
+        encode_payload({"x": np.array([object()])})
+    assert decode_payload(encode_payload({"a": np.arange(3, dtype=np.int16)}))["a"].tolist() == [0, 1, 2]
+
+
+def test_a_pickle_sent_to_our_server_is_refused_not_loaded(server: str, tmp_path: Path) -> None:
+    import pickle
+
+    import grpc
+
+    from embagents.models.lerobot import messages, method
+
+    marker = tmp_path / "ran"
+    evil = pickle.dumps(_Evil(str(marker)))
+    m = messages()
+    with grpc.insecure_channel(server) as channel:
+        send = channel.unary_unary(method("SendPolicyInstructions"), request_serializer=lambda x: x.SerializeToString(),
+                                   response_deserializer=m["Empty"].FromString)
+        with pytest.raises(grpc.RpcError) as err:
+            send(m["PolicySetup"](data=evil), timeout=5)
+    assert err.value.code() == grpc.StatusCode.INVALID_ARGUMENT and "never loads" in err.value.details()
+    assert not marker.exists()
+
+
+class _Evil:
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def __reduce__(self) -> tuple:
+        return (open, (self.path, "w"))
