@@ -17,7 +17,15 @@ from embagents.components import (
     Health,
     HealthStatus,
     LLMConfig,
+    MapConfig,
+    MapEncoding,
+    MapLayer,
+    Memory,
+    MemoryConfig,
     ModelComponent,
+    Route,
+    SemanticRouter,
+    SemanticRouterConfig,
     VideoMakerConfig,
     VideoMessageMaker,
     Vision,
@@ -25,7 +33,13 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
-from embagents.models import DetectorModel, LlamaModel, LocalModelClient, RemoteModelClient
+from embagents.models import (
+    DetectorModel,
+    EmbeddingModel,
+    LlamaModel,
+    LocalModelClient,
+    RemoteModelClient,
+)
 from embagents.msgs import (
     Audio,
     CompressedImage,
@@ -41,6 +55,7 @@ from embagents.msgs import (
     Video,
 )
 from embagents.system import System, load_system
+from embagents.tools import register_tools_on, tool
 from embagents.topic import Topic
 
 # The actors and the supervisor name processes, folders and variables after the app using them.
@@ -57,6 +72,7 @@ __all__ = [
     "CompressedImage",
     "Detections",
     "DetectorModel",
+    "EmbeddingModel",
     "Event",
     "Fallback",
     "Health",
@@ -65,11 +81,19 @@ __all__ = [
     "JointState",
     "LLMConfig",
     "LlamaModel",
+    "MapConfig",
+    "MapEncoding",
+    "MapLayer",
+    "Memory",
+    "MemoryConfig",
     "LocalModelClient",
     "ModelComponent",
     "OccupancyGrid",
     "Odometry",
     "RemoteModelClient",
+    "Route",
+    "SemanticRouter",
+    "SemanticRouterConfig",
     "StreamingString",
     "String",
     "System",
@@ -83,4 +107,6 @@ __all__ = [
     "VisionConfig",
     "load_system",
     "on",
+    "register_tools_on",
+    "tool",
 ]

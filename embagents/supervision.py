@@ -56,7 +56,10 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S
         children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=heartbeat,
                                   lifecycle="active", snapshot_interval=0.5, start_timeout=120))
-    if system.events or any(getattr(c, "fallback", None) for c in system.components):
+    from embagents.tools import uses_events_actor
+
+    # The events actor also carries LLM tool calls and route actions across processes.
+    if system.events or any(getattr(c, "fallback", None) or uses_events_actor(c) for c in system.components):
         children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
     sup = system.supervision
     return SupervisorSpec(strategy=sup["strategy"], intensity=sup["intensity"], period=sup["period"], children=children)

@@ -17,7 +17,15 @@ from embagents.components.component import (
     lenient_construction,
 )
 from embagents.components.llm import LLM, LLMConfig, tool_schema
+from embagents.components.memory import MapConfig, MapEncoding, MapLayer, Memory, MemoryConfig
+from embagents.components.memory_store import (
+    MemoryDimensionError,
+    MemoryLocked,
+    MemoryStore,
+    MemoryStoreError,
+)
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
+from embagents.components.router import Route, SemanticRouter, SemanticRouterConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
 
@@ -32,7 +40,19 @@ __all__ = [
     "Health",
     "HealthStatus",
     "LLMConfig",
+    "MapConfig",
+    "MapEncoding",
+    "MapLayer",
+    "Memory",
+    "MemoryConfig",
+    "MemoryDimensionError",
+    "MemoryLocked",
+    "MemoryStore",
+    "MemoryStoreError",
     "ModelComponent",
+    "Route",
+    "SemanticRouter",
+    "SemanticRouterConfig",
     "VideoMakerConfig",
     "VideoMessageMaker",
     "Vision",

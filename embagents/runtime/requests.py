@@ -34,6 +34,8 @@ __all__ = [
     "HealthQuery",
     "Reconfigure",
     "SupervisorRequest",
+    "ToolCall",
+    "RouteFired",
 ]
 
 #: The topic that carries :class:`SupervisorRequest` messages to the root's supervisor.
@@ -88,3 +90,27 @@ class SupervisorRequest:
     kind: str = attrs.field(validator=_check_kind)
     component: str
     because: str = ""
+
+
+@message("embagents/ToolCall")
+@attrs.define
+class ToolCall:
+    """An LLM's tool call for the events actor: run ``component.<method>(**kwargs)``, answer its result.
+
+    Bad arguments (names or count the method does not take) are refused with a
+    ``TypeError`` naming the method's parameters, before the component is asked.
+    """
+
+    component: str
+    method: str
+    kwargs: dict[str, Any] = attrs.field(factory=dict, converter=dict)
+
+
+@message("embagents/RouteFired")
+@attrs.define
+class RouteFired:
+    """A router sent a text down route ``route`` (an output topic name): the events actor runs that route's actions."""
+
+    component: str
+    route: str
+    text: str = ""
