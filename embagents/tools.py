@@ -41,8 +41,9 @@ def tool(fn: F) -> F:
 
 def tool_methods(component: Any) -> list[str]:
     """The methods of ``component`` offered as tools: marked with :func:`tool`, else its class's ``llm_tools``."""
+    listed = list(getattr(component, "llm_tools", ()))  # in the class's order: the first is shown first
     marked = [name for name, fn in inspect.getmembers(type(component), callable) if getattr(fn, _MARK, False)]
-    return sorted(set(marked) | set(getattr(component, "llm_tools", ())))
+    return listed + [m for m in marked if m not in listed]
 
 
 class RemoteTool:

@@ -141,7 +141,9 @@ def tool_schema(name: str, fn: Callable[..., Any], parameters: Mapping[str, Any]
                 continue
             ann = p.annotation
             # With `from __future__ import annotations` the annotation is a string.
-            jtype = _JSON_TYPES.get(ann) or _JSON_TYPE_NAMES.get(ann if isinstance(ann, str) else "", "string")
+            # "float | None" (an optional number) is a number.
+            first = ann.split("|")[0].strip() if isinstance(ann, str) else ""
+            jtype = _JSON_TYPES.get(ann) or _JSON_TYPE_NAMES.get(first, "string")
             props[p.name] = {"type": jtype}
             if p.default is p.empty:
                 required.append(p.name)
