@@ -129,7 +129,9 @@ class Memory(Component):
     #: The actions :func:`~embagents.tools.register_tools_on` offers an LLM.
     llm_tools = ("locate", "query", "near", "between")
 
-    allowed_inputs = {"Required": [Odometry], "Optional": [OccupancyGrid, String, StreamingString, Detections]}
+    # Odometry is checked in validate(), not Required: a layer's message before the first
+    # odometry is still stored (position_known False), not held back.
+    allowed_inputs = {"Optional": [Odometry, OccupancyGrid, String, StreamingString, Detections]}
     allowed_outputs = None
     config_class = MemoryConfig
 

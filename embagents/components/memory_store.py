@@ -130,27 +130,36 @@ class MemoryStore:
         return db
 
     def _schema(self, db: Any) -> None:
-        with db:  # one write transaction: also where a lock held elsewhere is seen
-            db.execute("CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)")
-            meta = dict(db.execute("SELECT key, value FROM meta"))
-            if meta:
-                dim, model = int(meta["dim"]), meta["model"]
-                if dim != self.dim:
-                    raise MemoryDimensionError(
-                        f"memory database {self.path} holds {dim}-dimensional embeddings of model {model!r}, but "
-                        f"model {self.model!r} makes {self.dim}-dimensional ones; use model {model!r} again, or "
-                        "give this Memory another db_path (the stored items stay where they are)")
-                if model != self.model:
-                    log.warning("memory database %s was made with embedding model %r; now %r (same dimension %d): "
-                                "old and new vectors may not compare well", self.path, model, self.model, dim)
-                return
-            db.execute("INSERT INTO meta VALUES ('dim', ?), ('model', ?), ('created', ?)",
-                       (str(self.dim), self.model, str(time.time())))
-            db.execute("CREATE TABLE items(id INTEGER PRIMARY KEY, layer TEXT NOT NULL, text TEXT NOT NULL, "
-                       "x REAL, y REAL, z REAL, t REAL NOT NULL, extra TEXT, embedding BLOB NOT NULL)")
-            db.execute("CREATE INDEX items_t ON items(t)")
-            db.execute("CREATE INDEX items_layer_t ON items(layer, t)")
-            db.execute("CREATE VIRTUAL TABLE items_xy USING rtree(id, minx, maxx, miny, maxy)")
+        # IMMEDIATE takes the write lock now: a file another process holds is seen at open, not at the first item.
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            self._make_schema(db)
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        db.execute("COMMIT")
+
+    def _make_schema(self, db: Any) -> None:
+        db.execute("CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+        meta = dict(db.execute("SELECT key, value FROM meta"))
+        if meta:
+            dim, model = int(meta["dim"]), meta["model"]
+            if dim != self.dim:
+                raise MemoryDimensionError(
+                    f"memory database {self.path} holds {dim}-dimensional embeddings of model {model!r}, but "
+                    f"model {self.model!r} makes {self.dim}-dimensional ones; use model {model!r} again, or "
+                    "give this Memory another db_path (the stored items stay where they are)")
+            if model != self.model:
+                log.warning("memory database %s was made with embedding model %r; now %r (same dimension %d): "
+                            "old and new vectors may not compare well", self.path, model, self.model, dim)
+            return
+        db.execute("INSERT INTO meta VALUES ('dim', ?), ('model', ?), ('created', ?)",
+                   (str(self.dim), self.model, str(time.time())))
+        db.execute("CREATE TABLE items(id INTEGER PRIMARY KEY, layer TEXT NOT NULL, text TEXT NOT NULL, "
+                   "x REAL, y REAL, z REAL, t REAL NOT NULL, extra TEXT, embedding BLOB NOT NULL)")
+        db.execute("CREATE INDEX items_t ON items(t)")
+        db.execute("CREATE INDEX items_layer_t ON items(layer, t)")
+        db.execute("CREATE VIRTUAL TABLE items_xy USING rtree(id, minx, maxx, miny, maxy)")
 
     def _set_aside(self, exc: BaseException) -> str:
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -178,6 +187,14 @@ class MemoryStore:
     def add_many(self, items: Sequence[tuple[str, str, np.ndarray, Sequence[float], float | None,
                                              dict[str, Any] | None]]) -> list[int]:
         """Store items in one transaction; returns their ids (committed)."""
+        try:
+            return self._add_many(items)
+        except _apsw()[0].BusyError as exc:
+            raise MemoryLocked(f"memory database {self.path} is locked by another process ({exc}); stop the other "
+                               "process that writes it, or give this Memory its own db_path") from None
+
+    def _add_many(self, items: Sequence[tuple[str, str, np.ndarray, Sequence[float], float | None,
+                                              dict[str, Any] | None]]) -> list[int]:
         ids: list[int] = []
         vecs: list[np.ndarray] = []
         with self.db:

