@@ -115,7 +115,8 @@ class EventsActor(Actor):
         try:
             sig.bind(**call.kwargs)
         except TypeError as exc:
-            raise TypeError(f"bad arguments for {call.method}{sig}: {exc}; got {call.kwargs!r}") from None
+            shown = ", ".join(str(p).replace("'", "") for p in sig.parameters.values())
+            raise TypeError(f"bad arguments for {call.method}({shown}): {exc}; got {call.kwargs!r}") from None
         log.info("tool call %s.%s(%s)", call.component, call.method,
                  ", ".join(f"{k}={v!r}" for k, v in call.kwargs.items()))
         result = self.context.ref(call.component).ask(Call(call.method, [], call.kwargs)).get(timeout=self.TOOL_TIMEOUT_S)

@@ -19,7 +19,14 @@ pytest.importorskip("apsw")
 pytest.importorskip("sqlite_vec")
 
 from actors import ActorSystem  # noqa: E402
-from embagents.components import HealthStatus, MapEncoding, MapLayer, Memory, MemoryConfig, MemoryStore  # noqa: E402
+from embagents.components import (  # noqa: E402
+    HealthStatus,
+    MapEncoding,
+    MapLayer,
+    Memory,
+    MemoryConfig,
+    MemoryStore,
+)
 from embagents.models import LocalModelClient  # noqa: E402
 from embagents.msgs import Detections, Odometry, StreamingString, String  # noqa: E402
 from embagents.runtime.component_actor import ComponentActor, remember_system  # noqa: E402
