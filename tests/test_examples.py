@@ -14,7 +14,7 @@ import pytest
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
-@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py"])
+@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "memory.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)
@@ -56,3 +56,20 @@ def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: 
     clips = sorted(tmp_path.glob("motion_clip_*.mp4"))
     assert [c.name for c in clips] == ["motion_clip_1.mp4", "motion_clip_2.mp4"], out.stdout
     assert out.stdout.splitlines()[-1] == f"done: 2 clips in {tmp_path}", out.stdout
+
+
+def test_memory_example_answers_where_the_cup_was_from_a_tool_call(tmp_path: Path) -> None:
+    for module in ("llama_cpp", "onnxruntime", "apsw", "sqlite_vec", "tokenizers"):
+        pytest.importorskip(module, reason="the example needs the llm and memory extras")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "memory.py")],
+                         capture_output=True, text=True, timeout=240,
+                         env={**os.environ, "EMBAGENTS_MEMORY_DB": str(tmp_path / "memory.db")})
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    assert "[base] at (4.0, 2.0): sees cup, bottle; note: the kitchen table" in lines, out.stdout
+    assert lines[-4] == "Q: Where did you see the cup?", out.stdout
+    assert lines[-3] == 'tool call: locate({"what": "cup"})', out.stdout
+    assert re.fullmatch(r"tool result: I last saw cup \d+ s ago at x=4\.0, y=2\.0, near the kitchen table", lines[-2])
+    assert lines[-1].startswith("A: ") and "kitchen table" in lines[-1], out.stdout
+    # The call crossed processes: the events actor ran it in memory's actor.
+    assert "[_events] INFO embagents.events: tool call memory.locate(what='cup')" in out.stderr
