@@ -55,6 +55,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_actors,
     cases_chaos,
     cases_llm,
+    cases_memory,
     cases_mpqueue,
     cases_pyzmq,
     cases_rclpy,

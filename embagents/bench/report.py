@@ -112,6 +112,10 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
         ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
+        ("router_latency", "router: String in -> routed String out, runtime / in-process", "ratio", "<=", 1.15, "x", 1.0),
+        ("memory_scale", "memory: query p50 at 100,000 items", "query_p50_ms_100k", "<=", 20.0, "ms", 1.0),
+        ("memory_scale", "memory: query p50 at 100,000 / at 1,000 items", "growth", "<", 10.0, "x", 1.0),
+        ("memory_crash", "memory: acknowledged items lost to a SIGKILL", "lost", "<=", 0, "items", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))

@@ -10,16 +10,16 @@ item to the WAL file (the OS keeps it, whatever happens to the process);
 only a power loss can lose the last commits. ``durability="full"`` adds an
 fsync per commit for that too (slower, see the README's numbers).
 
-Semantic search is exact: the unit float32 vectors are also kept in RAM
-(an ``(N, dim)`` matrix, read back from the file on open: 150 MB per
-100,000 items of 384 dimensions), so top-k is one matrix-vector product
-(a few ms at 100,000 items). Measured here first: sqlite-vec's own
+Semantic search runs in RAM over the unit float32 vectors (read back from
+the file on open: 150 MB per 100,000 items of 384 dimensions): exact
+while the memory is small, then an inverted-file index (:mod:`.memory_index`)
+whose cost grows like sqrt(N). Measured here first: sqlite-vec's own
 brute-force ``vec0`` k-NN took ~40 ms at 100,000 items, and a 1-bit
-quantised ``vec0`` index with float rescoring took ~19 ms but found only
-a third of the true top 10 on a hard set. sqlite-vec's
-``vec_distance_cosine`` still runs the filtered queries (one layer) inside
-SQLite. Python's own ``sqlite3`` here cannot load extensions, so ``apsw``
-(which bundles a current SQLite) is the binding.
+quantised ``vec0`` index with float rescoring ~19 ms with only a third of
+the true top 10 found on a hard set. sqlite-vec's ``vec_distance_cosine``
+still ranks the filtered queries (one layer) inside SQLite. Positions are
+in an R*Tree. Python's own ``sqlite3`` here cannot load extensions, so
+``apsw`` (which bundles a current SQLite) is the binding.
 
 Example::
 
@@ -42,6 +42,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+
+from embagents.components.memory_index import VectorIndex
 
 __all__ = ["MemoryDimensionError", "MemoryLocked", "MemoryStore", "MemoryStoreError"]
 
@@ -88,11 +90,11 @@ class MemoryStore:
     locked raises :class:`MemoryLocked`.
     """
 
-    def __init__(self, path: str, *, dim: int, model: str, durability: str = "normal", busy_timeout_s: float = 2.0,
-                 rescore: int = 200) -> None:
+    def __init__(self, path: str, *, dim: int, model: str, durability: str = "normal",
+                 busy_timeout_s: float = 2.0) -> None:
         if durability not in ("normal", "full"):
             raise ValueError(f"durability must be 'normal' or 'full', got {durability!r}")
-        self.path, self.dim, self.model, self.rescore = os.path.abspath(path), int(dim), str(model), int(rescore)
+        self.path, self.dim, self.model = os.path.abspath(path), int(dim), str(model)
         self.set_aside: str | None = None
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
         apsw = _apsw()[0]
@@ -213,25 +215,13 @@ class MemoryStore:
         return ids
 
     def _load_mirror(self) -> None:
-        self._ids = np.zeros(0, np.int64)
-        self._mat = np.zeros((0, self.dim), np.float32)
-        self._n = 0
+        self._index = VectorIndex(self.dim)
         rows = list(self.db.execute("SELECT id, embedding FROM items ORDER BY id"))
         if rows:
             self._mirror([r[0] for r in rows], [np.frombuffer(r[1], np.float32) for r in rows])
 
     def _mirror(self, ids: list[int], vecs: list[np.ndarray]) -> None:
-        need = self._n + len(ids)
-        if need > len(self._ids):  # grow by doubling: appends stay amortised O(1)
-            cap = max(need, 2 * len(self._ids), 1024)
-            mat = np.zeros((cap, self.dim), np.float32)
-            mat[: self._n] = self._mat[: self._n]
-            idv = np.zeros(cap, np.int64)
-            idv[: self._n] = self._ids[: self._n]
-            self._mat, self._ids = mat, idv
-        self._mat[self._n:need] = np.asarray(vecs, np.float32).reshape(len(ids), self.dim)
-        self._ids[self._n:need] = ids
-        self._n = need
+        self._index.add(np.asarray(ids, np.int64), np.asarray(vecs, np.float32).reshape(len(ids), self.dim))
 
     # -- reading -------------------------------------------------------------------------------
     _COLS = "i.id, i.layer, i.text, i.x, i.y, i.z, i.t, i.extra"
@@ -260,35 +250,37 @@ class MemoryStore:
             rows = self.db.execute(f"SELECT {self._COLS}, vec_distance_cosine(i.embedding, ?) AS d FROM items i "
                                    "WHERE i.layer = ? ORDER BY d LIMIT ?", (q.tobytes(), layer, int(k)))
             return [self._row(r, distance=float(r[8])) for r in rows]
-        if self._n == 0:
+        found, dist = self._index.search(q, int(k))
+        ids = [int(i) for i in found]
+        if not ids:
             return []
-        dist = 1.0 - self._mat[: self._n] @ q
-        k = min(int(k), self._n)
-        top = np.argpartition(dist, k - 1)[:k] if k < self._n else np.arange(self._n)
-        top = top[np.argsort(dist[top], kind="stable")]
-        ids = [int(i) for i in self._ids[top]]
         marks = ",".join("?" * len(ids))
         by_id = {r[0]: r for r in self.db.execute(f"SELECT {self._COLS} FROM items i WHERE i.id IN ({marks})", ids)}
-        return [self._row(by_id[i], distance=float(d)) for i, d in zip(ids, dist[top], strict=True) if i in by_id]
+        return [self._row(by_id[i], distance=float(d)) for i, d in zip(ids, dist, strict=True) if i in by_id]
 
     def within(self, center: Sequence[float], radius: float, layer: str | None = None,
                limit: int = 100) -> list[dict[str, Any]]:
         """Items within ``radius`` (metres, in x/y) of ``center``, nearest first."""
-        cx, cy = float(center[0]), float(center[1])
-        r = float(radius)
-        sql = (f"SELECT {self._COLS} FROM items i WHERE i.id IN (SELECT id FROM items_xy WHERE minx >= ? "
-               "AND maxx <= ? AND miny >= ? AND maxy <= ?)")
-        args: list[Any] = [cx - r, cx + r, cy - r, cy + r]
-        if layer is not None:
-            sql += " AND i.layer = ?"
-            args.append(layer)
-        found = []
-        for row in self.db.execute(sql, args):
-            d = float(np.hypot(row[3] - cx, row[4] - cy))
-            if d <= r:
-                found.append(self._row(row, distance_m=d))
-        found.sort(key=lambda it: it["distance_m"])
-        return found[: int(limit)]
+        cx, cy, r = float(center[0]), float(center[1]), float(radius)
+        # The R*Tree gives the ids and points in the square; numpy keeps those in the circle, nearest first;
+        # only the kept rows are read (the square around a busy place can hold many).
+        box = np.array(list(self.db.execute("SELECT id, minx, miny FROM items_xy WHERE minx >= ? AND maxx <= ? "
+                                            "AND miny >= ? AND maxy <= ?", (cx - r, cx + r, cy - r, cy + r))),
+                       np.float64).reshape(-1, 3)
+        if layer is not None and len(box):
+            marks = ",".join("?" * len(box))
+            keep = {row[0] for row in self.db.execute(f"SELECT id FROM items WHERE layer = ? AND id IN ({marks})",
+                                                      [layer, *box[:, 0].astype(int).tolist()])}
+            box = box[np.isin(box[:, 0].astype(int), list(keep))]
+        d = np.hypot(box[:, 1] - cx, box[:, 2] - cy)
+        inside = np.flatnonzero(d <= r)
+        order = inside[np.argsort(d[inside], kind="stable")][: int(limit)]
+        ids = [int(box[i, 0]) for i in order]
+        if not ids:
+            return []
+        marks = ",".join("?" * len(ids))
+        by_id = {row[0]: row for row in self.db.execute(f"SELECT {self._COLS} FROM items i WHERE i.id IN ({marks})", ids)}
+        return [self._row(by_id[i], distance_m=float(d[j])) for i, j in zip(ids, order, strict=True)]
 
     def between(self, t0: float, t1: float, layer: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
         """Items stored in the time window [t0, t1], oldest first."""
