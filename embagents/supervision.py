@@ -21,11 +21,12 @@ from embagents.models import models_of
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
 from embagents.runtime.model_actor import ModelActor
+from embagents.runtime.requests import EVENTS_ACTOR
 
 __all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec"]
 
 #: The events actor's name.
-EVENTS_NAME = "_events"
+EVENTS_NAME = EVENTS_ACTOR
 #: Hang deadlines: a component's loop must beat this often; a model's, per token.
 HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0

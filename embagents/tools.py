@@ -64,11 +64,10 @@ class RemoteTool:
     def __call__(self, **kwargs: Any) -> Any:
         from actors import ActorRef
         from actors.errors import ActorError
-        from embagents.runtime.requests import ToolCall
-        from embagents.supervision import EVENTS_NAME
+        from embagents.toolcalls import EVENTS_ACTOR, ToolCall
 
         try:
-            return ActorRef(EVENTS_NAME).ask(ToolCall(self.component, self.method, kwargs)).get(timeout=self.timeout)
+            return ActorRef(EVENTS_ACTOR).ask(ToolCall(self.component, self.method, kwargs)).get(timeout=self.timeout)
         except ActorError as exc:
             why = getattr(exc, "remote_message", None) or str(exc).split("\n")[0]
             kind = getattr(exc, "exc_type", type(exc).__name__)

@@ -227,7 +227,6 @@ class SemanticRouter(Component):
 
     def _fire(self, topic: str, text: str) -> None:
         from actors import ActorRef
-        from embagents.runtime.requests import RouteFired
-        from embagents.supervision import EVENTS_NAME
+        from embagents.toolcalls import EVENTS_ACTOR, RouteFired
 
-        ActorRef(EVENTS_NAME).tell(RouteFired(str(self.name), topic, text))
+        ActorRef(EVENTS_ACTOR).tell(RouteFired(str(self.name), topic, text))

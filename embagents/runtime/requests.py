@@ -25,8 +25,10 @@ from typing import Any
 import attrs
 
 from actors.codec import message
+from embagents.toolcalls import EVENTS_ACTOR, RouteFired, ToolCall
 
 __all__ = [
+    "EVENTS_ACTOR",
     "SUPERVISOR_REQUESTS",
     "SUPERVISOR_REQUEST_KINDS",
     "Call",
@@ -91,26 +93,3 @@ class SupervisorRequest:
     component: str
     because: str = ""
 
-
-@message("embagents/ToolCall")
-@attrs.define
-class ToolCall:
-    """An LLM's tool call for the events actor: run ``component.<method>(**kwargs)``, answer its result.
-
-    Bad arguments (names or count the method does not take) are refused with a
-    ``TypeError`` naming the method's parameters, before the component is asked.
-    """
-
-    component: str
-    method: str
-    kwargs: dict[str, Any] = attrs.field(factory=dict, converter=dict)
-
-
-@message("embagents/RouteFired")
-@attrs.define
-class RouteFired:
-    """A router sent a text down route ``route`` (an output topic name): the events actor runs that route's actions."""
-
-    component: str
-    route: str
-    text: str = ""
