@@ -112,7 +112,9 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
                     asys.rt, asys.loop, name, lambda msg, name=name: got.put((time.monotonic(), name)),
                     queue_size=100, keep="all"))
             pub = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_heard"))
-            time.sleep(0.5)  # subscriptions connected
+            # Subscriptions connected, and the router's start-up client (it embedded the samples) no longer
+            # counts as active: the model actor would hold a request up to batch_wait_ms for it.
+            time.sleep(1.2)
             assert base.stdin is not None and base.stdout is not None
             for i in range(n + 2):  # the first two of each are warm-ups; interleaved, so drifts hit both
                 text = TEXTS[i % len(TEXTS)]

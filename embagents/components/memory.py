@@ -148,6 +148,8 @@ class Memory(Component):
         self._streams: dict[tuple[str, str], list[str]] = {}
         self._where: tuple[float, float, float] | None = None
         self._grid: OccupancyGrid | None = None
+        self._by_topic = {layer.name: layer for layer in self.layers}
+        self._inbox: list[tuple[str, str, dict[str, Any] | None, tuple[float, float, float], float]] = []
         inputs = [t for t in (position, map_topic) if t is not None] + [layer.subscribes_to for layer in self.layers]
         super().__init__(name=name, inputs=kw.pop("inputs", inputs), **kw)
 
@@ -222,15 +224,17 @@ class Memory(Component):
             self._where = tuple(float(c) for c in msg.position)  # type: ignore[assignment]
         elif isinstance(msg, OccupancyGrid):
             self._grid = msg
+        layer = self._by_topic.get(topic_name)
+        if layer is not None:
+            # Taken now, where the robot is now: a rate-triggered step (MapEncoding's trigger=15.0)
+            # stores every message since the last tick, not only the latest of each topic.
+            where, note = self._position()
+            for name, text, extra in self._items_of(layer, msg):
+                self._inbox.append((name, text, {**(extra or {}), **(note or {})} or None, where, time.time()))
         return super().on_message(topic_name, msg, now)
 
     def _execution_step(self, **inputs: Any) -> None:
-        items: list[tuple[str, str, dict[str, Any] | None]] = []
-        for layer in self.layers:
-            name = layer.name
-            if name not in self.fresh_inputs or inputs.get(name) is None:
-                continue
-            items += self._items_of(layer, inputs[name])
+        items, self._inbox = self._inbox, []
         self._store(items)
 
     def _items_of(self, layer: MapLayer, msg: Any) -> list[tuple[str, str, dict[str, Any] | None]]:
@@ -263,15 +267,14 @@ class Memory(Component):
             return (0.0, 0.0, 0.0), {"position_known": False}
         return self._where, None
 
-    def _store(self, items: list[tuple[str, str, dict[str, Any] | None]]) -> list[int]:
+    def _store(self, items: list[tuple[str, str, dict[str, Any] | None, tuple[float, float, float], float]]) -> list[int]:
+        """Embed ``items`` (layer, text, extra, position, time) and commit them with any kept from before."""
         if not items and not self._pending:
             return []
-        now = time.time()
-        where, note = self._position()
         if items:
-            vectors = self.embedding_client.embed([text for _, text, _ in items])
-            for (layer, text, extra), v in zip(items, vectors, strict=True):
-                self._pending.append((layer, text, v, where, now, {**(extra or {}), **(note or {})} or None))
+            vectors = self.embedding_client.embed([text for _, text, _, _, _ in items])
+            for (layer, text, extra, where, t), v in zip(items, vectors, strict=True):
+                self._pending.append((layer, text, v, where, t, extra))
         while len(self._pending) > self.config.max_pending:
             dropped = self._pending.popleft()
             self.logger.error("%s: memory locked for too long: dropped %r (max_pending %d)", self._label(), dropped[1],
@@ -300,7 +303,8 @@ class Memory(Component):
         """
         if not isinstance(text, str) or not text.strip():
             raise ValueError(f"remember needs a non-empty text, got {text!r}")
-        ids = self._store([(layer, text, None)])
+        where, note = self._position()
+        ids = self._store([(layer, text, note, where, time.time())])
         if not ids:
             raise MemoryStoreError(f"not stored yet (kept in RAM, {len(self._pending)} pending): {self.store_problem}")
         return ids[-1]

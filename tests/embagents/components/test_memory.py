@@ -157,6 +157,21 @@ def test_items_arriving_while_the_file_is_locked_are_kept_and_stored_later(minil
     assert [h["text"] for h in mem.between(-60)] == ["before the lock", "during the lock", "after the lock"]
 
 
+def test_a_rate_triggered_step_stores_every_message_since_the_last_tick_where_it_arrived(minilm: str,
+                                                                                       tmp_path: Path) -> None:
+    enc = MapEncoding(component_name="map", layers=[MapLayer(subscribes_to=notes)], position=odom,
+                      db_client=LocalModelClient(minilm), config=MemoryConfig(db_path=str(tmp_path / "m.db")),
+                      trigger=15.0)
+    enc.attach(lambda topic, msg: None)
+    enc.on_configure()
+    for i, x in enumerate((1.0, 2.0, 3.0)):
+        at(enc, x, 0.0)
+        enc.on_message("notes", String(data=f"note {i}"))
+    assert enc.execute()  # one tick
+    assert [(h["text"], h["position"][0]) for h in enc.between(-60)] == [("note 0", 1.0), ("note 1", 2.0),
+                                                                         ("note 2", 3.0)]
+
+
 def test_map_encoding_keeps_embodied_agents_arguments(minilm: str, tmp_path: Path) -> None:
     enc = MapEncoding(component_name="map_encoder", layers=[MapLayer(subscribes_to=notes)], position=odom,
                       db_client=LocalModelClient(minilm), config=MemoryConfig(db_path=str(tmp_path / "m.db")),
