@@ -263,9 +263,13 @@ class Memory(Component):
         return any(it["text"] == label for it in self.store.within(self._where, layer.resolution_m, layer=layer.name))
 
     def _position(self) -> tuple[tuple[float, float, float], dict[str, Any] | None]:
+        """Where the robot is, and notes for the item: no odometry yet, or the map's frame it is in."""
+        note: dict[str, Any] = {}
+        if self._grid is not None:
+            note["map_frame"] = self._grid.frame_id
         if self._where is None:
-            return (0.0, 0.0, 0.0), {"position_known": False}
-        return self._where, None
+            return (0.0, 0.0, 0.0), {**note, "position_known": False}
+        return self._where, note or None
 
     def _store(self, items: list[tuple[str, str, dict[str, Any] | None, tuple[float, float, float], float]]) -> list[int]:
         """Embed ``items`` (layer, text, extra, position, time) and commit them with any kept from before."""

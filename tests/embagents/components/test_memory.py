@@ -172,6 +172,24 @@ def test_a_rate_triggered_step_stores_every_message_since_the_last_tick_where_it
                                                                          ("note 2", 3.0)]
 
 
+def test_an_item_before_any_odometry_is_stored_and_says_so_and_the_map_frame_is_noted(minilm: str,
+                                                                                    tmp_path: Path) -> None:
+    from embagents.msgs import OccupancyGrid
+
+    grid = Topic("map", OccupancyGrid)
+    mem = Memory(name="memory", position=odom, map_topic=grid, embedding_client=LocalModelClient(minilm),
+                 layers=[MapLayer(subscribes_to=notes)], config=MemoryConfig(db_path=str(tmp_path / "m.db")))
+    mem.attach(lambda topic, msg: None)
+    mem.on_configure()
+    feed(mem, "notes", String(data="before odometry"))
+    mem.on_message("map", OccupancyGrid(frame_id="flat"))
+    at(mem, 2.0, 1.0)
+    feed(mem, "notes", String(data="with a map"))
+    first, second = mem.between(-60)
+    assert first["extra"] == {"position_known": False}
+    assert second["extra"] == {"map_frame": "flat"} and second["position"] == [2.0, 1.0, 0.0]
+
+
 def test_map_encoding_keeps_embodied_agents_arguments(minilm: str, tmp_path: Path) -> None:
     enc = MapEncoding(component_name="map_encoder", layers=[MapLayer(subscribes_to=notes)], position=odom,
                       db_client=LocalModelClient(minilm), config=MemoryConfig(db_path=str(tmp_path / "m.db")),
