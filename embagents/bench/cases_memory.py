@@ -118,9 +118,13 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
             assert base.stdin is not None and base.stdout is not None
             for i in range(n + 2):  # the first two of each are warm-ups; interleaved, so drifts hit both
                 text = TEXTS[i % len(TEXTS)]
-                t0 = time.monotonic()
-                asys.rt.on_client(lambda text=text: pub.publish(String(data=text)))
+                sent: list[float] = []
+                # Both ends are stamped on this process's IO thread: as the String goes out, as the routed one
+                # arrives (the hand-offs to and from the bench's own thread are the harness, not the runtime).
+                asys.rt.on_client(lambda text=text, sent=sent: (sent.append(time.monotonic()),
+                                                                pub.publish(String(data=text))))
                 t1, ours = got.get(timeout=60)  # waited for, not polled
+                t0 = sent[0]
                 base.stdin.write(text + "\n")
                 base.stdin.flush()
                 secs, theirs = base.stdout.readline().split()
