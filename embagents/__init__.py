@@ -17,7 +17,15 @@ from embagents.components import (
     Health,
     HealthStatus,
     LLMConfig,
+    MapConfig,
+    MapEncoding,
+    MapLayer,
+    Memory,
+    MemoryConfig,
     ModelComponent,
+    Route,
+    SemanticRouter,
+    SemanticRouterConfig,
     SpeechToText,
     SpeechToTextConfig,
     VideoMakerConfig,
@@ -30,6 +38,7 @@ from embagents.events import Action, Event, Fallback, on
 from embagents.manager import Agent, HandshakeRule, Manager, Node, StateMachineHandler
 from embagents.models import (
     DetectorModel,
+    EmbeddingModel,
     LlamaModel,
     LocalModelClient,
     RemoteModelClient,
@@ -50,6 +59,7 @@ from embagents.msgs import (
     Video,
 )
 from embagents.system import System, load_system
+from embagents.tools import register_tools_on, tool
 from embagents.topic import Topic
 
 # The actors and the supervisor name processes, folders and variables after the app using them.
@@ -67,6 +77,7 @@ __all__ = [
     "CompressedImage",
     "Detections",
     "DetectorModel",
+    "EmbeddingModel",
     "Event",
     "Fallback",
     "HandshakeRule",
@@ -76,6 +87,11 @@ __all__ = [
     "JointState",
     "LLMConfig",
     "LlamaModel",
+    "MapConfig",
+    "MapEncoding",
+    "MapLayer",
+    "Memory",
+    "MemoryConfig",
     "LocalModelClient",
     "Manager",
     "ModelComponent",
@@ -86,6 +102,9 @@ __all__ = [
     "SpeechToText",
     "SpeechToTextConfig",
     "SpeechToTextModel",
+    "Route",
+    "SemanticRouter",
+    "SemanticRouterConfig",
     "StreamingString",
     "StateMachineHandler",
     "String",
@@ -100,4 +119,6 @@ __all__ = [
     "VisionConfig",
     "load_system",
     "on",
+    "register_tools_on",
+    "tool",
 ]

@@ -21,11 +21,12 @@ from embagents.models import models_of
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
 from embagents.runtime.model_actor import ModelActor
+from embagents.runtime.requests import EVENTS_ACTOR
 
 __all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec"]
 
 #: The events actor's name.
-EVENTS_NAME = "_events"
+EVENTS_NAME = EVENTS_ACTOR
 #: Hang deadlines: a component's loop must beat this often; a model's, per token.
 HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0
@@ -67,7 +68,10 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         # The loop beats every tick: a tick longer than hang_timeout is a hang. Snapshots after each changed tick.
         children.append(ChildSpec(mgr.name, (ManagerActor, (path, mgr.name)), heartbeat=mgr.hang_timeout,
                                   lifecycle="active", snapshot_interval=0.0, start_timeout=120))
-    if system.events or any(getattr(c, "fallback", None) for c in system.components):
+    from embagents.tools import uses_events_actor
+
+    # The events actor also carries LLM tool calls and route actions across processes.
+    if system.events or any(getattr(c, "fallback", None) or uses_events_actor(c) for c in system.components):
         children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
     sup = system.supervision
     return SupervisorSpec(strategy=sup["strategy"], intensity=sup["intensity"], period=sup["period"], children=children)

@@ -19,7 +19,7 @@ EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
 @pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py",
-                                  "manager_pick_place.py", "manager_modes.py", "arm.py"])
+                                  "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)
@@ -122,6 +122,8 @@ def test_modes_example_goes_through_its_modes_to_the_goal() -> None:
                      ("navigation", "arrived")], out.stdout
     x, y = (float(v) for v in re.search(r"arrived at \((\S+), (\S+)\)", out.stdout).groups())  # type: ignore[union-attr]
     assert abs(x - 1.5) < 0.1 and abs(y - 1.0) < 0.1, out.stdout
+
+
 def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
     for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py"):
         pytest.importorskip(module, reason="the example needs the sim extra (pip install 'embagents[sim]')")
@@ -157,3 +159,20 @@ def test_arm_example_describes_its_camera_with_a_vlm_when_one_is_present(tmp_pat
     assert len(described) == 2 and "skipped" not in described[1] and "no answer" not in described[1], out.stdout
     assert lines[-1] == "done: reached the target"
     assert "event 'first_frame' fired" in out.stderr  # the event called vlm.describe in the VLM's process
+
+
+def test_memory_example_answers_where_the_cup_was_from_a_tool_call(tmp_path: Path) -> None:
+    for module in ("llama_cpp", "onnxruntime", "apsw", "sqlite_vec", "tokenizers"):
+        pytest.importorskip(module, reason="the example needs the llm and memory extras")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "memory.py")],
+                         capture_output=True, text=True, timeout=240,
+                         env={**os.environ, "EMBAGENTS_MEMORY_DB": str(tmp_path / "memory.db")})
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    assert "[base] at (4.0, 2.0): sees cup, bottle; note: the kitchen table" in lines, out.stdout
+    assert lines[-4] == "Q: Where did you see the cup?", out.stdout
+    assert lines[-3] == 'tool call: locate({"what": "cup"})', out.stdout
+    assert re.fullmatch(r"tool result: I last saw cup \d+ s ago at x=4\.0, y=2\.0, near the kitchen table", lines[-2])
+    assert lines[-1].startswith("A: ") and "kitchen table" in lines[-1], out.stdout
+    # The call crossed processes: the events actor ran it in memory's actor.
+    assert "[_events] INFO embagents.events: tool call memory.locate(what='cup')" in out.stderr

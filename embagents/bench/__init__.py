@@ -57,6 +57,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_chaos,
     cases_llm,
     cases_manager,
+    cases_memory,
     cases_mpqueue,
     cases_pyzmq,
     cases_rclpy,

@@ -123,6 +123,10 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("vla_control_loop", "VLA p99 jitter minus in-process", "jitter_over_inprocess_ms", "<=", 1.0, "ms", 1.0),
         ("gil_isolation", "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads", "ratio", "<=",
          0.2, "x", 1.0),
+        ("router_latency", "router: String in -> routed String out, runtime / in-process", "ratio", "<=", 1.15, "x", 1.0),
+        ("memory_scale", "memory: query p50 at 100,000 items", "query_p50_ms_100k", "<=", 20.0, "ms", 1.0),
+        ("memory_scale", "memory: query p50 at 100,000 / at 1,000 items", "growth", "<", 10.0, "x", 1.0),
+        ("memory_crash", "memory: acknowledged items lost to a SIGKILL", "lost", "<=", 0, "items", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))

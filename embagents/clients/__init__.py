@@ -1,1 +1,7 @@
-"""Model clients that talk to inference servers: OpenAI-compatible chat (:mod:`.openai_http`), transcription (:mod:`.openai_audio`)."""
+"""Model clients that talk to inference servers: OpenAI-compatible chat (:mod:`.openai_http`), transcription
+(:mod:`.openai_audio`), embeddings (:mod:`.openai_embeddings`)."""
+
+from embagents.clients.openai_embeddings import OpenAIEmbeddingClient
+from embagents.clients.openai_http import OpenAIHTTPClient, OpenAIHTTPError
+
+__all__ = ["OpenAIEmbeddingClient", "OpenAIHTTPClient", "OpenAIHTTPError"]

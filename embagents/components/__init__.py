@@ -18,7 +18,15 @@ from embagents.components.component import (
 )
 from embagents.components.joint_limits import Clipper, JointLimit, limits_from_urdf
 from embagents.components.llm import LLM, LLMConfig, tool_schema
+from embagents.components.memory import MapConfig, MapEncoding, MapLayer, Memory, MemoryConfig
+from embagents.components.memory_store import (
+    MemoryDimensionError,
+    MemoryLocked,
+    MemoryStore,
+    MemoryStoreError,
+)
 from embagents.components.model_component import ChatClient, ModelComponent, client_name
+from embagents.components.router import Route, SemanticRouter, SemanticRouterConfig
 from embagents.components.sim import Sim, SimConfig
 from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
@@ -42,12 +50,24 @@ __all__ = [
     "HealthStatus",
     "JointLimit",
     "LLMConfig",
+    "MapConfig",
+    "MapEncoding",
+    "MapLayer",
+    "Memory",
+    "MemoryConfig",
+    "MemoryDimensionError",
+    "MemoryLocked",
+    "MemoryStore",
+    "MemoryStoreError",
     "ModelComponent",
     "NoImageYet",
     "SpeechToText",
     "SpeechToTextConfig",
     "Sim",
     "SimConfig",
+    "Route",
+    "SemanticRouter",
+    "SemanticRouterConfig",
     "VideoMakerConfig",
     "VideoMessageMaker",
     "Vision",

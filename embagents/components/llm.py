@@ -107,6 +107,12 @@ def _check_template(_inst: object, _attr: object, value: str | None) -> None:
         raise ConfigError(f"prompt_template {value!r} must contain the {{text}} placeholder (the input text)")
 
 
+def _tool_choice(value: object) -> str:
+    if value not in ("auto", "required"):
+        raise ConfigError(f"tool_choice must be 'auto' or 'required' (the first reply must call a tool), got {value!r}")
+    return str(value)
+
+
 def _check_tools(_inst: object, _attr: object, value: dict[str, Any]) -> None:
     if not isinstance(value, Mapping):
         raise ConfigError(f"tools must be a dict of name -> function, got {value!r}")
@@ -135,7 +141,9 @@ def tool_schema(name: str, fn: Callable[..., Any], parameters: Mapping[str, Any]
                 continue
             ann = p.annotation
             # With `from __future__ import annotations` the annotation is a string.
-            jtype = _JSON_TYPES.get(ann) or _JSON_TYPE_NAMES.get(ann if isinstance(ann, str) else "", "string")
+            # "float | None" (an optional number) is a number.
+            first = ann.split("|")[0].strip() if isinstance(ann, str) else ""
+            jtype = _JSON_TYPES.get(ann) or _JSON_TYPE_NAMES.get(first, "string")
             props[p.name] = {"type": jtype}
             if p.default is p.empty:
                 required.append(p.name)
@@ -160,7 +168,10 @@ class LLMConfig(BaseComponentConfig):
     - ``max_new_tokens``, ``temperature``, ``stop``: generation options.
     - ``tools``: name -> Python function the model may call; ``tool_schemas``:
       name -> JSON schema of its parameters (else derived from the signature);
-      ``max_tool_rounds``: tool rounds before the model must answer.
+      ``max_tool_rounds``: tool rounds before the model must answer;
+      ``tool_choice``: ``"auto"`` (the model decides) or ``"required"`` (its first
+      reply must be a tool call: with llama.cpp, held to a JSON schema by a grammar,
+      so even SmolLM2-135M makes a valid call; later rounds answer freely).
 
     >>> LLMConfig(history_size="4", stream="true").history_size
     4
@@ -177,6 +188,7 @@ class LLMConfig(BaseComponentConfig):
     tools: dict[str, Callable[..., Any]] = field(factory=dict, validator=_check_tools)
     tool_schemas: dict[str, dict[str, Any]] = field(factory=dict)
     max_tool_rounds: int = field(default=3, converter=int_at_least(0))
+    tool_choice: str = field(default="auto", converter=_tool_choice)
 
     def __attrs_post_init__(self) -> None:
         extra = sorted(set(self.tool_schemas) - set(self.tools))
@@ -324,8 +336,9 @@ class LLM(ModelComponent):
             tools = specs if rounds < cfg.max_tool_rounds else None
             parts: list[str] = []
             tool_calls = None
+            extra = {"tool_choice": "required"} if tools and rounds == 0 and cfg.tool_choice == "required" else {}
             for chunk in self.chat_stream(messages, max_tokens=cfg.max_new_tokens, temperature=cfg.temperature,
-                                          stop=cfg.stop or None, tools=tools, **self._model_inputs()):
+                                          stop=cfg.stop or None, tools=tools, **self._model_inputs(), **extra):
                 delta = chunk.get("delta")
                 if delta:
                     parts.append(delta)
@@ -362,4 +375,7 @@ class LLM(ModelComponent):
         except Exception as exc:
             self.logger.warning("%s: tool %s failed: %s", self._label(), name, exc)
             return f"error: {type(exc).__name__}: {exc}"
+        self.logger.info("%s: tool call %s(%s) -> %.200s", self._label(), name, call["function"]["arguments"], result)
+        if isinstance(result, Mapping) and isinstance(result.get("summary"), str):
+            return str(result["summary"])  # a tool's own words read better to a small model than JSON
         return result if isinstance(result, str) else json.dumps(result, default=str)

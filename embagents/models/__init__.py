@@ -25,6 +25,7 @@ from embagents.models.chat import ChatClient, collect_stream
 from embagents.models.client import LocalModelClient
 from embagents.models.declarations import (
     DetectorModel,
+    EmbeddingModel,
     LlamaModel,
     Model,
     SpeechToTextModel,
@@ -41,6 +42,7 @@ __all__ = [
     "ChatClient",
     "DetectorModel",
     "LeRobotPolicyClient",
+    "EmbeddingModel",
     "LlamaModel",
     "LocalModelClient",
     "LocalPolicyClient",

@@ -260,3 +260,8 @@ class LocalModelClient:
     def transcribe(self, audio: Any, **options: Any) -> dict[str, Any]:
         """The text said in ``audio`` (1-D 16 kHz float32 or int16 samples): ``{"text", "seconds"}``."""
         return self.infer("transcribe", {"audio": audio}, **options)
+
+    def embed(self, texts: list[str]) -> Any:
+        """Unit-length sentence embeddings of ``texts``: a float32 (N, dim) array."""
+        return self.infer("embed", {"texts": list(texts)})["vectors"]
+

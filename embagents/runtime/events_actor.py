@@ -11,6 +11,11 @@ action runs:
 - ``start`` / ``stop`` / ``restart`` / ``give_up``: a
   :class:`~embagents.runtime.requests.SupervisorRequest` on the
   ``_supervisor_requests`` topic, carried out by the root's supervisor.
+
+It also runs an LLM's tool calls (:class:`~embagents.runtime.requests.ToolCall`,
+see :mod:`embagents.tools`): the arguments are checked against the method's
+signature here, then the component's actor is asked and its result answered;
+and a router's route actions (:class:`~embagents.runtime.requests.RouteFired`).
 """
 
 from __future__ import annotations
@@ -26,7 +31,9 @@ from embagents.runtime.requests import (
     Call,
     ChangeModelClient,
     Reconfigure,
+    RouteFired,
     SupervisorRequest,
+    ToolCall,
 )
 
 __all__ = ["EventsActor"]
@@ -41,8 +48,12 @@ class EventsActor(Actor):
     def __init__(self, system_path: str) -> None:
         self.system_path = system_path
 
+    #: How long a tool call may take in the component (a memory query, a picture).
+    TOOL_TIMEOUT_S = 60.0
+
     def on_start(self) -> None:
         system = loaded_system(self.system_path)
+        self.system = system
         self.events = system.events
         self.fallbacks = {c.name: c.fallback for c in system.components if getattr(c, "fallback", None)}
         self.fired: list[dict[str, Any]] = []
@@ -89,7 +100,39 @@ class EventsActor(Actor):
         except ActorNotFound as exc:
             log.error("action %s failed: %s", kind, exc)
 
+    def run_tool(self, call: ToolCall) -> Any:
+        """Check ``call``'s arguments against the method, then ask the component's actor to run it."""
+        import inspect
+
+        try:
+            comp = self.system.component(call.component)
+        except (KeyError, ValueError) as exc:
+            raise LookupError(f"tool {call.method!r}: no component {call.component!r} in this system ({exc})") from None
+        fn = getattr(comp, call.method, None)
+        if not callable(fn) or call.method.startswith("_"):
+            raise LookupError(f"component {call.component!r} has no action {call.method!r}")
+        sig = inspect.signature(fn)
+        try:
+            sig.bind(**call.kwargs)
+        except TypeError as exc:
+            shown = ", ".join(str(p).replace("'", "") for p in sig.parameters.values())
+            raise TypeError(f"bad arguments for {call.method}({shown}): {exc}; got {call.kwargs!r}") from None
+        log.info("tool call %s.%s(%s)", call.component, call.method,
+                 ", ".join(f"{k}={v!r}" for k, v in call.kwargs.items()))
+        result = self.context.ref(call.component).ask(Call(call.method, [], call.kwargs)).get(timeout=self.TOOL_TIMEOUT_S)
+        log.info("tool %s.%s answered %.200r", call.component, call.method, result)
+        return result
+
+    def route_fired(self, msg: RouteFired) -> None:
+        comp = self.system.component(msg.component)
+        for action in getattr(comp, "route_actions", {}).get(msg.route, ()):
+            self.run_action(action, because=f"router {msg.component!r} routed {msg.text!r:.60} to {msg.route!r}")
+
     def on_receive(self, message: Any) -> Any:
+        if isinstance(message, ToolCall):
+            return self.run_tool(message)
+        if isinstance(message, RouteFired):
+            return self.route_fired(message)
         if message == "fired":
             return list(self.fired)
         raise ValueError(f"unknown request {message!r}: the events actor answers 'fired'")

@@ -25,8 +25,10 @@ from typing import Any
 import attrs
 
 from actors.codec import message
+from embagents.toolcalls import EVENTS_ACTOR, RouteFired, ToolCall
 
 __all__ = [
+    "EVENTS_ACTOR",
     "SUPERVISOR_REQUESTS",
     "SUPERVISOR_REQUEST_KINDS",
     "Call",
@@ -34,6 +36,8 @@ __all__ = [
     "HealthQuery",
     "Reconfigure",
     "SupervisorRequest",
+    "ToolCall",
+    "RouteFired",
 ]
 
 #: The topic that carries :class:`SupervisorRequest` messages to the root's supervisor.
@@ -88,3 +92,4 @@ class SupervisorRequest:
     kind: str = attrs.field(validator=_check_kind)
     component: str
     because: str = ""
+

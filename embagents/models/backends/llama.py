@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import os
 import threading
 import time
@@ -36,7 +37,10 @@ from embagents.models.chat import (
 
 __all__ = [
     "LlamaBackend",
+    "calls_as_text",
     "default_use_extra_bufts",
+    "tool_call_schema",
+    "tool_prompt_messages",
 ]
 
 _INSTALL_HINT = "pip install 'embagents[llm]' (or pip install llama-cpp-python)"
@@ -207,10 +211,20 @@ class LlamaBackend:
             # prompt/completion counts, which streaming responses do not carry.
             "logits_processor": llama_cpp.LogitsProcessorList([counter]),
         }
-        if tools:
+        constrained = bool(tools) and tool_choice not in (None, "auto", "none") and self.chat_format is None
+        if constrained:
+            # Small models (SmolLM2-135M) rarely write a well-formed call on their own: the tools are
+            # described in the system message and the reply is held to a JSON schema by a llama.cpp
+            # grammar, so it is always a valid call of a declared tool with schema-shaped arguments.
+            kwargs["messages"] = tool_prompt_messages(messages, tools or [], tool_choice)
+            kwargs["grammar"] = llama_cpp.LlamaGrammar.from_json_schema(
+                json.dumps(tool_call_schema(tools or [], tool_choice)), verbose=False)
+        elif tools:
             kwargs["tools"] = tools
             # chatml-function-calling only considers tools when a choice is given.
             kwargs["tool_choice"] = tool_choice if tool_choice is not None else "auto"
+        if self.chat_format is None:
+            kwargs["messages"] = calls_as_text(kwargs["messages"])
         self._busy = True
         start = time.perf_counter()
         first_token_s: float | None = None
@@ -399,3 +413,83 @@ class _TokenCounter:
             "completion_tokens": self.completion_tokens,
             "total_tokens": self.prompt_tokens + self.completion_tokens,
         }
+
+
+def _functions(tools: list[dict], tool_choice: Any) -> list[dict]:
+    fns = [t.get("function") or t for t in tools]
+    if isinstance(tool_choice, dict):  # {"type": "function", "function": {"name": ...}}: that one only
+        wanted = (tool_choice.get("function") or tool_choice).get("name")
+        fns = [f for f in fns if f.get("name") == wanted] or fns
+    return fns
+
+
+def _bounded(params: dict) -> dict:
+    """Tool parameters as the grammar holds them: no extra keys, strings at most 80 characters."""
+    props = {k: ({**v, "maxLength": 80} if v.get("type") == "string" and "maxLength" not in v else v)
+             for k, v in (params.get("properties") or {}).items()}
+    return {**params, "type": "object", "properties": props, "additionalProperties": False}
+
+
+def tool_call_schema(tools: list[dict], tool_choice: Any = "required") -> dict:
+    """The JSON schema a constrained reply follows: ``{"name": <a tool>, "arguments": <its parameters>}``.
+
+    >>> t = [{"type": "function", "function": {"name": "locate", "parameters": {"type": "object",
+    ...       "properties": {"what": {"type": "string"}}, "required": ["what"]}}}]
+    >>> tool_call_schema(t)["oneOf"][0]["properties"]["name"]
+    {'const': 'locate'}
+    """
+    options = []
+    for fn in _functions(tools, tool_choice):
+        params = _bounded(fn.get("parameters") or {"type": "object", "properties": {}})
+        options.append({"type": "object", "properties": {"name": {"const": fn["name"]}, "arguments": params},
+                        "required": ["name", "arguments"]})
+    return {"oneOf": options}
+
+
+def tool_prompt_messages(messages: list[dict], tools: list[dict], tool_choice: Any = "required") -> list[dict]:
+    """``messages`` with the tools described (and a call shown for each) before the last user text.
+
+    A chat template that cannot show tools (SmolLM2's) needs them in the text; measured on
+    SmolLM2-135M, it fills arguments from the question far more often when the tools come
+    right before it in the same turn than in the system message.
+    """
+    lines = ["Tools:"]
+    for fn in _functions(tools, tool_choice):
+        props = (fn.get("parameters") or {}).get("properties") or {}
+        shape = {k: ("..." if v.get("type", "string") == "string" else 0) for k, v in props.items()}
+        lines.append(f"- {fn['name']}: {fn.get('description', '')} Call: "
+                     + json.dumps({"name": fn["name"], "arguments": shape}))
+    lines.append("Answer with the one call that helps most with the user's question.")
+    out = [dict(m) for m in messages]
+    last = max((i for i, m in enumerate(out) if m.get("role") == "user"), default=None)
+    text = "\n".join(lines)
+    if last is None:
+        out.append({"role": "user", "content": text})
+    else:
+        out[last]["content"] = f"{text}\n\nQuestion: {out[last].get('content') or ''}"
+    return out
+
+
+def calls_as_text(messages: list[dict]) -> list[dict]:
+    """Assistant tool calls written into their content (a GGUF chat template shows only content).
+
+    >>> calls_as_text([{"role": "assistant", "content": "", "tool_calls": [
+    ...     {"function": {"name": "go", "arguments": '{"x": 1}'}}]}])[0]["content"]
+    '{"name": "go", "arguments": {"x": 1}}'
+    """
+    out = []
+    for m in messages:
+        calls = m.get("tool_calls")
+        if m.get("role") == "assistant" and calls and not m.get("content"):
+            shown = []
+            for c in calls:
+                fn = c.get("function") or c
+                args = fn.get("arguments")
+                try:
+                    args = json.loads(args) if isinstance(args, str) else args
+                except ValueError:
+                    pass
+                shown.append(json.dumps({"name": fn.get("name"), "arguments": args}))
+            m = {**m, "content": "\n".join(shown)}
+        out.append(m)
+    return out
