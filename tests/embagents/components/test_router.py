@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import queue
+import textwrap
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -10,11 +13,15 @@ import pytest
 pytest.importorskip("onnxruntime")
 
 from actors import ActorSystem  # noqa: E402
+from actors.topics import Publisher, Subscription  # noqa: E402
 from embagents.components import ComponentError, Route, SemanticRouter, SemanticRouterConfig  # noqa: E402
 from embagents.events import publish  # noqa: E402
 from embagents.models import LocalModelClient  # noqa: E402
 from embagents.msgs import String  # noqa: E402
+from embagents.runtime.component_actor import ComponentActor, remember_system  # noqa: E402
+from embagents.runtime.events_actor import EventsActor  # noqa: E402
 from embagents.runtime.model_actor import ModelActor  # noqa: E402
+from embagents.system import load_system  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 heard, goto, chat, vision = Topic("heard", String), Topic("goto", String), Topic("chat", String), Topic("vision", String)
@@ -128,3 +135,50 @@ def test_llm_mode_follows_the_route_the_model_calls() -> None:
                        config=SemanticRouterConfig(mode="llm"))
     assert r.route("tell me a joke") == "chat" and client.offered == ["goto", "chat"]
     assert r.route("something else") == "goto"  # a call of no route: the default route
+
+
+ROUTER_SYSTEM = '''
+from embagents import EmbeddingModel, LocalModelClient, Route, SemanticRouter, SemanticRouterConfig, String, System, Topic
+from embagents.events import publish
+
+minilm = EmbeddingModel(name="minilm", local_model_path=MODEL)
+heard, goto, chat, alarm = (Topic("heard", String), Topic("goto", String), Topic("chat", String),
+                            Topic("alarm", String))
+router = SemanticRouter(name="router", inputs=[heard], embedding_client=LocalModelClient(minilm),
+                        routes=[Route(routes_to=goto, samples=["go to the kitchen", "drive to the door"],
+                                      actions=[publish(alarm, String(data="moving"))]),
+                                Route(routes_to=chat, samples=["hello, how are you?", "tell me a joke"])],
+                        config=SemanticRouterConfig(maximum_distance=1.2))
+system = System([router], models=[minilm], external=[heard])
+'''
+
+
+def test_a_route_fires_its_actions_through_the_events_actor(served: ActorSystem, minilm_dir: str, tmp_path: Any) -> None:
+    path = str(tmp_path / "system.py")
+    with open(path, "w") as f:
+        f.write(textwrap.dedent(ROUTER_SYSTEM).replace("MODEL", repr(minilm_dir)))
+    remember_system(path, load_system(path))
+    asys = served  # its minilm model actor serves this router too
+    asys.spawn(ComponentActor, "router", path, "router", wait=30)
+    asys.spawn(EventsActor, "_events", path, wait=30)
+    try:
+        routed_and_fired(asys)
+    finally:
+        asys.stop("_events")
+        asys.stop("router")
+
+
+def routed_and_fired(asys: ActorSystem) -> None:
+    got: queue.Queue[tuple[str, str]] = queue.Queue()
+    for name in ("goto", "chat", "alarm"):
+        asys.rt.on_client(lambda name=name: Subscription(asys.rt, asys.loop, name,
+                                                         lambda msg, name=name: got.put((name, msg.data)),
+                                                         queue_size=10, keep="all"))
+    pub = asys.rt.on_client(lambda: Publisher(asys.rt, "heard"))
+    time.sleep(0.5)  # subscriptions connected
+    asys.rt.on_client(lambda: pub.publish(String(data="tell me something funny")))
+    assert got.get(timeout=30) == ("chat", "tell me something funny")
+    asys.rt.on_client(lambda: pub.publish(String(data="please drive to the bedroom")))
+    seen = {got.get(timeout=30), got.get(timeout=30)}
+    assert seen == {("goto", "please drive to the bedroom"), ("alarm", "moving")}
+    assert [f["kind"] for f in asys.ref("_events").ask("fired", timeout=5).get()] == ["publish"]
