@@ -24,6 +24,7 @@ import socket
 import stat
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -217,11 +218,16 @@ class ForkServer:
 
     def exit_status(self) -> str:
         """How the (lost) server ended, as far as ``waitpid`` can tell without waiting."""
-        try:
-            pid, status = os.waitpid(self.pid, os.WNOHANG)
-        except ChildProcessError:
-            return "already reaped"
-        if pid == 0:
+        # Its socket closes as it dies: give the kernel a moment to make it a zombie we can read.
+        for _ in range(100):
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:
+                return "already reaped"
+            if pid:
+                break
+            time.sleep(0.01)
+        else:
             return "still running, its socket closed"
         if os.WIFSIGNALED(status):
             return f"killed by signal {os.WTERMSIG(status)}"
@@ -238,8 +244,6 @@ class ForkServer:
 
 
 def _wait_pid(pid: int, timeout: float) -> None:
-    import time
-
     deadline = time.monotonic() + timeout
     while True:
         done, _ = os.waitpid(pid, os.WNOHANG)

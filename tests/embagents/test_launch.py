@@ -165,8 +165,8 @@ def test_a_directory_gets_a_system_file_to_pass(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", "examples"], capture_output=True,
                           text=True, timeout=60, cwd=Path(__file__).parents[2])
     assert proc.returncode == 1
-    assert "/examples: is a directory, not a system file; pass one of its system files, e.g. `examples/chat.py` (or: " \
-        in proc.stderr and "Traceback" not in proc.stderr
+    assert "/examples: is a directory, not a system file; pass one of its system files, e.g. `examples/" \
+        in proc.stderr and "examples/chat.py" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_an_unreachable_model_hub_is_one_line(tmp_path: Path) -> None:
