@@ -5,9 +5,7 @@
   period jitter (``|period - 10 ms|``) p99, with the agent isolated (its own
   process) and attached (a thread of the loop's process, sharing its GIL),
   one after the other. Fields ``p99_jitter_ms`` (isolated),
-  ``attached_p99_jitter_ms`` and ``jitter_ratio`` (isolated / attached);
-  ``isolated_nice10_p99_jitter_ms``: isolated again with the agent's process
-  at nice 10 (``Agent(..., nice=10)``; not in ``--quick``).
+  ``attached_p99_jitter_ms`` and ``jitter_ratio`` (isolated / attached).
   Bars: isolated <= 2 ms and ratio <= 1/5.
 - ``manager_restart_resume``: a Manager at 100 Hz runs a four-state
   pick-and-place cycle and publishes every tick (state, pid, stamp); the
@@ -119,9 +117,6 @@ def manager_loop_jitter(opts: BenchOptions) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="embagents-bench-") as tmp:
         iso = _jitter_s(_jitter_run(True, ticks, os.path.join(tmp, "isolated.json")), skip)
         att = _jitter_s(_jitter_run(False, ticks, os.path.join(tmp, "attached.json")), skip)
-        # The same isolated agent at nice 10: on a busy machine the loop's process then wins the CPU it shares.
-        niced = None if opts.quick else _p99_ms(_jitter_s(_jitter_run(True, ticks, os.path.join(tmp, "nice.json"),
-                                                                       nice=10), skip))
     isolated, attached = _p99_ms(iso), _p99_ms(att)
     return {
         # p50/p99: the isolated run's jitter, in microseconds.
@@ -130,7 +125,6 @@ def manager_loop_jitter(opts: BenchOptions) -> dict[str, Any]:
         "p99_jitter_ms": isolated,
         "attached_p99_jitter_ms": attached,
         "jitter_ratio": round(isolated / attached, 3) if attached else None,
-        "isolated_nice10_p99_jitter_ms": niced,
         "note": f"{ticks - skip} ticks at {RATE_HZ:g} Hz, one {WORK_S * 1000:g} ms pure-Python agent call always "
                 "in flight; isolated agent vs attached; bars: isolated p99 <= 2 ms and <= 1/5 of attached",
     }
