@@ -115,8 +115,8 @@ def _p99_ms(jitter: np.ndarray) -> float:
 
 @case("manager_loop_jitter", transport="embagents", kind="manager")
 def manager_loop_jitter(opts: BenchOptions) -> dict[str, Any]:
-    ticks = 150 if opts.quick else 1000
-    skip = 20  # the first calls connect to the agent
+    ticks = 200 if opts.quick else 1050
+    skip = 50  # the first half second: the run is still starting around the loop
     with tempfile.TemporaryDirectory(prefix="embagents-bench-") as tmp:
         iso = _jitter_s(_jitter_run(True, ticks, os.path.join(tmp, "isolated.json")), skip)
         att = _jitter_s(_jitter_run(False, ticks, os.path.join(tmp, "attached.json")), skip)
