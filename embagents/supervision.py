@@ -64,7 +64,8 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         for agent in mgr.agents:
             if agent.isolated:  # started first: the manager's first call finds it
                 children.append(ChildSpec(agent.actor_name, (AgentActor, (path, mgr.name, agent.name)),
-                                          heartbeat=agent.heartbeat, nice=agent.nice, start_timeout=120))
+                                          heartbeat=agent.heartbeat, nice=agent.nice,
+                                          cpu_affinity=agent.cpu_affinity, start_timeout=120))
         # The loop beats every tick: a tick longer than hang_timeout is a hang. Snapshots after each changed tick.
         children.append(ChildSpec(mgr.name, (ManagerActor, (path, mgr.name)), heartbeat=mgr.hang_timeout,
                                   lifecycle="active", snapshot_interval=0.0, start_timeout=120))

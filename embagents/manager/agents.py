@@ -108,8 +108,9 @@ class Agent:
     """``factory(*args, **kwargs)`` as an agent named ``name``; ``isolated`` picks where it runs.
 
     ``heartbeat`` is an isolated agent's hang deadline in seconds (one call
-    longer than that gets it killed and restarted); ``nice`` its process's
-    niceness (a positive value lets the loop's process win a busy CPU).
+    longer than that gets it killed and restarted); ``nice`` and
+    ``cpu_affinity`` schedule its process (keep a CPU-bound agent off the
+    loop's core).
     """
 
     def __init__(
@@ -120,6 +121,7 @@ class Agent:
         isolated: bool = False,
         heartbeat: float = 30.0,
         nice: int | None = None,
+        cpu_affinity: list[int] | None = None,
         **kwargs: Any,
     ) -> None:
         from actors.wire import check_name
@@ -134,6 +136,7 @@ class Agent:
         self.isolated = bool(isolated)
         self.heartbeat = heartbeat
         self.nice = nice
+        self.cpu_affinity = cpu_affinity
         #: The actor name of an isolated agent (set by its manager: "<manager>.<agent>").
         self.actor_name = name
         self._call: Callable[[str, Any, Any], AgentFuture] | None = None

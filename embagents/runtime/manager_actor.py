@@ -24,6 +24,7 @@ Example::
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import time
@@ -85,6 +86,10 @@ class ManagerActor(Actor):
         if self._restored is not None:
             m.restore(self._restored)
         m.start_agents()
+        # Everything this process inherited or built so far lives as long as it does: out of the collector's
+        # sight, a full collection no longer walks the whole heap (about 5 ms for the 36,000 objects of a
+        # loaded system: a tick's worth of jitter at 100 Hz).
+        gc.freeze()
         if ctx.extension("lifecycle") is None:  # not supervised: bring it up ourselves
             self.on_activate()
 

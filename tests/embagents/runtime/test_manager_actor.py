@@ -87,7 +87,7 @@ def test_the_manager_ticks_in_its_own_supervised_process(run: Run) -> None:
 
 def test_the_achieved_rate_is_logged_and_reported(run: Run) -> None:
     rate = wait_until(lambda: run.status("main")["rate_hz"], 5, "a rate window")
-    assert 10 < rate < 80  # 50 Hz asked; a loose band (a shared machine): the bench measures the jitter
+    assert 0 < rate < 60  # 50 Hz asked: never faster (missed periods are skipped, not caught up); the bench times it
 
 
 def test_a_node_publishes_on_a_system_topic(run: Run) -> None:
