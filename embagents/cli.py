@@ -215,6 +215,16 @@ def _register_runtime_commands() -> None:
         _lazy("embagents.serve_model", "serve_model_arguments"), _lazy("embagents.serve_model", "run"),
         "serve a model actor to other machines over TCP with CURVE (only allowed keys get in)",
     )
+    for name, module, what, helptext in (
+        ("topic", "topic_cli", "topic", "list, echo, measure (hz) and publish the topics of the running system"),
+        ("logs", "logs_cli", "logs", "show (and follow with -f) one actor's log lines"),
+        ("record", "record_cli", "record", "record the running system's topics to an MCAP file (a supervised recorder)"),
+        ("play", "play", "play", "publish an MCAP recording into the running system (recorded timing, faster, stepped)"),
+        ("view", "foxglove_view", "view", "serve the running system's topics to Foxglove (WebSocket, no ROS)"),
+    ):
+        COMMANDS[name] = Command(
+            _lazy(f"embagents.tools.{module}", f"{what}_arguments"), _lazy(f"embagents.tools.{module}", "run"), helptext,
+        )
     COMMANDS["bench"] = Command(
         _bench_arguments, _lazy("embagents.bench", "run"),
         "measure embagents side by side with raw pyzmq, multiprocessing queues and rclpy",

@@ -20,13 +20,14 @@ import sys
 import threading
 from typing import Any
 
-from actors.child import configure_logging
+from actors.child import add_log_file, configure_logging
 from actors.topics import Subscription
 from embagents.models import models_of
 from embagents.publish import publish_command
 from embagents.runtime.component_actor import remember_system
 from embagents.runtime.requests import SUPERVISOR_REQUESTS, SupervisorRequest
 from embagents.supervision import build_spec
+from embagents.tools.root import install as install_tools
 
 __all__ = ["SYSTEM_STOP", "run", "run_system"]
 
@@ -66,6 +67,8 @@ def run_system(path: str) -> int:
             Subscription(asys.rt, asys.loop, SUPERVISOR_REQUESTS, requests.on_request, queue_size=100, keep="all"),
         ))
         control.add_command("publish", publish_command(asys, system))  # `embagents publish TOPIC TEXT`
+        install_tools(sup, control, system)  # `embagents topic list`, `embagents record`
+        add_log_file(asys.run_dir, "root")  # `embagents logs root`
         print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
               f"{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr, flush=True)
 
