@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from datetime import datetime, timezone
 import time
 from collections.abc import Iterator
 from typing import Any, NamedTuple
@@ -67,7 +68,7 @@ def read_messages(path: str, stopped: list[Stopped]) -> Iterator[tuple[str, int,
                 yield channel.topic, message.log_time, decode(schema.name if schema else "", message.data)
         except Exception as exc:  # a cut or damaged file: what came before was played
             reason = f"{type(exc).__name__}: {exc}".rstrip(": ")
-            if type(exc).__name__ == "EndOfFile":
+            if f.tell() >= size:  # EndOfFile, or a header cut in two
                 reason = "the file ends inside a record: cut short, by a killed recorder or an incomplete copy"
             stopped.append(Stopped(path, f.tell(), size, reason))
 
@@ -118,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"played {count} messages on {len(publishers)} topics from {', '.join(args.files)}")
         if stopped:
             s = stopped[0]
-            after = f"after the message on {last[0]!r} logged at {last[1] / 1e9:.3f}" if last else "before any message"
+            when = datetime.fromtimestamp(last[1] / 1e9, timezone.utc).isoformat(timespec="milliseconds") if last else ""
+            after = f"after the message on {last[0]!r} logged at {when}" if last else "before any message"
             print(f"error: {s.path} stopped at byte {s.offset} of {s.size} ({s.reason}); played what was readable, "
                   f"{after}", file=sys.stderr)
             return 1
