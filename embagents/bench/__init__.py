@@ -62,6 +62,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_ros_bridge,
     cases_ros_recovery,
     cases_supervisor,
+    cases_tools,
     cases_vision,
     idle,
 )

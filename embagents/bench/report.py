@@ -112,6 +112,10 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
         ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),
+        ("record_overhead", "publish p50 with `embagents record` / without", "ratio", "<=", 1.10, "x", 1.0),
+        ("record_overhead", "keep-all messages missing from the recording", "missing", "<=", 0, "msgs", 1.0),
+        ("echo_backpressure", "longest publish call, a paused `topic echo` subscribed", "publisher_stall_ms", "<=", 5.0,
+         "ms", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))
