@@ -49,10 +49,9 @@ class Attached:
     """This process's runtime in the run ``run`` (a :func:`supervisor.client.pick_run` entry)."""
 
     def __init__(self, run: dict[str, Any]) -> None:
+        import embagents  # noqa: F401 - registers the message types, so frames decode
         from actors.loop import Loop
         from actors.runtime import Runtime
-
-        import embagents  # noqa: F401 - registers the message types, so frames decode
 
         self.rt = Runtime(run["run_dir"], run["run_id"])
         self.loop = Loop()

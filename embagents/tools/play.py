@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from datetime import datetime, timezone
 import time
 from collections.abc import Iterator
+from datetime import datetime, timezone
 from typing import Any, NamedTuple
 
 from actors import UnsafeFolder
