@@ -77,19 +77,25 @@ class _Topics:
         self.prev: tuple[float, dict[str, int]] | None = None
 
     def __call__(self, _req: dict[str, Any]) -> dict[str, Any]:
-        now, counts = time.monotonic(), _received(self.control.rows())
-        if self.prev is None or now - self.prev[0] > 10:  # no recent look: take one now
+        rows = self.control.rows()
+        if self.prev is None or time.monotonic() - self.prev[0] > 10:  # no recent look: take one now
+            self.table(rows)
             time.sleep(0.5)
-            self.prev = (now, counts)
-            now, counts = time.monotonic(), _received(self.control.rows())
-        then, before = self.prev
+            rows = self.control.rows()
+        return {"ok": True, "topics": self.table(rows)}
+
+    def table(self, status_rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """The topic rows, rates since the previous call (from ``status_rows``' subscription counters)."""
+        now, counts = time.monotonic(), _received(status_rows)
+        then, before = self.prev or (now, {})
         rows = topic_rows(self.system, self.control.system.run_dir)
         for r in rows:
             key = r["name"].replace("/", ".")
             n, n0 = counts.get(key), before.get(key)
-            r["rate"] = round((n - n0) / (now - then), 1) if n is not None and n0 is not None and n >= n0 else None
+            ok = n is not None and n0 is not None and n >= n0 and now > then
+            r["rate"] = round((n - n0) / (now - then), 1) if ok else None  # type: ignore[operator]
         self.prev = (now, counts)
-        return {"ok": True, "topics": rows}
+        return rows
 
 
 class _Recorders:
@@ -147,9 +153,11 @@ class _Recorders:
         return {"ok": True, "files": rotation_files(path)}
 
 
-def install(sup: Any, control: Any, system: Any) -> None:
-    """Serve ``topics``, ``record_start`` and ``record_stop`` on ``control`` for ``system``."""
-    control.add_command("topics", _Topics(control, system))
+def install(sup: Any, control: Any, system: Any) -> _Topics:
+    """Serve ``topics``, ``record_start`` and ``record_stop`` on ``control`` for ``system``; returns the topics table."""
+    topics = _Topics(control, system)
+    control.add_command("topics", topics)
     recorders = _Recorders(sup, control, system)
     control.add_command("record_start", recorders.start)
     control.add_command("record_stop", recorders.stop)
+    return topics

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from tests.helpers import wait_until
+from tests.helpers import free_port, wait_until
 
 SYSTEM = '''
 import logging
@@ -35,8 +35,11 @@ class Talker(Component):
     def _execution_step(self, **_):
         self.n = getattr(self, "n", 0) + 1
         self.publish("chatter", String(data=f"hello {self.n}"))
-        self.publish("camera/image", Image(data=np.full((48, 64, 3), self.n % 255, np.uint8), stamp=float(self.n)))
-        self.publish("dets", Detections(boxes=[[4, 4, 20, 30]], labels=["cup"], scores=[0.9]))
+        h, w = np.indices((240, 320))
+        frame = np.stack([(w + self.n) % 256, h, 255 - h], axis=-1).astype(np.uint8)  # a gradient that moves
+        self.publish("camera/image", Image(data=frame, stamp=float(self.n)))
+        self.publish("dets", Detections(boxes=[[100, 60, 220, 200]], labels=["cup"], scores=[0.9],
+                                        image_width=320, image_height=240))
 
 
 class Shout(Component):
@@ -57,8 +60,8 @@ system = System([Talker(name="talker", outputs=[chatter, image, dets], trigger=2
 class Run:
     """The live run: ``cli(...)`` runs an `embagents` command against it."""
 
-    def __init__(self, proc: subprocess.Popen[bytes], folder: Path) -> None:
-        self.proc, self.folder = proc, folder
+    def __init__(self, proc: subprocess.Popen[bytes], folder: Path, dashboard_port: int) -> None:
+        self.proc, self.folder, self.dashboard_port = proc, folder, dashboard_port
         self.id = str(proc.pid)
 
     def cli(self, *args: str, timeout: float = 60, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
@@ -80,10 +83,11 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     folder = tmp_path_factory.mktemp("tools_run")
     path = folder / "system.py"
     path.write_text(textwrap.dedent(SYSTEM))
+    port = free_port()
     with open(folder / "root.log", "wb") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
-                                stdout=out, stderr=subprocess.STDOUT, env={**os.environ})
-    run = Run(proc, folder)
+        proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path), "--dashboard",
+                                 "--dashboard-port", str(port)], stdout=out, stderr=subprocess.STDOUT, env={**os.environ})
+    run = Run(proc, folder, port)
     try:
         wait_until(lambda: run.cli("topic", "list").returncode == 0, 90, "the tools test run to answer",
                    interval=0.5)

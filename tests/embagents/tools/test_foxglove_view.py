@@ -46,7 +46,7 @@ def test_foxglove_client_subscribes_and_receives(live_run: Run) -> None:
         assert channels["dets/annotations"]["schemaName"] == "foxglove.ImageAnnotations"
         assert "_supervisor.events" in channels
         assert json.loads(got["chatter"])["data"].startswith("hello")
-        assert decode("foxglove.RawImage", got["camera/image"]).data.shape == (48, 64, 3)
+        assert decode("foxglove.RawImage", got["camera/image"]).data.shape == (240, 320, 3)
     finally:
         view.terminate()
         assert view.wait(20) == 0

@@ -29,9 +29,9 @@ def test_echo_prints_text_json_and_summarises_arrays(live_run: Run) -> None:
     lines = [json.loads(x) for x in out.stdout.splitlines()]
     assert len(lines) == 2 and all(x["data"].startswith("hello ") for x in lines)
     img = live_run.cli("topic", "echo", "camera/image", "-n", "1")
-    assert "data: <array shape=(48, 64, 3) dtype=uint8>" in img.stdout and "encoding: rgb8" in img.stdout
+    assert "data: <array shape=(240, 320, 3) dtype=uint8>" in img.stdout and "encoding: rgb8" in img.stdout
     full = live_run.cli("topic", "echo", "dets", "-n", "1", "--json", "--full-arrays")
-    assert json.loads(full.stdout.splitlines()[0])["boxes"] == [[4.0, 4.0, 20.0, 30.0]]
+    assert json.loads(full.stdout.splitlines()[0])["boxes"] == [[100.0, 60.0, 220.0, 200.0]]
 
 
 def test_hz_reports_rate_and_period_statistics(live_run: Run) -> None:
