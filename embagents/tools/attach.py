@@ -57,8 +57,12 @@ class Attached:
         self.loop = Loop()
         self.subs: list[Any] = []
 
-    def subscribe(self, topic: str, callback: Callable[[Any], None], queue_size: int = 2) -> Any:
-        """A ``keep="latest"`` subscription (the terminal drops, the publisher goes on)."""
+    def subscribe(self, topic: str, callback: Callable[[Any], None], queue_size: int = 100) -> Any:
+        """A ``keep="latest"`` subscription (the terminal drops, the publisher goes on).
+
+        The queue holds a burst; a terminal that stops reading fills it, and then the
+        publisher drops for it (its high-water mark) without waiting.
+        """
         from actors.topics import Subscription
 
         sub = Subscription(self.rt, self.loop, topic, callback, queue_size=queue_size, keep="latest")

@@ -3,8 +3,8 @@
 Images, compressed images and audio use Foxglove's own protobuf schemas
 (``foxglove.RawImage``, ``foxglove.CompressedImage``, ``foxglove.RawAudio``,
 from ``foxglove-sdk``), so Foxglove shows them as they are. Every other
-type is JSON with a JSON Schema made from its attrs fields (schema name
-``embagents.<Type>``); small arrays are JSON lists, large ones an object
+type is JSON with a JSON Schema made from its attrs fields (schema name:
+its wire name with a dot, ``embagents.Detections``, a user's ``demo.Point``); small arrays are JSON lists, large ones an object
 ``{"dtype", "shape", "base64"}``. Supervisor events (dicts) are JSON objects.
 :func:`decode` turns a recorded message back into the message class.
 
@@ -148,9 +148,12 @@ def kind_of(cls: type | None) -> Kind:
         name, encode = foxglove[cls]
         schema = getattr(fm, name).get_schema()
         return Kind(schema.name, schema.encoding, bytes(schema.data), "protobuf", encode)
+    from actors.codec import message_name
+
+    name = message_name(cls).replace("/", ".")  # "embagents/String" -> "embagents.String"; a user's "demo.Point"
     props = {n: _json_schema(t) for n, t in field_types(cls).items()}
-    schema = {"title": f"embagents.{cls.__name__}", "type": "object", "properties": props}
-    return Kind(f"embagents.{cls.__name__}", "jsonschema", json.dumps(schema).encode(), "json", _json_encoder(cls))
+    schema = {"title": name, "type": "object", "properties": props}
+    return Kind(name, "jsonschema", json.dumps(schema).encode(), "json", _json_encoder(cls))
 
 
 def _array_field(cls: type, name: str, value: Any) -> np.ndarray:
@@ -214,14 +217,17 @@ def decode(schema_name: str, data: bytes) -> Any:
 
     Raises ValueError for a schema this version does not know.
     """
-    from embagents.topic import known_message_types
+    from actors.codec import message_class
+    from actors.errors import UnregisteredType
 
     if schema_name == EVENTS_SCHEMA:
         return json.loads(data)
     if schema_name.startswith("foxglove."):
         return _from_proto(schema_name, data)
-    cls = known_message_types().get(schema_name.removeprefix("embagents."))
-    if cls is None:
+    try:
+        cls = message_class(schema_name.replace(".", "/", 1))
+    except UnregisteredType:
         raise ValueError(f"unknown schema {schema_name!r} (known: foxglove.RawImage, foxglove.CompressedImage, "
-                         f"foxglove.RawAudio, {EVENTS_SCHEMA}, embagents.<message type>)")
+                         f"foxglove.RawAudio, {EVENTS_SCHEMA}, and the registered message types, e.g. "
+                         "embagents.String; a type of your own is known once its module is imported)") from None
     return _from_json(cls, data)

@@ -162,7 +162,8 @@ class RecorderActor(Actor):
         for name, wire, keep, queue in self.topics:
             cls = message_class(wire) if wire else None
             self.context.subscribe(name, lambda msg, n=name, c=cls: self._write(n, c, msg),
-                                   keep=keep, queue_size=max(int(queue), 100 if keep == "all" else 30))
+                                   keep=keep, queue_size=max(int(queue), 100 if keep == "all" else 30),
+                                   msg_type=cls)  # another type on the topic is counted as bad, not written
         log.info("recording %d topics to %s", len(self.topics), self.file.path if self.file else self.base)
 
     def _index_of(self, path: str) -> int:
@@ -176,6 +177,8 @@ class RecorderActor(Actor):
                     os.unlink(old)
 
     def _write(self, topic: str, cls: type | None, msg: Any) -> None:
+        if self.file is None:  # rotated: the next file starts with its first message (none is left empty)
+            self._open()
         f = self.file
         assert f is not None
         now = time.time_ns()
@@ -190,12 +193,12 @@ class RecorderActor(Actor):
             f.close()
             log.info("rotated %s (%d messages)", f.path, f.messages)
             self.index += 1
-            self._open()
+            self.file = None
 
     def on_receive(self, message: Any) -> Any:
         """``"stats"`` -> the file being written and how many messages so far."""
         if message == "stats":
-            return {"path": self.file.path if self.file else None, "messages": self.written}
+            return {"path": rotation_path(self.base, self.index), "messages": self.written}
         return None
 
     def on_stop(self) -> None:

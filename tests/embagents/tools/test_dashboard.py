@@ -122,6 +122,25 @@ def test_json_api_and_image(live_run: Run) -> None:
         assert r.headers["Content-Type"] == "image/jpeg" and r.read(3) == b"\xff\xd8\xff"
 
 
+def test_websocket_api_pushes_state_and_runs_lifecycle_transitions(live_run: Run) -> None:
+    with connect(f"ws://127.0.0.1:{live_run.dashboard_port}/ws", open_timeout=30) as ws:
+        assert json.loads(ws.recv(timeout=30))["op"] == "state"
+
+        def act(**req: Any) -> dict[str, Any]:
+            ws.send(json.dumps(req))
+            while (msg := json.loads(ws.recv(timeout=30)))["op"] != "result":
+                pass
+            return msg
+
+        assert act(op="lifecycle", name="shout", transition="deactivate") == {
+            "op": "result", "ok": True, "name": "shout", "lifecycle": "inactive"}
+        assert live_run.status()["shout"]["lifecycle"] == "inactive"
+        assert act(op="lifecycle", name="shout", transition="activate")["lifecycle"] == "active"
+        bad = act(op="lifecycle", name="shout", transition="explode")
+        assert not bad["ok"] and "unknown transition 'explode'" in bad["error"]
+        assert "no child named 'nobody'" in act(op="restart", name="nobody")["error"]
+
+
 def test_a_taken_dashboard_port_says_which_and_the_system_runs_on(tmp_path: Path) -> None:
     path = tmp_path / "system.py"
     path.write_text(textwrap.dedent('''

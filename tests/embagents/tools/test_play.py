@@ -27,10 +27,10 @@ def _recording(path: Path, texts: list[str], gap_s: float = 0.05) -> None:
 def _played(run: Run, args: list[str], want: str, stdin: str | None = None) -> None:
     echo = run.popen("topic", "echo", "loud", "--json", "--duration", "40")
     try:
-        time.sleep(1.0)
+        assert echo.stdout is not None
+        echo.stdout.readline()  # it hears loud (the talker's hellos): its subscription is up
         out = run.cli("play", *args, stdin=stdin)
         assert out.returncode == 0, out.stderr
-        assert echo.stdout is not None
         wait_until(lambda: json.loads(echo.stdout.readline())["data"] == want, 20, f"{want} on loud")
     finally:
         echo.terminate()

@@ -35,7 +35,7 @@ def test_record_writes_every_topic_with_schemas_and_misses_nothing_of_keep_all(l
         said = [decode(s.name, m.data).data for s, _c, m in make_reader(f).iter_messages(topics=["chatter"])]
         f.seek(0)
         _s, _c, m = next(make_reader(f).iter_messages(topics=["camera/image"]))
-        assert decode("foxglove.RawImage", m.data).data.shape == (48, 64, 3)
+        assert decode("foxglove.RawImage", m.data).data.shape == (240, 320, 3)
     numbers = [int(x.split()[1]) for x in said if x.startswith("hello ")]
     assert len(numbers) >= 20 and numbers == list(range(numbers[0], numbers[0] + len(numbers)))  # no gap
 

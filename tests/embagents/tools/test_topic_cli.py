@@ -50,11 +50,11 @@ def test_unknown_topic_names_the_known_ones(live_run: Run) -> None:
 def test_pub_reaches_subscribers_once_and_at_a_rate(live_run: Run) -> None:
     echo = live_run.popen("topic", "echo", "loud", "--json", "--duration", "30")
     try:
-        time.sleep(1.0)  # its subscription is up
+        assert echo.stdout is not None
+        echo.stdout.readline()  # it hears loud (the talker's hellos): its subscription is up
         out = live_run.cli("topic", "pub", "chatter", "String", "{data: hi there}", "-r", "5", "-t", "5")
         assert out.returncode == 0, out.stderr
         assert "published 5 String on chatter at 5 Hz" in out.stdout
-        assert echo.stdout is not None
         wait_until(lambda: json.loads(echo.stdout.readline())["data"] == "HI THERE", 20, "the published text, shouted")
     finally:
         echo.terminate()
