@@ -70,12 +70,23 @@ def test_rotation_by_size_keeps_the_newest_files(live_run: Run, tmp_path: Path) 
         assert sum(1 for _ in read_messages(str(tmp_path / name), [])) >= 1
 
 
+def test_rotation_by_duration(live_run: Run, tmp_path: Path) -> None:
+    path = tmp_path / "timed.mcap"
+    out = live_run.cli("record", "chatter", "-o", str(path), "--max-duration", "0.6", "--duration", "2.5")
+    assert out.returncode == 0, out.stderr
+    files = sorted(tmp_path.iterdir())
+    assert len(files) >= 2 and out.stdout.count("messages on 1 topics") == len(files)  # each finished, with a summary
+
+
 def test_sigkill_of_the_recorder_leaves_a_readable_file_and_it_goes_on(live_run: Run, tmp_path: Path) -> None:
     path = str(tmp_path / "killed.mcap")
     assert live_run.cli("record", "chatter", "-o", path, "--detach", "--chunk-size", "1").returncode == 0
     try:
         wait_until(lambda: os.path.getsize(path) > 4000, 20, "a few chunks written")
         first = _recorder(live_run)
+        os.kill(live_run.status()["shout"]["pid"], signal.SIGKILL)  # another actor crashes
+        wait_until(lambda: live_run.status()["shout"]["status"] == "running", 30, "shout restarted")
+        assert _recorder(live_run)["pid"] == first["pid"]  # the recorder went on, untouched
         os.kill(first["pid"], signal.SIGKILL)
         wait_until(lambda: (r := _recorder(live_run))["pid"] != first["pid"] and r["status"] == "running", 30,
                    "the recorder restarted")
