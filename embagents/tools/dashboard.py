@@ -127,7 +127,8 @@ class Dashboard:
         with self._lock:  # one look at the actors at a time, however many clients ask
             rows = self.control.rows()
             images = {t: {"count": n, "url": f"/api/image?topic={t}&n={n}", "width": int(getattr(m, "width", 0) or 0),
-                          "height": int(getattr(m, "height", 0) or 0)} for t, (n, m) in self.latest.images.items()}
+                          "height": int(getattr(m, "height", 0) or 0)}
+                      for t, (n, m) in list(self.latest.images.items())}  # list(): one atomic copy (IO thread writes)
             topics = self.topics.table(rows)
             self._own_rates(topics)
             self._state = {
@@ -156,7 +157,7 @@ class Dashboard:
         if found is None:
             raise KeyError(f"no image on {topic!r} yet; image topics: {', '.join(self.latest.images) or 'none'}")
         now = time.monotonic()
-        fresh = [d for when, d in self.latest.detections.values() if now - when < _DETECTIONS_FRESH_S]
+        fresh = [d for when, d in list(self.latest.detections.values()) if now - when < _DETECTIONS_FRESH_S]
         return _jpeg(found[1], fresh)
 
     def act(self, req: dict[str, Any]) -> dict[str, Any]:
