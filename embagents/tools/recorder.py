@@ -56,6 +56,11 @@ def rotation_path(base: str, index: int) -> str:
 
 def rotation_files(base: str) -> list[str]:
     """The files of the recording at ``base`` that exist, in order."""
+    return [p for _, p in _rotations(base)]
+
+
+def _rotations(base: str) -> list[tuple[int, str]]:
+    """``(index, path)`` of each file of the recording at ``base`` that exists, in order."""
     stem, ext = os.path.splitext(os.path.basename(base))
     folder = os.path.dirname(os.path.abspath(base))
     pattern = re.compile(rf"^{re.escape(stem)}\.(\d+){re.escape(ext or '.mcap')}$")
@@ -65,7 +70,7 @@ def rotation_files(base: str) -> list[str]:
             m = pattern.match(fn)
             if m:
                 found.append((int(m.group(1)), os.path.join(folder, fn)))
-    return [p for _, p in sorted(found)]
+    return sorted(found)
 
 
 def lock_file(path: str) -> int:
@@ -155,9 +160,9 @@ class RecorderActor(Actor):
         self.written = 0
 
     def on_start(self) -> None:
-        existing = rotation_files(self.base)
+        existing = _rotations(self.base)
         if existing:  # a restart (the root refuses a first start on an existing file): never overwrite
-            self.index = max(self._index_of(p) for p in existing) + 1
+            self.index = existing[-1][0] + 1
         self._open()
         for name, wire, keep, queue in self.topics:
             cls = message_class(wire) if wire else None
@@ -165,9 +170,6 @@ class RecorderActor(Actor):
                                    keep=keep, queue_size=max(int(queue), 100 if keep == "all" else 30),
                                    msg_type=cls)  # another type on the topic is counted as bad, not written
         log.info("recording %d topics to %s", len(self.topics), self.file.path if self.file else self.base)
-
-    def _index_of(self, path: str) -> int:
-        return next(i for i in range(1_000_000) if rotation_path(self.base, i) == path)
 
     def _open(self) -> None:
         self.file = _File(rotation_path(self.base, self.index), self.compression, self.chunk_bytes)
