@@ -94,8 +94,11 @@ def _echo(args: argparse.Namespace) -> int:
         seen[0] += 1
 
     with Attached(found) as seat:
-        seat.subscribe(topic, show)
+        sub = seat.subscribe(topic, show)
         seat.run(until=lambda: args.count is not None and seen[0] >= args.count, timeout=args.duration)
+        if sub.dropped:
+            print(f"echo: {sub.dropped} messages on {topic} dropped (this terminal was slower than the topic)",
+                  file=sys.stderr)
     return 0
 
 
