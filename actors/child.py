@@ -20,7 +20,12 @@ from actors.host import ActorHost, load_class
 from actors.loop import Loop
 from actors.runtime import Runtime, set_current
 
-__all__ = ["child_main", "configure_logging"]
+__all__ = ["LOG_BACKUPS", "LOG_MAX_BYTES", "add_log_file", "child_main", "configure_logging", "log_path"]
+
+#: Each actor's log file rotates at this size, keeping this many old files (``NAME.log.1`` ...).
+LOG_MAX_BYTES = 5 * 1024 * 1024
+LOG_BACKUPS = 3
+_FORMAT = "%(asctime)s [%(actor)s] %(levelname)s %(name)s: %(message)s"
 
 
 class _ActorFilter(logging.Filter):
@@ -40,9 +45,26 @@ def configure_logging(actor: str, level: int = logging.INFO) -> None:
         root.removeHandler(h)
     h = logging.StreamHandler(sys.stderr)
     h.addFilter(_ActorFilter(actor))
-    h.setFormatter(logging.Formatter("%(asctime)s [%(actor)s] %(levelname)s %(name)s: %(message)s"))
+    h.setFormatter(logging.Formatter(_FORMAT))
     root.addHandler(h)
     root.setLevel(level)
+
+
+def log_path(run_dir: str, actor: str) -> str:
+    """Where actor ``actor`` of the run at ``run_dir`` writes its log lines."""
+    return os.path.join(run_dir, "logs", f"{actor}.log")
+
+
+def add_log_file(run_dir: str, actor: str) -> None:
+    """Also write this process's log lines to :func:`log_path` (rotated; ``embagents logs NAME`` reads it)."""
+    from logging.handlers import RotatingFileHandler
+
+    path = log_path(run_dir, actor)
+    os.makedirs(os.path.dirname(path), mode=0o700, exist_ok=True)
+    h = RotatingFileHandler(path, maxBytes=LOG_MAX_BYTES, backupCount=LOG_BACKUPS)
+    h.addFilter(_ActorFilter(actor))
+    h.setFormatter(logging.Formatter(_FORMAT))
+    logging.getLogger().addHandler(h)
 
 
 def _notify(rt: Runtime, msg: list[Any]) -> None:
@@ -59,6 +81,8 @@ def child_main(spec: dict[str, Any]) -> None:
     name = spec["name"]
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     configure_logging(name, spec.get("log_level", logging.INFO))
+    with contextlib.suppress(OSError):  # a log file is a help, not a condition to run
+        add_log_file(spec["run_dir"], name)
     with contextlib.suppress(Exception):
         import setproctitle
 

@@ -35,6 +35,7 @@ from embagents.components import (
 )
 from embagents.config import BaseComponentConfig
 from embagents.events import Action, Event, Fallback, on
+from embagents.llm_tools import register_tools_on, tool
 from embagents.manager import Agent, HandshakeRule, Manager, Node, StateMachineHandler
 from embagents.models import (
     DetectorModel,
@@ -59,7 +60,6 @@ from embagents.msgs import (
     Video,
 )
 from embagents.system import System, load_system
-from embagents.tools import register_tools_on, tool
 from embagents.topic import Topic
 
 # The actors and the supervisor name processes, folders and variables after the app using them.

@@ -136,6 +136,9 @@ def _lazy(module: str, what: str) -> Callable[..., Any]:
 def _supervise_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("system", help="path of the system.py file")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--dashboard", action="store_true", help="serve the dashboard page and its JSON/WebSocket API")
+    parser.add_argument("--dashboard-host", default="127.0.0.1", help="the dashboard's address (default: this machine only)")
+    parser.add_argument("--dashboard-port", type=int, default=8420, help="the dashboard's port (default 8420)")
 
 
 def _bench_arguments(parser: argparse.ArgumentParser) -> None:
@@ -247,6 +250,16 @@ def _register_runtime_commands() -> None:
         _lazy("embagents.serve_model", "serve_model_arguments"), _lazy("embagents.serve_model", "run"),
         "serve a model actor to other machines over TCP with CURVE (only allowed keys get in)",
     )
+    for name, module, what, helptext in (
+        ("topic", "topic_cli", "topic", "list, echo, measure (hz) and publish the topics of the running system"),
+        ("logs", "logs_cli", "logs", "show (and follow with -f) one actor's log lines"),
+        ("record", "record_cli", "record", "record the running system's topics to an MCAP file (a supervised recorder)"),
+        ("play", "play", "play", "publish an MCAP recording into the running system (recorded timing, faster, stepped)"),
+        ("view", "foxglove_view", "view", "serve the running system's topics to Foxglove (WebSocket, no ROS)"),
+    ):
+        COMMANDS[name] = Command(
+            _lazy(f"embagents.tools.{module}", f"{what}_arguments"), _lazy(f"embagents.tools.{module}", "run"), helptext,
+        )
     COMMANDS["bench"] = Command(
         _bench_arguments, _lazy("embagents.bench", "run"),
         "measure embagents side by side with raw pyzmq, multiprocessing queues and rclpy",

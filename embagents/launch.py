@@ -20,7 +20,7 @@ import sys
 import threading
 from typing import Any
 
-from actors.child import configure_logging
+from actors.child import add_log_file, configure_logging
 from actors.topics import Subscription
 from embagents.call import call_command
 from embagents.models import models_of
@@ -28,6 +28,7 @@ from embagents.publish import publish_command
 from embagents.runtime.component_actor import remember_system
 from embagents.runtime.requests import SUPERVISOR_REQUESTS, SupervisorRequest
 from embagents.supervision import build_spec
+from embagents.tools.root import install as install_tools
 
 __all__ = ["SYSTEM_STOP", "run", "run_system"]
 
@@ -35,8 +36,11 @@ log = logging.getLogger("embagents.supervise")
 
 #: Publish anything on this topic to stop the whole system cleanly.
 SYSTEM_STOP = "system_stop"
-def run_system(path: str) -> int:
-    """Run the system in ``path`` under supervision until a stop; return the exit code."""
+def run_system(path: str, dashboard: tuple[str, int] | None = None) -> int:
+    """Run the system in ``path`` under supervision until a stop; return the exit code.
+
+    ``dashboard``: ``(host, port)`` to serve the dashboard on (:mod:`embagents.tools.dashboard`).
+    """
     from embagents.check import check_system, errors
     from embagents.system import counted, load_system
     from supervisor.run import serve
@@ -69,11 +73,34 @@ def run_system(path: str) -> int:
         control.add_command("publish", publish_command(asys, system))  # `embagents publish TOPIC TEXT`
         control.add_command("call", call_command(asys, system))  # `embagents call COMPONENT METHOD ARGS`
         managers = f"{counted(len(system.managers), 'manager')}, " if system.managers else ""
+        topics = install_tools(sup, control, system)  # `embagents topic list`, `embagents record`
+        if dashboard is not None:
+            dashboards.append(_start_dashboard(sup, control, system, topics, dashboard))
+        add_log_file(asys.run_dir, "root")  # `embagents logs root`
         print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
               f"{managers}{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr,
               flush=True)
 
-    return serve(spec, system_name=system.name, on_ready=on_ready)
+    dashboards: list[Any] = []
+    try:
+        return serve(spec, system_name=system.name, on_ready=on_ready)
+    finally:
+        for d in dashboards:
+            if d is not None:
+                d.stop()
+
+
+def _start_dashboard(sup: Any, control: Any, system: Any, topics: Any, where: tuple[str, int]) -> Any:
+    """The running dashboard, or None (said on stderr) if it cannot start: the system runs on without it."""
+    from embagents.tools.dashboard import Dashboard, DashboardError
+
+    try:
+        dash = Dashboard(sup, control, system, topics).start(*where)
+    except DashboardError as exc:
+        print(f"embagents supervise: {exc}; the system runs without it", file=sys.stderr, flush=True)
+        return None
+    print(f"embagents: dashboard on http://{where[0]}:{dash.port}/", file=sys.stderr, flush=True)
+    return dash
 
 
 class _SupervisorRequests:
@@ -103,7 +130,8 @@ class _SupervisorRequests:
 def run(args: argparse.Namespace) -> int:
     configure_logging("supervise", logging.DEBUG if args.verbose else logging.INFO)
     try:
-        return run_system(args.system)
+        dashboard = (args.dashboard_host, args.dashboard_port) if getattr(args, "dashboard", False) else None
+        return run_system(args.system, dashboard)
     except Exception as exc:  # a clear one-line error, not a traceback, for bad input
         from actors import UnsafeFolder
         from embagents.system import SystemFileError

@@ -26,13 +26,15 @@ __all__ = ["publish", "publish_command"]
 
 def _message(topic: Any, fields: dict[str, Any]) -> Any:
     """``topic.msg_type(**fields)``, or ValueError naming the fields the type has."""
+    from embagents.tools.plain import build_message
+
     cls = topic.msg_type
+    if not attrs.has(cls):
+        raise ValueError(f"topic {topic.name!r} carries {topic.type_name}, which has no fields to fill in")
     try:
-        return cls(**fields)
-    except (TypeError, ValueError) as exc:
-        names = [f.name for f in attrs.fields(cls)] if attrs.has(cls) else []
-        raise ValueError(f"cannot make a {topic.type_name} for topic {topic.name!r} from {fields!r} ({exc}); "
-                         f"its fields: {', '.join(names) or 'unknown'}") from None
+        return build_message(cls, fields)
+    except ValueError as exc:
+        raise ValueError(f"topic {topic.name!r}: {exc}") from None
 
 
 def publish_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:

@@ -69,7 +69,7 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         # The loop beats every tick: a tick longer than hang_timeout is a hang. Snapshots after each changed tick.
         children.append(ChildSpec(mgr.name, (ManagerActor, (path, mgr.name)), heartbeat=mgr.hang_timeout,
                                   lifecycle="active", snapshot_interval=0.0, start_timeout=120))
-    from embagents.tools import uses_events_actor
+    from embagents.llm_tools import uses_events_actor
 
     # The events actor also carries LLM tool calls and route actions across processes.
     if system.events or any(getattr(c, "fallback", None) or uses_events_actor(c) for c in system.components):

@@ -66,6 +66,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_ros_recovery,
     cases_speech,
     cases_supervisor,
+    cases_tools,
     cases_vision,
     idle,
 )

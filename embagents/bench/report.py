@@ -127,6 +127,10 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("memory_scale", "memory: query p50 at 100,000 items", "query_p50_ms_100k", "<=", 20.0, "ms", 1.0),
         ("memory_scale", "memory: query p50 at 100,000 / at 1,000 items", "growth", "<", 10.0, "x", 1.0),
         ("memory_crash", "memory: acknowledged items lost to a SIGKILL", "lost", "<=", 0, "items", 1.0),
+        ("record_overhead", "publish p50 with `embagents record` / without", "ratio", "<=", 1.10, "x", 1.0),
+        ("record_overhead", "keep-all messages missing from the recording", "missing", "<=", 0, "msgs", 1.0),
+        ("echo_backpressure", "longest publish call, a paused `topic echo` subscribed", "publisher_stall_ms", "<=", 5.0,
+         "ms", 1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))

@@ -11,7 +11,7 @@ embedding client: ``LocalModelClient(EmbeddingModel(...))`` or
 before the step returns, so it survives a SIGKILL.
 
 Queries (actions: callable from events, other components and, through
-:func:`~embagents.tools.register_tools_on`, an LLM): :meth:`Memory.query`
+:func:`~embagents.llm_tools.register_tools_on`, an LLM): :meth:`Memory.query`
 (top k by meaning), :meth:`Memory.near` (within a radius of a point),
 :meth:`Memory.between` (a time window), :meth:`Memory.locate` (where
 something was last seen), :meth:`Memory.remember` (store a note now).
@@ -126,7 +126,7 @@ def _client_name(client: Any) -> str:
 class Memory(Component):
     """Stores layers of what the robot perceives with position, time and meaning (module docstring)."""
 
-    #: The actions :func:`~embagents.tools.register_tools_on` offers an LLM.
+    #: The actions :func:`~embagents.llm_tools.register_tools_on` offers an LLM.
     llm_tools = ("locate", "query", "near", "between")
 
     # Odometry is checked in validate(), not Required: a layer's message before the first

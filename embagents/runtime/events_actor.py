@@ -13,7 +13,7 @@ action runs:
   ``_supervisor_requests`` topic, carried out by the root's supervisor.
 
 It also runs an LLM's tool calls (:class:`~embagents.runtime.requests.ToolCall`,
-see :mod:`embagents.tools`): the arguments are checked against the method's
+see :mod:`embagents.llm_tools`): the arguments are checked against the method's
 signature here, then the component's actor is asked and its result answered;
 and a router's route actions (:class:`~embagents.runtime.requests.RouteFired`).
 """

@@ -42,8 +42,8 @@ def test_a_second_question_reaches_the_running_system_and_bad_ones_are_named(tmp
         assert bad.returncode == 1
         assert "has no topic 'no_such_topic'; its topics: system_stop, text_in, text_out" in bad.stderr
         bad = _cli("publish", "text_in", "--fields", '{"colour": "blue"}', env=env)
-        assert bad.returncode == 1 and "cannot make a String for topic 'text_in'" in bad.stderr
-        assert "its fields: data" in bad.stderr
+        assert bad.returncode == 1 and "topic 'text_in': String has no field 'colour'" in bad.stderr
+        assert "fields of String: data (str)" in bad.stderr
         bad = _cli("publish", "text_in", "--fields", "{not json", env=env)
         assert bad.returncode == 1 and "--fields is not JSON" in bad.stderr
     finally:

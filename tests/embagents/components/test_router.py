@@ -94,7 +94,7 @@ def test_route_actions_are_kept_for_the_events_actor() -> None:
     alarm = Topic("alarm", String)
     r = SemanticRouter(name="router", inputs=[heard], embedding_client=LocalModelClient("minilm"),
                        routes=[Route(routes_to=goto, samples=["go"], actions=[publish(alarm, String(data="moving"))])])
-    from embagents.tools import uses_events_actor
+    from embagents.llm_tools import uses_events_actor
 
     assert [a.kind for a in r.route_actions["goto"]] == ["publish"] and uses_events_actor(r)
 

@@ -14,6 +14,7 @@ pytest.importorskip("apsw")
 
 from actors import ActorSystem  # noqa: E402
 from embagents.components import LLM, LLMConfig, Memory  # noqa: E402
+from embagents.llm_tools import RemoteTool, register_tools_on, tool, tool_methods  # noqa: E402
 from embagents.msgs import String  # noqa: E402
 from embagents.runtime.component_actor import ComponentActor, remember_system  # noqa: E402
 from embagents.runtime.events_actor import EventsActor  # noqa: E402
@@ -21,7 +22,6 @@ from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.runtime.requests import Call  # noqa: E402
 from embagents.supervision import build_spec  # noqa: E402
 from embagents.system import load_system  # noqa: E402
-from embagents.tools import RemoteTool, register_tools_on, tool, tool_methods  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 SYSTEM = '''

@@ -1,0 +1,89 @@
+"""A terminal's seat in a live run: its topics, and subscriptions that never slow it.
+
+:func:`run_topics` asks the root for the run's topics; :func:`find_topic`
+names the known ones when a name is not among them. :class:`Attached` is a
+runtime of this process inside the run's directory: its subscriptions are
+``keep="latest"`` with a small queue, so a terminal that stops reading loses
+messages (counted) and never holds a publisher back.
+
+Example::
+
+    with Attached(pick_run()) as seat:
+        seat.subscribe("camera/image", print)
+        seat.loop.run(timeout=5)
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+
+from supervisor.client import ControlError, pick_run, request
+
+__all__ = ["Attached", "find_topic", "run_topics"]
+
+
+def run_topics(run: str | None = None, timeout: float = 5.0) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """``(run, topic rows)`` of the live run ``run`` (see :mod:`embagents.tools.root`)."""
+    found = pick_run(run)
+    return found, request(found["run_dir"], {"cmd": "topics"}, timeout)["topics"]
+
+
+def find_topic(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
+    """The row of topic ``name``; ControlError naming the run's topics if there is none."""
+    name = name.removeprefix("/")
+    for r in rows:
+        if r["name"] == name:
+            return r
+    raise ControlError(f"no topic {name!r} in this run; its topics: {', '.join(r['name'] for r in rows)} "
+                       "(see `embagents topic list`)")
+
+
+def _interrupt(*_: Any) -> None:
+    raise KeyboardInterrupt  # a signal does not end a poll; an exception does
+
+
+class Attached:
+    """This process's runtime in the run ``run`` (a :func:`supervisor.client.pick_run` entry)."""
+
+    def __init__(self, run: dict[str, Any]) -> None:
+        import embagents  # noqa: F401 - registers the message types, so frames decode
+        from actors.loop import Loop
+        from actors.runtime import Runtime
+
+        self.rt = Runtime(run["run_dir"], run["run_id"])
+        self.loop = Loop()
+        self.subs: list[Any] = []
+
+    def subscribe(self, topic: str, callback: Callable[[Any], None], queue_size: int = 100) -> Any:
+        """A ``keep="latest"`` subscription (the terminal drops, the publisher goes on).
+
+        The queue holds a burst; a terminal that stops reading fills it, and then the
+        publisher drops for it (its high-water mark) without waiting.
+        """
+        from actors.topics import Subscription
+
+        sub = Subscription(self.rt, self.loop, topic, callback, queue_size=queue_size, keep="latest")
+        self.subs.append(sub)
+        return sub
+
+    def run(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
+        """Serve the subscriptions until ``until()``, ``timeout``, Ctrl-C or SIGTERM."""
+        old = signal.signal(signal.SIGTERM, _interrupt)
+        try:
+            self.loop.run(until=until, timeout=timeout)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            signal.signal(signal.SIGTERM, old)
+
+    def __enter__(self) -> Attached:
+        return self
+
+    def __exit__(self, *exc: type[BaseException] | BaseException | TracebackType | None) -> None:
+        for s in self.subs:
+            s.close()  # its mark goes: publishers stop sending to us
+        self.loop.close()
+        self.rt.close()

@@ -1,0 +1,163 @@
+"""What the root of ``embagents supervise`` serves for the tools: topics and recorders.
+
+:func:`install` adds control commands (see :mod:`supervisor.control`):
+
+- ``{"cmd": "topics"}`` -> ``{"ok", "topics": [{name, type, wire, keep, queue_size,
+  publishers, subscribers, rate}]}``: the declared topics (and the runtime's
+  own, such as ``_supervisor.events``); ``rate`` is messages/s, measured from
+  the subscribers' counters (``None`` when nobody subscribes).
+- ``{"cmd": "record_start", "path", "topics", "max_bytes", "max_seconds",
+  "max_files", "compression", "chunk_bytes", "overwrite"}`` -> starts a
+  :class:`~embagents.tools.recorder.RecorderActor` child of the root
+  (``{"ok", "name", "path"}``); refused for an unknown topic, a file being
+  recorded, or an existing file without ``overwrite``.
+- ``{"cmd": "record_stop", "path"}`` -> stops that recorder (its files are
+  finished) and answers ``{"ok", "files"}``.
+
+Example::
+
+    install(sup, control, system)      # in embagents.launch's on_ready
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+from typing import Any
+
+from actors.codec import message_name
+from actors.topics import topic_dir
+from embagents.tools.recorder import RecorderActor, rotation_files
+
+__all__ = ["EVENTS_TOPIC", "install", "topic_rows"]
+
+#: The supervisor's events topic (dicts; see supervisor.events).
+EVENTS_TOPIC = "_supervisor.events"
+
+
+def _marks(run_dir: str, name: str) -> int:
+    try:
+        return sum(1 for f in os.listdir(topic_dir(run_dir, name.replace("/", "."))) if not f.startswith("."))
+    except FileNotFoundError:
+        return 0
+
+
+def _received(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """Per topic (dotted name), the most messages one subscription received."""
+    out: dict[str, int] = {}
+    for r in rows:
+        for s in r.get("subscriptions") or []:
+            out[s["topic"]] = max(out.get(s["topic"], 0), s["received"])
+    return out
+
+
+def topic_rows(system: Any, run_dir: str) -> list[dict[str, Any]]:
+    """The topics of ``system`` (and the runtime's own under ``run_dir``), without rates."""
+    rows = {}
+    for name, t in sorted(system.topics.items()):
+        pubs = sorted(str(c.name) for c in system.components if any(o.name == name for o in c.outputs))
+        if any(x.name == name for x in getattr(system, "external", []) or []):
+            pubs.append("(external)")
+        rows[name] = {"name": name, "type": t.type_name, "wire": message_name(t.msg_type), "keep": t.keep,
+                      "queue_size": t.queue_size, "publishers": pubs}
+    rows.setdefault(EVENTS_TOPIC, {"name": EVENTS_TOPIC, "type": "SupervisorEvent", "wire": "", "keep": "latest",
+                                   "queue_size": 100, "publishers": ["(supervisor)"]})
+    for r in rows.values():
+        r["subscribers"] = _marks(run_dir, r["name"])
+    return list(rows.values())
+
+
+class _Topics:
+    """``topics``: rows with rates from two looks at the subscribers' counters."""
+
+    def __init__(self, control: Any, system: Any) -> None:
+        self.control, self.system = control, system
+        self.prev: tuple[float, dict[str, int]] | None = None
+
+    def __call__(self, _req: dict[str, Any]) -> dict[str, Any]:
+        rows = self.control.rows()
+        if self.prev is None or time.monotonic() - self.prev[0] > 10:  # no recent look: take one now
+            self.table(rows)
+            time.sleep(0.5)
+            rows = self.control.rows()
+        return {"ok": True, "topics": self.table(rows)}
+
+    def table(self, status_rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """The topic rows, rates since the previous call (from ``status_rows``' subscription counters)."""
+        now, counts = time.monotonic(), _received(status_rows)
+        then, before = self.prev or (now, {})
+        rows = topic_rows(self.system, self.control.system.run_dir)
+        for r in rows:
+            key = r["name"].replace("/", ".")
+            n, n0 = counts.get(key), before.get(key)
+            ok = n is not None and n0 is not None and n >= n0 and now > then
+            r["rate"] = round((n - n0) / (now - then), 1) if ok else None  # type: ignore[operator]
+        self.prev = (now, counts)
+        return rows
+
+
+class _Recorders:
+    """``record_start`` / ``record_stop``: recorder children of the root."""
+
+    def __init__(self, sup: Any, control: Any, system: Any) -> None:
+        self.sup, self.control, self.system = sup, control, system
+        self.active: dict[str, str] = {}  # path -> child name
+        self.lock = threading.Lock()
+        self.seq = 0
+
+    def start(self, req: dict[str, Any]) -> dict[str, Any]:
+        from supervisor import ChildSpec
+
+        path = req.get("path")
+        if not isinstance(path, str) or not os.path.isabs(path) or not path.endswith(".mcap"):
+            return {"ok": False, "error": f"record needs an absolute path ending in .mcap, got {path!r}"}
+        rows = {r["name"]: r for r in topic_rows(self.system, self.control.system.run_dir)}
+        wanted = req.get("topics") or list(rows)
+        unknown = [t for t in wanted if t not in rows]
+        if unknown:
+            return {"ok": False, "error": f"no topic {', '.join(map(repr, unknown))} in system {self.system.name!r}; "
+                    f"its topics: {', '.join(rows)}"}
+        with self.lock:
+            if path in self.active:
+                return {"ok": False, "error": f"{path} is already being recorded (by {self.active[path]}); "
+                        f"stop it with `embagents record --stop {path}` or record to another file"}
+            if rotation_files(path) and not req.get("overwrite"):
+                return {"ok": False, "error": f"{path} exists; pass --overwrite to replace it or choose another -o"}
+            for old in rotation_files(path):
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(old)
+            self.seq += 1
+            name = f"_record.{self.seq}"
+            topics = [[t, rows[t]["wire"], rows[t]["keep"], rows[t]["queue_size"]] for t in wanted]
+            limits = {k: req.get(k) for k in ("max_bytes", "max_seconds", "max_files", "compression", "chunk_bytes")}
+            self.active[path] = name
+        try:
+            self.sup.start_child(ChildSpec(name, (RecorderActor, (path, topics, limits)), shutdown=10.0))
+        except Exception as exc:
+            with self.lock:
+                self.active.pop(path, None)
+            return {"ok": False, "error": f"the recorder did not start: {exc}"}
+        return {"ok": True, "name": name, "path": path, "topics": wanted}
+
+    def stop(self, req: dict[str, Any]) -> dict[str, Any]:
+        path = req.get("path")
+        with self.lock:
+            name = self.active.pop(path, None) if isinstance(path, str) else None
+        if name is None:
+            return {"ok": False, "error": f"nothing is recording to {path!r}; recording now: "
+                    f"{', '.join(self.active) or 'nothing'}"}
+        self.sup.terminate_child(name)
+        self.sup.delete_child(name)
+        return {"ok": True, "files": rotation_files(path)}
+
+
+def install(sup: Any, control: Any, system: Any) -> _Topics:
+    """Serve ``topics``, ``record_start`` and ``record_stop`` on ``control`` for ``system``; returns the topics table."""
+    topics = _Topics(control, system)
+    control.add_command("topics", topics)
+    recorders = _Recorders(sup, control, system)
+    control.add_command("record_start", recorders.start)
+    control.add_command("record_stop", recorders.stop)
+    return topics

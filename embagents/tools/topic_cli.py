@@ -1,0 +1,176 @@
+"""``embagents topic list|echo|hz|pub``: look at and poke the topics of a live run.
+
+- ``list``: name, type, publishers, subscribers, rate (messages/s).
+- ``echo NAME``: each message as ``key: value`` text (``--json``: one JSON
+  object a line); arrays as shape and dtype unless ``--full-arrays``.
+- ``hz NAME``: every second, the average rate and the min / max / std dev of
+  the period over the last ``--window`` messages (as ``ros2 topic hz``).
+- ``pub NAME TYPE DATA``: DATA is YAML or JSON (``'{data: hi}'``), published
+  once or at ``--rate`` Hz through the root.
+
+``echo`` and ``hz`` subscribe keep-latest: a terminal that stops reading
+drops messages and never slows a publisher.
+
+Example::
+
+    $ embagents topic echo text_out -n 1
+    data: Rome
+    ---
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections import deque
+from typing import Any
+
+from actors import UnsafeFolder
+from supervisor.client import ControlError, request
+
+__all__ = ["run", "topic_arguments"]
+
+
+def topic_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="topic_cmd", metavar="list|echo|hz|pub", required=True)
+    parsers = {
+        "list": sub.add_parser("list", help="the run's topics: type, publishers, subscribers, rate"),
+        "echo": sub.add_parser("echo", help="print the messages of a topic"),
+        "hz": sub.add_parser("hz", help="the rate of a topic"),
+        "pub": sub.add_parser("pub", help="publish a message given as YAML/JSON"),
+    }
+    for p in parsers.values():
+        p.add_argument("--run", help="run id, system name or pid (default: the only live run)")
+        p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+    parsers["list"].add_argument("--json", action="store_true", help="print the rows as JSON")
+    for name in ("echo", "hz", "pub"):
+        parsers[name].add_argument("name", help="the topic, e.g. camera/image")
+    echo = parsers["echo"]
+    echo.add_argument("--json", action="store_true", help="one JSON object per line")
+    echo.add_argument("--full-arrays", action="store_true", help="print arrays in full, not as shape and dtype")
+    echo.add_argument("-n", "--count", type=int, help="exit after this many messages")
+    hz = parsers["hz"]
+    hz.add_argument("--window", type=int, default=100, help="messages the statistics cover (default 100)")
+    for p in (echo, hz):
+        p.add_argument("--duration", type=float, help="exit after this many seconds")
+    pub = parsers["pub"]
+    pub.add_argument("type", help="the message type, e.g. String (must be the topic's)")
+    pub.add_argument("data", nargs="?", default="{}", help="fields as YAML or JSON, e.g. '{data: hello}'")
+    pub.add_argument("-r", "--rate", type=float, help="publish repeatedly at this rate in Hz (Ctrl-C stops)")
+    pub.add_argument("-t", "--times", type=int, help="with --rate: stop after this many messages")
+
+
+def _list(args: argparse.Namespace) -> int:
+    from embagents.tools.attach import run_topics
+
+    found, rows = run_topics(args.run, args.timeout)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    table = [["TOPIC", "TYPE", "KEEP", "PUBLISHERS", "SUBS", "RATE HZ"]] + [
+        [r["name"], r["type"], r["keep"], ",".join(r["publishers"]) or "-", str(r["subscribers"]),
+         "-" if r["rate"] is None else f"{r['rate']:.1f}"] for r in rows]
+    widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
+    print(f"{found['system']}  run {found['run_id']}")
+    for row in table:
+        print("  ".join(c.rjust(w) if i >= 4 else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True))).rstrip())
+    return 0
+
+
+def _echo(args: argparse.Namespace) -> int:
+    from embagents.tools.attach import Attached, find_topic, run_topics
+    from embagents.tools.plain import format_text, to_plain
+
+    found, rows = run_topics(args.run, args.timeout)
+    topic = find_topic(rows, args.name)["name"]
+    seen = [0]
+
+    def show(msg: Any) -> None:
+        plain = to_plain(msg, full_arrays=args.full_arrays)
+        print(json.dumps(plain) if args.json else format_text(plain) + "\n---", flush=True)
+        seen[0] += 1
+
+    with Attached(found) as seat:
+        sub = seat.subscribe(topic, show)
+        seat.run(until=lambda: args.count is not None and seen[0] >= args.count, timeout=args.duration)
+        if sub.dropped:
+            print(f"echo: {sub.dropped} messages on {topic} dropped (this terminal was slower than the topic)",
+                  file=sys.stderr)
+    return 0
+
+
+def _period_stats(times: deque[float]) -> str:
+    periods = [b - a for a, b in zip(times, list(times)[1:], strict=False)]
+    mean = sum(periods) / len(periods)
+    std = math.sqrt(sum((p - mean) ** 2 for p in periods) / len(periods))
+    return (f"average rate: {1 / mean if mean > 0 else float('inf'):.3f}\n"
+            f"\tmin: {min(periods):.4f}s max: {max(periods):.4f}s std dev: {std:.5f}s window: {len(times)}")
+
+
+def _hz(args: argparse.Namespace) -> int:
+    from embagents.tools.attach import Attached, find_topic, run_topics
+
+    found, rows = run_topics(args.run, args.timeout)
+    topic = find_topic(rows, args.name)["name"]
+    times: deque[float] = deque(maxlen=max(args.window, 2))
+
+    with Attached(found) as seat:
+        def report() -> None:
+            print(_period_stats(times) if len(times) >= 2 else "no new messages", flush=True)
+            seat.loop.call_later(1.0, report)
+
+        seat.subscribe(topic, lambda _msg: times.append(time.monotonic()), queue_size=100)
+        seat.loop.call_later(1.0, report)
+        seat.run(timeout=args.duration)
+    return 0
+
+
+def _pub(args: argparse.Namespace) -> int:
+    import yaml
+
+    from embagents.tools.attach import find_topic, run_topics
+
+    found, rows = run_topics(args.run, args.timeout)
+    row = find_topic(rows, args.name)
+    if args.type not in (row["type"], row["wire"]):
+        raise ControlError(f"topic {row['name']!r} carries {row['type']}, not {args.type}: "
+                           f"`embagents topic pub {row['name']} {row['type']} ...`")
+    try:
+        fields = yaml.safe_load(args.data)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"DATA is neither YAML nor JSON ({exc}); e.g. '{{data: hello}}'") from None
+    fields = {} if fields is None else fields
+    if not isinstance(fields, dict):
+        raise ValueError(f"DATA must be a mapping of fields such as '{{data: hello}}', got {fields!r}")
+    msg = {"cmd": "publish", "topic": row["name"], "fields": fields}
+    if args.rate is None:
+        request(found["run_dir"], msg, args.timeout)
+        print(f"published {row['type']} on {row['name']}")
+        return 0
+    if args.rate <= 0:
+        raise ValueError(f"--rate must be above 0 Hz, got {args.rate}")
+    sent, period, start = 0, 1.0 / args.rate, time.monotonic()
+    try:
+        while args.times is None or sent < args.times:
+            request(found["run_dir"], msg, args.timeout)
+            sent += 1
+            time.sleep(max(0.0, start + sent * period - time.monotonic()))  # keeps the rate, not the gaps
+    except KeyboardInterrupt:
+        pass
+    print(f"published {sent} {row['type']} on {row['name']} at {args.rate:g} Hz")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``embagents topic ...``; 1 with a one-line error for bad input."""
+    commands = {"list": _list, "echo": _echo, "hz": _hz, "pub": _pub}
+    try:
+        return commands[args.topic_cmd](args)
+    except (ControlError, UnsafeFolder, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:  # `embagents topic echo x | head`
+        return 0
