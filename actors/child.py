@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import logging
 import os
 import signal
@@ -80,6 +81,10 @@ def child_main(spec: dict[str, Any]) -> None:
     """Build the actor described by ``spec``, serve it, and exit with a status that says how it ended."""
     name = spec["name"]
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if faulthandler.is_enabled():
+        # Its fd is the root's copy of stderr, closed by the fork server: the next file this process
+        # opens (its log) would get that number, and a crash would write there. Point it at our stderr.
+        faulthandler.enable(sys.stderr, all_threads=True)
     configure_logging(name, spec.get("log_level", logging.INFO))
     with contextlib.suppress(OSError):  # a log file is a help, not a condition to run
         add_log_file(spec["run_dir"], name)
