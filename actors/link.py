@@ -27,7 +27,7 @@ from actors.wire import ACK, REPLY
 if TYPE_CHECKING:
     from actors.runtime import Runtime
 
-__all__ = ["Link", "Pending"]
+__all__ = ["Link", "Pending", "monitor_socket"]
 
 log = logging.getLogger("actors.link")
 # Plain ints: zmq's constants are IntFlags, whose arithmetic runs in enum code.
@@ -35,6 +35,25 @@ _POLLIN, _EVENTS, _NOBLOCK = int(zmq.POLLIN), int(zmq.EVENTS), int(zmq.NOBLOCK)
 #: How often a blocked ask checks whether its actor is still there (seconds).
 WAIT_SLICE = 0.02
 _ids = itertools.count()
+_monitor_ids = itertools.count()
+
+
+def monitor_socket(sock: zmq.Socket, events: int) -> zmq.Socket:
+    """A PAIR socket that receives ``sock``'s socket events, on an endpoint no other socket uses.
+
+    pyzmq's default endpoint is named after the socket's fd; a socket closed
+    by the garbage collector keeps its monitor bound until libzmq's reaper
+    gets to it, so a new socket that reuses the fd failed with "Address
+    already in use".
+
+    >>> import zmq
+    >>> ctx = zmq.Context()
+    >>> a, b = ctx.socket(zmq.DEALER), ctx.socket(zmq.DEALER)
+    >>> ma, mb = monitor_socket(a, zmq.EVENT_CONNECTED), monitor_socket(b, zmq.EVENT_CONNECTED)
+    >>> for s in (ma, mb, a, b): s.close(0)
+    >>> ctx.term()
+    """
+    return sock.get_monitor_socket(events, addr=f"inproc://embagents-monitor.{os.getpid()}.{next(_monitor_ids)}")
 
 
 class Pending:
@@ -87,7 +106,7 @@ class Link:
         s.setsockopt(zmq.RECONNECT_IVL, 5)
         s.setsockopt(zmq.RECONNECT_IVL_MAX, 50)
         s.setsockopt(zmq.RCVTIMEO, int(WAIT_SLICE * 1000))  # only blocking waits (see wait())
-        self.monitor = s.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED)
+        self.monitor = monitor_socket(s, zmq.EVENT_HANDSHAKE_SUCCEEDED | zmq.EVENT_DISCONNECTED)
         s.connect(endpoint)
         self.sock = s
         self.connected = False

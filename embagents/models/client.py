@@ -28,6 +28,7 @@ import zmq
 from zmq.utils.monitor import recv_monitor_message
 
 from actors import wire
+from actors.link import monitor_socket
 from embagents.models.chat import collect_stream
 from embagents.models.declarations import Model
 from embagents.models.protocol import (
@@ -58,7 +59,7 @@ class _Conn:
         self.sock.setsockopt(zmq.LINGER, 0)
         if configure is not None:
             configure(self.sock)  # e.g. CURVE keys (embagents.models.remote)
-        self.monitor = self.sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED | _HANDSHAKE)
+        self.monitor = monitor_socket(self.sock, zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED | _HANDSHAKE)
         self.sock.connect(endpoint)
         self.poller = zmq.Poller()
         self.poller.register(self.sock, zmq.POLLIN)
