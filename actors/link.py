@@ -53,7 +53,7 @@ def monitor_socket(sock: zmq.Socket, events: int) -> zmq.Socket:
     >>> for s in (ma, mb, a, b): s.close(0)
     >>> ctx.term()
     """
-    return sock.get_monitor_socket(events, addr=f"inproc://embagents-monitor.{os.getpid()}.{next(_monitor_ids)}")
+    return sock.get_monitor_socket(events, addr=f"inproc://monitor.{os.getpid()}.{next(_monitor_ids)}")
 
 
 class Pending:
