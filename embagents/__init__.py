@@ -28,6 +28,8 @@ from embagents.components import (
     SemanticRouterConfig,
     SpeechToText,
     SpeechToTextConfig,
+    TextToSpeech,
+    TextToSpeechConfig,
     VideoMakerConfig,
     VideoMessageMaker,
     Vision,
@@ -44,6 +46,7 @@ from embagents.models import (
     LocalModelClient,
     RemoteModelClient,
     SpeechToTextModel,
+    TextToSpeechModel,
 )
 from embagents.msgs import (
     Audio,
@@ -101,7 +104,10 @@ __all__ = [
     "RemoteModelClient",
     "SpeechToText",
     "SpeechToTextConfig",
+    "TextToSpeech",
+    "TextToSpeechConfig",
     "SpeechToTextModel",
+    "TextToSpeechModel",
     "Route",
     "SemanticRouter",
     "SemanticRouterConfig",

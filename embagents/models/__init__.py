@@ -29,6 +29,7 @@ from embagents.models.declarations import (
     LlamaModel,
     Model,
     SpeechToTextModel,
+    TextToSpeechModel,
     VLMModel,
 )
 from embagents.models.inventory import models_of
@@ -58,6 +59,7 @@ __all__ = [
     "RemoteModelClient",
     "RemoteRefused",
     "SpeechToTextModel",
+    "TextToSpeechModel",
     "VLMModel",
     "collect_stream",
     "models_of",

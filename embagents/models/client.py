@@ -262,6 +262,13 @@ class LocalModelClient:
         """The text said in ``audio`` (1-D 16 kHz float32 or int16 samples): ``{"text", "seconds"}``."""
         return self.infer("transcribe", {"audio": audio}, **options)
 
+    def speak(self, text: str, **options: Any) -> Iterator[dict[str, Any]]:
+        """Speech for ``text``, a chunk per sentence: ``{"audio": float32 samples, "sample_rate", "text"}``.
+
+        The last chunk is ``{"done": True, "seconds": ...}``; closing the iterator early cancels the rest.
+        """
+        return self.stream("speak", {"text": text}, **options)
+
     def embed(self, texts: list[str]) -> Any:
         """Unit-length sentence embeddings of ``texts``: a float32 (N, dim) array."""
         return self.infer("embed", {"texts": list(texts)})["vectors"]

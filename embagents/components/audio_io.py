@@ -1,0 +1,170 @@
+"""Audio from and to WAV files: a source that plays a file as a microphone would, a sink that writes utterances.
+
+``WavFileSource`` publishes a WAV file's samples (int16, its own rate and
+channels) in chunks of ``chunk_ms`` at real-time pace (run it with
+``trigger`` = 1000 / chunk_ms Hz), then one empty ``Audio``: the end of the
+stream (SpeechToText transcribes what it holds there). ``loop=True`` starts
+again after it.
+
+``WavFileSink`` writes each utterance it receives (the ``Audio`` up to an
+empty one, as TextToSpeech ends each utterance) to its own file,
+``<folder>/<prefix>-<n>.wav`` (16-bit PCM at the audio's rate), and
+publishes the file's path on an optional ``String`` output when the file is
+complete.
+
+Example::
+
+    >>> from embagents.msgs import Audio, String
+    >>> from embagents.topic import Topic
+    >>> sink = WavFileSink(name="ear_file", inputs=[Topic("speaker", Audio, keep="all")],
+    ...                    outputs=[Topic("written", String)], config=WavFileSinkConfig(folder="/tmp/said"))
+    >>> sink.config.prefix
+    'utterance'
+"""
+
+from __future__ import annotations
+
+import os
+import wave
+from typing import Any
+
+import numpy as np
+from attrs import define, field
+
+from embagents.components.component import Component
+from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
+from embagents.msgs import Audio, String
+
+__all__ = ["WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav"]
+
+
+def _path(value: object) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"expected a file or folder path, got {value!r}")
+    return value
+
+
+def read_wav(path: str) -> tuple[np.ndarray, int, int]:
+    """``(int16 interleaved samples, rate, channels)`` of a 16-bit PCM WAV file (a clear error otherwise)."""
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"WAV file not found: {path!r}; give the path of a 16-bit PCM .wav file")
+    try:
+        with wave.open(path) as w:
+            if w.getsampwidth() != 2:
+                raise ValueError(f"{path!r} has {8 * w.getsampwidth()}-bit samples; convert it to 16-bit PCM "
+                                 "(e.g. `ffmpeg -i in.wav -acodec pcm_s16le out.wav`)")
+            return np.frombuffer(w.readframes(w.getnframes()), "<i2").astype(np.int16), w.getframerate(), w.getnchannels()
+    except wave.Error as exc:
+        raise ValueError(f"{path!r} is not a PCM WAV file ({exc}); convert it to 16-bit PCM WAV") from None
+
+
+@define(kw_only=True)
+class WavFileSourceConfig(BaseComponentConfig):
+    """``path``: the WAV file; ``chunk_ms``: audio per message; ``loop``: start again at the end."""
+
+    path: str = field(default="", converter=_path)
+    chunk_ms: float = field(default=100.0, converter=positive_float)
+    loop: bool = field(default=False, converter=to_bool)
+
+
+class WavFileSource(Component):
+    """Plays a WAV file as ``Audio`` chunks, then an empty ``Audio`` (see the module docstring)."""
+
+    allowed_outputs = {"Required": [Audio]}
+    config_class = WavFileSourceConfig
+
+    def on_configure(self) -> None:
+        self.samples, self.rate, self.channels = read_wav(self.config.path)
+        self.step_samples = max(1, int(self.rate * self.config.chunk_ms / 1000)) * self.channels
+        self.at = 0
+        self.logger.info("%s: playing %s (%.1f s at %d Hz, %d channels)", self._label(), self.config.path,
+                         len(self.samples) / self.channels / self.rate, self.rate, self.channels)
+
+    @property
+    def finished(self) -> bool:
+        return self.at > len(self.samples)
+
+    def _execution_step(self, **inputs: Any) -> None:
+        if self.finished:
+            if not self.config.loop:
+                return
+            self.at = 0
+        chunk = self.samples[self.at:self.at + self.step_samples]
+        self.at += self.step_samples if chunk.size else 1  # past the end: the empty chunk was the last
+        for t in self.outputs:
+            self.publish(t, Audio(data=chunk, sample_rate=self.rate, channels=self.channels))
+
+
+@define(kw_only=True)
+class WavFileSinkConfig(BaseComponentConfig):
+    """``folder``: where the files go (made if missing); ``prefix``: their names' start."""
+
+    folder: str = field(default="audio_out", converter=_path)
+    prefix: str = field(default="utterance", converter=_path)
+
+
+class WavFileSink(Component):
+    """Writes each utterance to a WAV file (see the module docstring)."""
+
+    allowed_inputs = {"Required": [Audio]}
+    allowed_outputs = {"Optional": [String]}
+    config_class = WavFileSinkConfig
+
+    def __init__(self, *, name: str, **kw: Any) -> None:
+        self._received: list[Audio] = []
+        self._file: wave.Wave_write | None = None
+        self._path = ""
+        self._format: tuple[int, int] = (0, 0)
+        self.written: list[str] = []
+        super().__init__(name=name, **kw)
+
+    def default_trigger(self) -> list[Any]:
+        return list(self.inputs)
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if topic_name in self._subscribed and isinstance(msg, Audio):
+            self._received.append(msg)  # every chunk: one dropped is a hole in a word
+        return super().on_message(topic_name, msg, now)
+
+    def _execution_step(self, **inputs: Any) -> None:
+        received, self._received = self._received, []
+        for msg in received:
+            if msg.data.size == 0:
+                self._close()
+                continue
+            if msg.data.dtype not in (np.int16, np.float32):
+                self.logger.error("%s: skipped Audio of dtype %s; send int16 PCM or float32 in [-1, 1]",
+                                  self._label(), msg.data.dtype)
+                self.set_algorithm_failure(f"bad audio dtype {msg.data.dtype}")
+                continue
+            if self._file is not None and self._format != (msg.sample_rate, msg.channels):
+                self._close()  # a new format is a new file
+            if self._file is None:
+                self._open(msg.sample_rate, msg.channels)
+            pcm = msg.data if msg.data.dtype == np.int16 else np.clip(msg.data * 32767.0, -32768, 32767).astype(np.int16)
+            assert self._file is not None
+            self._file.writeframes(pcm.astype("<i2").tobytes())
+
+    def _open(self, rate: int, channels: int) -> None:
+        os.makedirs(self.config.folder, exist_ok=True)
+        self._path = os.path.abspath(os.path.join(self.config.folder, f"{self.config.prefix}-{len(self.written) + 1}.wav"))
+        self._file = wave.open(self._path, "wb")
+        self._file.setnchannels(channels)
+        self._file.setsampwidth(2)
+        self._file.setframerate(rate)
+        self._format = (rate, channels)
+
+    def _close(self) -> None:
+        if self._file is None:
+            return
+        frames = self._file.getnframes()
+        self._file.close()
+        self._file = None
+        self.written.append(self._path)
+        self.logger.info("%s: wrote %s (%.2f s)", self._label(), self._path, frames / self._format[0])
+        for t in self.outputs:
+            self.publish(t, String(data=self._path))
+
+    def on_shutdown(self) -> None:
+        self._close()
+        super().on_shutdown()

@@ -1,0 +1,98 @@
+"""Speech synthesis with sherpa-onnx's offline TTS on a Piper/VITS voice.
+
+A voice folder holds ``model.onnx`` (with sherpa-onnx's metadata),
+``tokens.txt`` and the Piper config ``voice.json``
+(:func:`embagents.piper_voice.prepare_piper_voice` makes one from a Piper
+release; :func:`embagents.speechfiles.piper_joe_dir` is the offline default).
+Text is phonemized by espeak-ng (:mod:`embagents.phonemes`, in this process:
+the model actor's) and synthesized sentence by sentence, so a caller can
+play the first sentence while the next is being made.
+
+Example::
+
+    >>> voice = SherpaSpeaker(piper_joe_dir())                                       # doctest: +SKIP
+    >>> [(len(a) > 0, sr) for a, sr, _ in voice.speak("Hello. I am a robot.")]       # doctest: +SKIP
+    [(True, 22050), (True, 22050)]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+__all__ = ["SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable"]
+
+_PIPER = ("model.onnx", "tokens.txt", "voice.json")
+
+
+class TTSModelError(FileNotFoundError):
+    """A voice folder lacks a file (the message names it and how to get the default voice)."""
+
+
+def check_voice_dir(path: str) -> str:
+    """``path`` (expanded) if it is a complete Piper voice folder; else :class:`TTSModelError` naming what is missing."""
+    from embagents.speechfiles import PIPER_PREPARE_HINT
+
+    folder = os.path.abspath(os.path.expanduser(path))
+    if not os.path.isdir(folder):
+        raise TTSModelError(f"text-to-speech voice folder not found: {path!r}; give a folder with "
+                            f"{', '.join(_PIPER)}, or {PIPER_PREPARE_HINT}")
+    missing = [f for f in _PIPER if not os.path.isfile(os.path.join(folder, f))]
+    if missing:
+        raise TTSModelError(f"voice folder {path!r} lacks {', '.join(missing)} (a Piper voice folder holds "
+                            f"{', '.join(_PIPER)}: make one from a Piper .onnx + .onnx.json with "
+                            f"embagents.piper_voice.prepare_piper_voice, or {PIPER_PREPARE_HINT})")
+    return folder
+
+
+def speakable(text: object) -> bool:
+    """Whether ``text`` has anything to say (a letter or a digit).
+
+    >>> speakable("Hello!"), speakable(" ... ?! "), speakable("")
+    (True, False, False)
+    """
+    return isinstance(text, str) and any(ch.isalnum() for ch in text)
+
+
+class SherpaSpeaker:
+    """One Piper/VITS voice on sherpa-onnx; :meth:`speak` yields each sentence's samples."""
+
+    def __init__(self, path: str, *, threads: int = 1, provider: str = "cpu", speed: float = 1.0,
+                 speaker_id: int = 0) -> None:
+        import sherpa_onnx
+
+        self.path = check_voice_dir(path)
+        with open(os.path.join(self.path, "voice.json"), encoding="utf-8") as f:
+            self.voice_config = json.load(f)
+        self.espeak_voice = self.voice_config.get("espeak", {}).get("voice", "en-us")
+        self.speed, self.speaker_id = speed, speaker_id
+        config = sherpa_onnx.OfflineTtsConfig(
+            model=sherpa_onnx.OfflineTtsModelConfig(
+                vits=sherpa_onnx.OfflineTtsVitsModelConfig(model=os.path.join(self.path, "model.onnx"),
+                                                           tokens=os.path.join(self.path, "tokens.txt")),
+                num_threads=threads, provider=provider),
+        )
+        self.tts = sherpa_onnx.OfflineTts(config)
+        self.sample_rate = int(self.tts.sample_rate)
+
+    def speak(self, text: str, *, speed: float | None = None) -> Iterator[tuple[np.ndarray, int, str]]:
+        """``(samples, sample_rate, phonemes)`` per sentence of ``text``: float32 mono in [-1, 1]."""
+        import sherpa_onnx
+
+        from embagents.phonemes import phonemize
+
+        for sentence in phonemize(text, self.espeak_voice):
+            gen = sherpa_onnx.GenerationConfig()
+            gen.sid, gen.speed = self.speaker_id, float(speed or self.speed)
+            gen.phoneme_codepoints = [[ord(ch) for ch in sentence]]
+            audio = self.tts.generate("", gen)
+            samples = np.asarray(audio.samples, np.float32)
+            if samples.size:
+                yield samples, self.sample_rate, sentence
+
+    def describe(self) -> dict[str, Any]:
+        return {"sample_rate": self.sample_rate, "voice": self.espeak_voice, "path": self.path}
