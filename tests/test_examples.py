@@ -18,7 +18,7 @@ import pytest
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
-@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py",
+@pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py", "voice.py",
                                   "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
@@ -72,6 +72,31 @@ def test_listen_example_hears_the_six_phrases_of_the_clip() -> None:
     assert heard == ["ever tried", "ever failed", "no matter", "try again", "fail again", "fail better"], out.stdout
     assert any(x.startswith("  (hearing: ") for x in out.stdout.splitlines()), out.stdout  # partial transcripts
     assert out.stdout.splitlines()[-1] == "done: 6 phrases heard", out.stdout
+
+
+def test_voice_example_hears_the_question_and_speaks_an_answer_a_recognizer_hears(tmp_path: Path) -> None:
+    pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
+    pytest.importorskip("espeakng_loader", reason="the example needs the speech extra (pip install 'embagents[speech]')")
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "voice.py")],
+                         capture_output=True, text=True, timeout=240, env={**os.environ, "EMBAGENTS_VOICE_OUT": str(tmp_path)})
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    assert "heard: What is the capital of France?" in lines, out.stdout
+    said = next(x[len("said: "):] for x in lines if x.startswith("said: "))
+    assert "Paris" in said, out.stdout
+    wav = tmp_path / "answer-1.wav"
+    assert lines[-1] == f"answer audio: {wav}", out.stdout
+    # The answer's audio, heard by the real recognizer, says what the LLM wrote.
+    from embagents.components import read_wav
+    from embagents.components.audio_format import to_mono_16k
+    from embagents.models.backends.sherpa_stt import SherpaRecognizer
+    from embagents.msgs import Audio
+    from embagents.speechfiles import whisper_tiny_en_dir
+
+    samples, rate, channels = read_wav(str(wav))
+    heard = SherpaRecognizer(whisper_tiny_en_dir(progress=False)).transcribe(
+        to_mono_16k(Audio(data=samples, sample_rate=rate, channels=channels))[0])
+    assert "paris" in heard.lower(), heard
 
 
 def test_pick_place_resumes_its_state_machine_after_a_sigkill_of_the_manager() -> None:

@@ -12,6 +12,7 @@ from embagents.components.audio_io import (
     WavFileSinkConfig,
     WavFileSource,
     WavFileSourceConfig,
+    read_wav,
 )
 from embagents.components.camera import Camera, CameraConfig
 from embagents.components.component import (
@@ -75,6 +76,7 @@ __all__ = [
     "WavFileSinkConfig",
     "WavFileSource",
     "WavFileSourceConfig",
+    "read_wav",
     "SpeechToTextConfig",
     "Sim",
     "SimConfig",

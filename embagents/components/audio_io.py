@@ -77,20 +77,18 @@ class WavFileSource(Component):
         self.samples, self.rate, self.channels = read_wav(self.config.path)
         self.step_samples = max(1, int(self.rate * self.config.chunk_ms / 1000)) * self.channels
         self.at = 0
+        self.finished = False
         self.logger.info("%s: playing %s (%.1f s at %d Hz, %d channels)", self._label(), self.config.path,
                          len(self.samples) / self.channels / self.rate, self.rate, self.channels)
-
-    @property
-    def finished(self) -> bool:
-        return self.at > len(self.samples)
 
     def _execution_step(self, **inputs: Any) -> None:
         if self.finished:
             if not self.config.loop:
                 return
-            self.at = 0
+            self.at, self.finished = 0, False
         chunk = self.samples[self.at:self.at + self.step_samples]
-        self.at += self.step_samples if chunk.size else 1  # past the end: the empty chunk was the last
+        self.at += self.step_samples
+        self.finished = chunk.size == 0  # the empty chunk is the end-of-stream marker
         for t in self.outputs:
             self.publish(t, Audio(data=chunk, sample_rate=self.rate, channels=self.channels))
 
