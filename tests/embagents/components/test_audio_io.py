@@ -9,7 +9,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from embagents.components import WavFileSink, WavFileSinkConfig, WavFileSource, WavFileSourceConfig, read_wav
+from embagents.components import (
+    WavFileSink,
+    WavFileSinkConfig,
+    WavFileSource,
+    WavFileSourceConfig,
+    read_wav,
+)
 from embagents.msgs import Audio, String
 from embagents.topic import Topic
 
