@@ -68,6 +68,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_supervisor,
     cases_tools,
     cases_vision,
+    cases_voice,
     idle,
 )
 from embagents.bench.registry import (
