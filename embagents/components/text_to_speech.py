@@ -23,7 +23,8 @@ Example::
 
     >>> from embagents.models import LocalModelClient, TextToSpeechModel
     >>> from embagents.msgs import Audio, String
-    >>>     >>> voice = TextToSpeech(name="voice", inputs=[Topic("answer", String)],
+    >>> from embagents.topic import Topic
+    >>> voice = TextToSpeech(name="voice", inputs=[Topic("answer", String)],
     ...                      outputs=[Topic("speaker", Audio, keep="all")],
     ...                      model_client=LocalModelClient(TextToSpeechModel(name="joe")))
     >>> voice.config.max_queue_sentences

@@ -97,7 +97,7 @@ def test_a_spoken_sentence_is_heard_back_by_a_real_recognizer(system: ActorSyste
     [speech] = utterances(sent)
     assert 1.0 < len(speech) / 16000 < 6.0
     heard = hear(speech)
-    assert overlap("The red cup is on the kitchen table.", heard) >= 0.75, heard
+    assert overlap("The red cup is on the kitchen table.", heard) >= 0.6, heard  # 25 tries: never below 0.75
     assert comp.spoken == 1 and comp.health.status == HealthStatus.HEALTHY
 
 
@@ -122,15 +122,18 @@ def test_a_stream_is_spoken_sentence_by_sentence_while_it_is_still_written(syste
 
 def test_say_interrupts_what_is_queued_and_speaks_at_once(system: ActorSystem) -> None:
     comp, sent, loop = voice(system)
-    comp.on_message("answer", String(data="One. Two. Three. Four. Five."))
-    comp.execute()  # speaks "One." and schedules the rest, one per turn
+    comp.on_message("answer", String(data="The red cup is on the table. The door is open. The lamp is green."))
+    comp.execute()  # speaks the first sentence and schedules the rest, one per turn
     assert comp.spoken == 1 and len(loop.due) == 1
     assert comp.say("Stop right there.") == 1
     loop.run()
     first, second = utterances(sent)
-    assert words(hear(first)) in ("one", "one one", "won"), hear(first)
+    heard_first = hear(first)
+    # Piper's VITS samples its noise afresh each time: judge by share of words, not an exact transcript.
+    assert overlap("The red cup is on the table.", heard_first) >= 0.5, heard_first
+    assert not {"door", "open", "lamp", "green"} & set(heard_first.split()), heard_first
     assert "stop" in hear(second)
-    assert comp.spoken == 2, "two, three, four and five were dropped"
+    assert comp.spoken == 2, "the door and the lamp were dropped"
     assert comp.stop_playback() == 0
 
 
