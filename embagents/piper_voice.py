@@ -18,9 +18,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 from pathlib import Path
 from typing import Any
+
+from embagents.progress import progress_bar
 
 __all__ = ["PIPER_FILES", "PREPARER_VERSION", "PiperVoiceError", "piper_config", "prepare_piper_voice"]
 
@@ -47,12 +48,6 @@ def piper_config(json_path: str) -> dict[str, Any]:
     return config
 
 
-def _step(label: str, progress: bool, n: int, total: int) -> None:
-    if progress:
-        bar = "#" * int(n / total * 30)
-        print(f"\r{label}: [{bar:<30}] {n}/{total}", end="\n" if n == total else "", file=sys.stderr, flush=True)
-
-
 def prepare_piper_voice(onnx_path: str, json_path: str, dest: str, *, progress: bool = True) -> str:
     """Write :data:`PIPER_FILES` for the voice into ``dest`` (kept if already complete); returns ``dest``."""
     import onnx
@@ -62,13 +57,13 @@ def prepare_piper_voice(onnx_path: str, json_path: str, dest: str, *, progress: 
     if not os.path.isfile(onnx_path):
         raise PiperVoiceError(f"Piper voice model not found: {onnx_path!r}")
     config = piper_config(json_path)
-    label = f"preparing Piper voice {Path(onnx_path).stem} for sherpa-onnx"
+    show = progress_bar(f"preparing Piper voice {Path(onnx_path).stem} for sherpa-onnx", progress)
     tmp = Path(f"{dest}.part{os.getpid()}")
     tmp.mkdir(parents=True, exist_ok=True)
     try:
-        _step(label, progress, 0, 3)
+        show(0, 3)
         model = onnx.load(onnx_path)
-        _step(label, progress, 1, 3)
+        show(1, 3)
         lang = config.get("language", {})
         meta = {
             "model_type": "vits", "comment": "piper", "language": lang.get("name_english", "English"),
@@ -80,7 +75,7 @@ def prepare_piper_voice(onnx_path: str, json_path: str, dest: str, *, progress: 
             prop = model.metadata_props.add()
             prop.key, prop.value = key, str(value)
         onnx.save(model, str(tmp / "model.onnx"))
-        _step(label, progress, 2, 3)
+        show(2, 3)
         with open(tmp / "tokens.txt", "w", encoding="utf-8") as f:
             for symbol, ids in config["phoneme_id_map"].items():
                 f.write(f"{symbol} {ids[0]}\n")
@@ -89,7 +84,7 @@ def prepare_piper_voice(onnx_path: str, json_path: str, dest: str, *, progress: 
             shutil.rmtree(dest)
         os.makedirs(os.path.dirname(os.path.abspath(dest)), exist_ok=True)
         os.replace(tmp, dest)
-        _step(label, progress, 3, 3)
+        show(3, 3)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return dest

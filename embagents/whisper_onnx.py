@@ -33,12 +33,13 @@ import os
 import re
 import shutil
 import struct
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from embagents.progress import progress_bar
 
 __all__ = ["CONVERTER_VERSION", "WHISPER_FILES", "convert_ct2_whisper", "gpt2_token_bytes", "read_ct2_model"]
 
@@ -328,14 +329,12 @@ def _metadata(vocab: list[str], d: dict[str, int], config: dict[str, Any], name:
 
 
 def _bar(label: str, total: int, enabled: bool) -> Callable[[], None]:
-    done = [0]
+    """``step()``: one more of ``total`` done, on :func:`embagents.progress.progress_bar`."""
+    show, done = progress_bar(label, enabled), [0]
 
     def step() -> None:
         done[0] += 1
-        final = done[0] >= total
-        if enabled and (final or sys.stderr.isatty()):  # a log file gets the last line only
-            bar = "#" * int(done[0] / total * 30)
-            print(f"\r{label}: [{bar:<30}] {done[0]}/{total}", end="\n" if final else "", file=sys.stderr, flush=True)
+        show(done[0], total)
 
     return step
 

@@ -18,11 +18,11 @@ from __future__ import annotations
 import os
 import sys
 import time
-from typing import Any
 
 import numpy as np
 
 from embagents.models.backends.onnx import OnnxSession
+from embagents.progress import progress_bar
 
 __all__ = ["MINILM_DIST", "MINILM_VERSION", "SentenceEncoder", "minilm_source", "prepared_minilm"]
 
@@ -55,15 +55,6 @@ def minilm_source(*, progress: bool = True) -> str:
     return os.path.dirname(path)
 
 
-def _bar(label: str, enabled: bool) -> Any:
-    def show(done: int, total: int) -> None:
-        if enabled:
-            bar = "#" * int(30 * done / max(total, 1))
-            end = "\n" if done >= total or not sys.stderr.isatty() else ""
-            print(f"\r{label}: [{bar:<30}] {done}/{total}", end=end, file=sys.stderr, flush=True)
-    return show
-
-
 def prepared_minilm(*, progress: bool = True) -> str:
     """The folder with ``model.onnx`` + ``tokenizer.json`` of all-MiniLM-L6-v2, prepared once.
 
@@ -82,7 +73,7 @@ def prepared_minilm(*, progress: bool = True) -> str:
     src = minilm_source(progress=progress)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    build_bert_onnx(src, str(onnx_path), _bar("preparing all-MiniLM-L6-v2 (safetensors -> ONNX)", progress))
+    build_bert_onnx(src, str(onnx_path), progress_bar("preparing all-MiniLM-L6-v2 (safetensors -> ONNX)", progress))
     part = out / f".tokenizer.json.{os.getpid()}"
     shutil.copyfile(os.path.join(src, "tokenizer.json"), part)
     os.replace(part, tok)
