@@ -74,7 +74,10 @@ class ModelActor(Actor):
         self.queues: OrderedDict[bytes, deque[InferRequest]] = OrderedDict()
         self.last_seen: dict[bytes, float] = {}
         self.cancelled: set[tuple[bytes, int]] = set()
-        self.stats = {"served": 0, "batches": 0, "max_batch_seen": 0, "bad_requests": 0, "cancelled": 0}
+        self.streaming: tuple[bytes, int] | None = None  # the request whose chunks are going out
+        # cancels_late: a cancel that came after its answer went out (the client drops that answer).
+        self.stats = {"served": 0, "batches": 0, "max_batch_seen": 0, "bad_requests": 0, "cancelled": 0,
+                      "cancels_late": 0}
         self.context.watch(s, self._on_readable)
 
     # -- receiving ---------------------------------------------------------------------------
@@ -128,7 +131,10 @@ class ModelActor(Actor):
                 self._send(ident, InferError(id=rid, error="cancelled by the client", kind="cancelled"))
                 self.stats["cancelled"] += 1
                 return
-        self.cancelled.add((ident, rid))  # running now: the stream stops at its next chunk
+        if self.streaming == (ident, rid):
+            self.cancelled.add((ident, rid))  # the stream stops at its next chunk
+        else:
+            self.stats["cancels_late"] += 1  # answered already (or never asked): nothing to stop, nothing kept
 
     # -- serving -----------------------------------------------------------------------------
     def _next(self) -> tuple[bytes, InferRequest] | None:
@@ -190,6 +196,7 @@ class ModelActor(Actor):
 
     def _serve_stream(self, ident: bytes, req: InferRequest) -> None:
         chunks = None
+        self.streaming = (ident, req.id)
         try:
             chunks = self.serving.run(req.task, req.inputs, req.options)
             for chunk in chunks:
@@ -212,6 +219,7 @@ class ModelActor(Actor):
         finally:
             if chunks is not None and hasattr(chunks, "close"):
                 chunks.close()
+            self.streaming = None
             self.cancelled.discard((ident, req.id))
         self.stats["served"] += 1
 

@@ -124,9 +124,17 @@ def test_a_client_that_gives_up_cancels_its_request_in_the_model_actor(served: A
             impatient.detect(np.zeros((64, 64, 3), np.uint8))
     finally:
         asys.signal("det", signal.SIGCONT)
-    # Its mailbox and its inference socket are read in either order after SIGCONT: wait for the cancel.
-    wait_until(lambda: asys.ref("det").ask("stats", timeout=5).get()["cancelled"] > before["cancelled"],
-               what="the model actor to read the cancel")
+    # After SIGCONT the actor's ZeroMQ thread hands it the request and the cancel, usually together (the
+    # request is dropped unserved) but now and then the request alone first (it is served, and the cancel
+    # then finds nothing to stop): which one is not the test's to choose. Exactly one of the two, and the
+    # answer that was asked for after it is the one the client takes.
+    def outcome() -> tuple[int, int] | None:
+        now = asys.ref("det").ask("stats", timeout=5).get()
+        dropped, late = now["cancelled"] - before["cancelled"], now["cancels_late"] - before["cancels_late"]
+        return (dropped, late) if dropped + late else None
+
+    dropped, late = wait_until(outcome, what="the model actor to read the cancel")
     after = asys.ref("det").ask("stats", timeout=5).get()
-    assert after["cancelled"] == before["cancelled"] + 1 and after["served"] == before["served"]
+    assert (dropped, late) in ((1, 0), (0, 1))
+    assert after["served"] == before["served"] + late, "a cancelled request is never served"
     assert impatient.detect(np.zeros((64, 64, 3), np.uint8))["labels"] == ["robot"]  # the late answer is not taken
