@@ -23,8 +23,6 @@ import os
 import queue
 import signal
 import statistics
-import subprocess
-import sys
 import tempfile
 import textwrap
 import threading
@@ -34,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from actors import Actor, ActorSystem
-from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.bench.registry import Baseline, BenchOptions, case
 
 __all__ = ["RouterHost"]  # actor classes the fork server imports by name
 
@@ -100,44 +98,32 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
     runtime: list[float] = []
     inproc: list[float] = []
     agree = 0
-    base = subprocess.Popen([sys.executable, "-c", _BASELINE, folder], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            text=True)
-    try:
-        with ActorSystem() as asys:
-            asys.spawn(ModelActor, "bench_minilm", "embedding", folder, {}, True, wait=120, heartbeat=None)
-            asys.spawn(RouterHost, "bench_router", "bench_minilm", wait=60)
-            got: queue.Queue[tuple[float, str]] = queue.Queue()
-            for name in ROUTES:
-                asys.rt.on_client(lambda name=name: Subscription(
-                    asys.rt, asys.loop, name, lambda msg, name=name: got.put((time.monotonic(), name)),
-                    queue_size=100, keep="all"))
-            pub = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_heard"))
-            # Subscriptions connected, and the router's start-up client (it embedded the samples) no longer
-            # counts as active: the model actor would hold a request up to batch_wait_ms for it.
-            time.sleep(1.2)
-            assert base.stdin is not None and base.stdout is not None
-            for i in range(n + 2):  # the first two of each are warm-ups; interleaved, so drifts hit both
-                text = TEXTS[i % len(TEXTS)]
-                sent: list[float] = []
-                # Both ends are stamped on this process's IO thread: as the String goes out, as the routed one
-                # arrives (the hand-offs to and from the bench's own thread are the harness, not the runtime).
-                asys.rt.on_client(lambda text=text, sent=sent: (sent.append(time.monotonic()),
-                                                                pub.publish(String(data=text))))
-                t1, ours = got.get(timeout=60)  # waited for, not polled
-                t0 = sent[0]
-                base.stdin.write(text + "\n")
-                base.stdin.flush()
-                secs, theirs = base.stdout.readline().split()
-                if i >= 2:
-                    runtime.append(t1 - t0)
-                    inproc.append(float(secs))
-                    agree += ours == theirs
-    finally:
-        if base.stdin is not None:
-            base.stdin.close()
-        stop_process(base)
-        if base.stdout is not None:
-            base.stdout.close()
+    with Baseline(_BASELINE, folder, what="in-process router") as base, ActorSystem() as asys:
+        asys.spawn(ModelActor, "bench_minilm", "embedding", folder, {}, True, wait=120, heartbeat=None)
+        asys.spawn(RouterHost, "bench_router", "bench_minilm", wait=60)
+        got: queue.Queue[tuple[float, str]] = queue.Queue()
+        for name in ROUTES:
+            asys.rt.on_client(lambda name=name: Subscription(
+                asys.rt, asys.loop, name, lambda msg, name=name: got.put((time.monotonic(), name)),
+                queue_size=100, keep="all"))
+        pub = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_heard"))
+        # Subscriptions connected, and the router's start-up client (it embedded the samples) no longer
+        # counts as active: the model actor would hold a request up to batch_wait_ms for it.
+        time.sleep(1.2)
+        for i in range(n + 2):  # the first two of each are warm-ups; interleaved, so drifts hit both
+            text = TEXTS[i % len(TEXTS)]
+            sent: list[float] = []
+            # Both ends are stamped on this process's IO thread: as the String goes out, as the routed one
+            # arrives (the hand-offs to and from the bench's own thread are the harness, not the runtime).
+            asys.rt.on_client(lambda text=text, sent=sent: (sent.append(time.monotonic()),
+                                                            pub.publish(String(data=text))))
+            t1, ours = got.get(timeout=60)  # waited for, not polled
+            t0 = sent[0]
+            secs, theirs = base.ask(text).split()
+            if i >= 2:
+                runtime.append(t1 - t0)
+                inproc.append(float(secs))
+                agree += ours == theirs
     ours_p50, base_p50 = statistics.median(runtime), statistics.median(inproc)
     return {
         "p50_us": ours_p50 * 1e6,

@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import queue
 import statistics
-import subprocess
-import sys
 import time
 import wave
 from typing import Any
@@ -30,7 +28,7 @@ import numpy as np
 import embagents.msgs  # noqa: F401 - registers the message types this case decodes
 from actors import Actor, ActorSystem
 from actors.topics import Publisher, Subscription
-from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.bench.registry import Baseline, BenchOptions, case
 
 __all__ = ["SttHost"]  # the actor class the fork server imports by name
 
@@ -88,30 +86,6 @@ for _ in sys.stdin:
 """
 
 
-class _InProcess:
-    """The same VAD and recognizer in one process of their own (onnxruntime must never load in this
-    one: later ActorSystems fork their fork server from it)."""
-
-    def __enter__(self) -> _InProcess:
-        self.proc = subprocess.Popen([sys.executable, "-c", _BASELINE], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True)
-        return self
-
-    def seconds(self) -> tuple[float, int]:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write("\n")
-        self.proc.stdin.flush()
-        took, n = self.proc.stdout.readline().split()
-        return float(took), int(n)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.proc.stdin is not None:
-            self.proc.stdin.close()
-        stop_process(self.proc)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-
-
 @case("stt_overhead", transport="embagents", kind="speech", needs="sherpa_onnx")
 def stt_overhead(opts: BenchOptions) -> dict[str, Any]:
     from embagents.msgs import Audio
@@ -125,7 +99,7 @@ def stt_overhead(opts: BenchOptions) -> dict[str, Any]:
     silero_vad_path()
     runtime: list[float] = []
     inproc: list[float] = []
-    with _InProcess() as baseline, ActorSystem() as asys:
+    with Baseline(_BASELINE, what="in-process VAD and recognizer") as baseline, ActorSystem() as asys:
         asys.spawn(ModelActor, MODEL, "stt", path, {"threads": THREADS}, True, wait=120, heartbeat=None)
         host = asys.spawn(SttHost, "bench_stt", wait=120, heartbeat=None)
         heard: queue.Queue[str] = queue.Queue()
@@ -145,7 +119,8 @@ def stt_overhead(opts: BenchOptions) -> dict[str, Any]:
             asys.rt.on_client(send)
             texts = [heard.get(timeout=120) for _ in range(6)]  # waited for, not polled
             took = time.monotonic() - t0
-            base, n = baseline.seconds()
+            base_s, count = baseline.ask().split()
+            base, n = float(base_s), int(count)
             if n != 6 or len(texts) != 6:
                 raise RuntimeError(f"expected the clip's six phrases, heard {texts} here and {n} in-process")
             if r:

@@ -24,8 +24,6 @@ from __future__ import annotations
 import os
 import queue
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from typing import Any
@@ -35,7 +33,7 @@ import numpy as np
 import embagents.msgs  # noqa: F401 - registers the message types this case decodes
 from actors import Actor, ActorSystem
 from actors.topics import Publisher, Subscription
-from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.bench.registry import Baseline, BenchOptions, case
 
 __all__ = ["DetectionSink", "SteppingVision"]  # actor classes the fork server imports by name
 
@@ -106,29 +104,6 @@ for _ in sys.stdin:
 """
 
 
-class _InProcess:
-    """The same detector called in its own process: onnxruntime must never load in this one, whose
-    later ActorSystems fork their fork server from it (its thread pools do not survive a fork)."""
-
-    def __enter__(self) -> _InProcess:
-        self.proc = subprocess.Popen([sys.executable, "-c", _BASELINE], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True)
-        return self
-
-    def detect_seconds(self) -> float:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write("\n")
-        self.proc.stdin.flush()
-        return float(self.proc.stdout.readline())
-
-    def __exit__(self, *exc: object) -> None:
-        if self.proc.stdin is not None:
-            self.proc.stdin.close()  # its loop ends
-        stop_process(self.proc)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-
-
 def _serve(asys: ActorSystem, path: str | None = None, options: dict[str, Any] | None = None) -> None:
     from embagents.modelfiles import mtcnn_dir
     from embagents.runtime.model_actor import ModelActor
@@ -144,7 +119,7 @@ def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
     frame = _frame(1920, 1080)
     runtime: list[float] = []
     inproc: list[float] = []
-    with _InProcess() as baseline, ActorSystem() as asys:
+    with Baseline(_BASELINE, what="in-process detector") as baseline, ActorSystem() as asys:
         _serve(asys)
         asys.spawn(DetectionSink, "bench_vision_sink")
         asys.spawn(SteppingVision, "bench_vision", "bench_frames")
@@ -155,7 +130,7 @@ def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
         for _ in range(frames + 1):  # the first of each is a warm-up; interleaved, so drifts hit both
             asys.rt.on_client(lambda: pub.publish(Image(data=frame, stamp=time.monotonic(), frame_id="cam")))
             runtime.append(got.get(timeout=60))  # waited for, not polled: no CPU taken from the detector
-            inproc.append(baseline.detect_seconds())
+            inproc.append(float(baseline.ask()))
         runtime, inproc = runtime[1:], inproc[1:]
     ours, base = statistics.median(runtime), statistics.median(inproc)
     return {

@@ -25,8 +25,6 @@ from __future__ import annotations
 import json
 import queue
 import statistics
-import subprocess
-import sys
 import time
 from typing import Any
 
@@ -35,7 +33,7 @@ import numpy as np
 import embagents.msgs  # noqa: F401 - registers the message types this case decodes
 from actors import Actor, ActorSystem
 from actors.topics import Publisher, Subscription
-from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.bench.registry import Baseline, BenchOptions, case
 
 __all__ = ["VoiceHost"]  # the actor class the fork server imports by name
 
@@ -141,35 +139,6 @@ for _ in sys.stdin:
 """
 
 
-class _InProcess:
-    """The same models in one process of their own (onnxruntime must never load in the bench process)."""
-
-    def __init__(self, mode: str) -> None:
-        self.mode = mode
-
-    def __enter__(self) -> _InProcess:
-        self.proc = subprocess.Popen([sys.executable, "-c", _BASELINE, self.mode], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True)
-        return self
-
-    def seconds(self) -> tuple[float, str]:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write("\n")
-        self.proc.stdin.flush()
-        line = self.proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"the in-process {self.mode} baseline ended (exit {self.proc.poll()}); see its stderr")
-        took, what = json.loads(line)
-        return float(took), str(what)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.proc.stdin is not None:
-            self.proc.stdin.close()
-        stop_process(self.proc)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-
-
 def _first_audio(asys: ActorSystem, topic: str) -> queue.Queue[float]:
     """A queue that gets the arrival time of each non-empty Audio on ``topic``."""
     got: queue.Queue[float] = queue.Queue()
@@ -201,7 +170,7 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
     path = piper_joe_dir()
     ours: list[float] = []
     base: list[float] = []
-    with _InProcess("tts") as baseline, ActorSystem() as asys:
+    with Baseline(_BASELINE, "tts", what="in-process tts baseline") as baseline, ActorSystem() as asys:
         asys.spawn(ModelActor, TTS_MODEL, "tts", path, {"threads": THREADS}, True, wait=120, heartbeat=None)
         host = asys.spawn(VoiceHost, "bench_tts", "tts", ["bench_tokens"], "bench_speech", wait=120, heartbeat=None)
         got = _first_audio(asys, "bench_speech")
@@ -217,7 +186,7 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
             t1 = got.get(timeout=60)
             asys.rt.on_client(lambda sid=sid: pub.publish(StreamingString(data=" stop.", done=True, stream_id=sid)))
             _drain(got, 1.0)
-            took, _ = baseline.seconds()
+            took = json.loads(baseline.ask())[0]
             if r:
                 ours.append(t1 - t0)
                 base.append(took)
@@ -246,7 +215,7 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
     answers: set[str] = set()
     silero_vad_path()
     llm_path = LlamaModel(name="smollm2").resolve()
-    with _InProcess("voice") as baseline, ActorSystem() as asys:
+    with Baseline(_BASELINE, "voice", what="in-process voice baseline") as baseline, ActorSystem() as asys:
         asys.spawn(ModelActor, STT_MODEL, "stt", whisper_tiny_en_dir(), {"threads": THREADS}, True, wait=120,
                    heartbeat=None)
         asys.spawn(ModelActor, LLM_MODEL, "llama", llm_path, {}, True, wait=300, heartbeat=None)
@@ -265,7 +234,7 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
             asys.rt.on_client(lambda: pub.publish(Audio(data=np.zeros(0, np.int16))))  # the question ends
             t1 = got.get(timeout=120)
             _drain(got, 2.0)
-            took, answer = baseline.seconds()
+            took, answer = json.loads(baseline.ask())
             answers.add(answer)
             if r:
                 ours.append(t1 - t0)

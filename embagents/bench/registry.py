@@ -28,6 +28,7 @@ import functools
 import importlib.util
 import os
 import subprocess
+import sys
 import time
 import traceback
 from collections.abc import Callable
@@ -38,6 +39,7 @@ import numpy as np
 
 __all__ = [
     "CASES",
+    "Baseline",
     "FRAME_1080P",
     "MIB",
     "SIZES",
@@ -313,6 +315,44 @@ def stop_process(proc: subprocess.Popen, grace: float = 3.0) -> int | None:
         except subprocess.TimeoutExpired:
             continue
     return proc.wait()
+
+
+class Baseline:
+    """An in-process baseline in a process of its own, asked a line at a time.
+
+    ``python -c script *args`` reads a line on stdin per round and answers one
+    line on stdout. Baselines that load onnxruntime (or any library with thread
+    pools) must not run in the bench's own process: its later ActorSystems fork
+    their fork server from it, and those pools do not survive a fork.
+
+    >>> with Baseline("import sys\\nfor line in sys.stdin: print(line.strip().upper(), flush=True)") as b:
+    ...     b.ask("hello")
+    'HELLO'
+    """
+
+    def __init__(self, script: str, *args: str, what: str = "in-process baseline") -> None:
+        self.argv, self.what = [sys.executable, "-c", script, *args], what
+
+    def __enter__(self) -> Baseline:
+        self.proc = subprocess.Popen(self.argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        return self
+
+    def ask(self, line: str = "") -> str:
+        """Send ``line``; its answer line (without the newline)."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        answer = self.proc.stdout.readline()
+        if not answer:
+            raise RuntimeError(f"the {self.what} ended (exit {self.proc.poll()}); see its stderr above")
+        return answer.rstrip("\n")
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()  # its loop ends
+        stop_process(self.proc)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
 
 
 #: What this run's processes put in /dev/shm: name prefixes (one per ActorSystem)

@@ -6,12 +6,11 @@ import io
 import json
 import re
 import socket
-import threading
 import wave
 from collections.abc import Iterator
 from email.parser import BytesParser
 from email.policy import HTTP
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from typing import Any
 
 import numpy as np
@@ -26,6 +25,7 @@ from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
 from embagents.models.backends.sherpa_stt import SherpaRecognizer  # noqa: E402
 from embagents.msgs import Audio, String  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
+from tests.helpers import serve_http  # noqa: E402
 
 
 def words(text: str) -> str:
@@ -66,13 +66,8 @@ def server(whisper_dir: str) -> Iterator[tuple[str, list[dict[str, Any]]]]:
             self.end_headers()
             self.wfile.write(payload)
 
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
-    thread.start()
-    yield f"http://127.0.0.1:{httpd.server_address[1]}", seen
-    httpd.shutdown()
-    httpd.server_close()
-    thread.join(5)
+    with serve_http(Handler) as url:
+        yield url, seen
 
 
 def test_the_server_transcribes_what_the_client_sends(server: tuple, speech_clip: tuple) -> None:

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import json
-import threading
 from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from typing import Any
 
 import numpy as np
@@ -23,6 +22,7 @@ from embagents.models.backends.sherpa_stt import SherpaRecognizer  # noqa: E402
 from embagents.models.backends.sherpa_tts import SherpaSpeaker  # noqa: E402
 from embagents.msgs import Audio, String  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
+from tests.helpers import serve_http  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -52,13 +52,8 @@ def server(piper_dir: str) -> Iterator[tuple[str, list[dict[str, Any]]]]:
             self.end_headers()
             self.wfile.write(payload)
 
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
-    thread.start()
-    yield f"http://127.0.0.1:{httpd.server_address[1]}", seen
-    httpd.shutdown()
-    httpd.server_close()
-    thread.join(5)
+    with serve_http(Handler) as url:
+        yield url, seen
 
 
 def test_the_server_speaks_each_sentence_and_a_recognizer_hears_it(server: tuple, whisper_dir: str) -> None:
