@@ -25,6 +25,7 @@ from embagents.components import VLA, Component, Sim, SimConfig, VLAConfig
 from embagents.components.sim import PANDA_READY
 from embagents.msgs import JointState
 from embagents.priority import raise_priority
+from embagents.rate import next_deadline
 from embagents.topic import Topic
 
 __all__ = [
@@ -75,26 +76,39 @@ def vla_system(policy: str) -> Any:
 
 
 class Ticker(Component):
-    """A 100 Hz control loop that only notes when each tick runs (``ticks()`` hands them over)."""
+    """A 100 Hz control loop that notes when each tick runs and how late it was (``ticks()`` hands them over).
+
+    Lateness is measured against the loop's own deadlines, kept by the rule the component actor
+    follows (:func:`embagents.rate.next_deadline`, from the deadline it sets on activation): a delay
+    the same on every tick (a thread that always waits its turn for the GIL) counts, where the
+    period between two ticks would not show it.
+    """
 
     allowed_inputs = {"Optional": []}
     allowed_outputs = {"Optional": []}
 
     def __init__(self, **kw: Any) -> None:
-        self._ticks: list[float] = []
+        self._ticks: list[tuple[float, float]] = []
         self.priority = "normal"
+        self._deadline = 0.0
         super().__init__(**kw)
 
     def on_activate(self) -> None:
         self.priority = raise_priority()  # on the actor's loop thread, which runs the ticks
+        # The actor sets its first deadline one period after this, a few us later: ours is that much
+        # earlier, so the lateness measured is that much larger, never smaller.
+        self._deadline = time.monotonic() + 1.0 / float(self.rate_hz or 100.0)
 
     def got_priority(self) -> str:
         return self.priority
 
     def _execution_step(self, **inputs: Any) -> None:
-        self._ticks.append(time.monotonic())
+        now = time.monotonic()
+        self._ticks.append((now, now - self._deadline))
+        self._deadline, _ = next_deadline(self._deadline, 1.0 / float(self.rate_hz or 100.0), now)
 
-    def ticks(self) -> list[float]:
+    def ticks(self) -> list[tuple[float, float]]:
+        """``(time, lateness)`` of each tick since the last call, in seconds."""
         out, self._ticks = self._ticks, []
         return out
 
@@ -164,7 +178,7 @@ print(" ".join(map(str, stamps)))
 """
 
 #: A 100 Hz ticker and a pure-Python busy loop as two pykka threads of one process (how a single-process
-#: framework runs them); prints the ticker thread's priority, then the tick times. argv: seconds.
+#: framework runs them); prints the ticker thread's priority, then "time:lateness" per tick (seconds). argv: seconds.
 GIL_SCRIPT = """
 import sys, time
 import pykka
@@ -181,7 +195,8 @@ class Ticker(pykka.ThreadingActor):
         while time.monotonic() < end:
             deadline += 0.01
             time.sleep(max(0.0, deadline - time.monotonic()))
-            stamps.append(time.monotonic())
+            now = time.monotonic()
+            stamps.append(f"{now}:{now - deadline}")
         return stamps
 
 class Busy(pykka.ThreadingActor):

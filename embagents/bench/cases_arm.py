@@ -7,7 +7,9 @@
   = p99 of |period - 20 ms| between command arrivals at the Sim;
   ``inprocess_p99_jitter_ms``: the same physics, policy and clipping in one
   process, one loop. Bar: p99 jitter <= 2 ms, and <= in-process + 1 ms.
-- ``gil_isolation``: a 100 Hz control component's tick jitter while a
+- ``gil_isolation``: a 100 Hz control component's tick jitter (how late each
+  tick runs against the loop's own deadlines; the period between ticks would
+  hide a delay the same on every tick) while a
   neighbour runs pure Python (holding the GIL), in two actor processes
   (``p99_jitter_ms``) against the same two as pykka threads of one process
   (``threads_p99_jitter_ms``). ``ratio`` = ours / threads'. Bar: <= 0.2. In both, the control
@@ -127,19 +129,28 @@ def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
             stamps = ticker.ask(Call("ticks"), timeout=10).get()
             priority = ticker.ask(Call("got_priority"), timeout=10).get()
             work.get()
-    ours = jitter_ms(stamps, 0.01)
     words = _script(GIL_SCRIPT, str(seconds), timeout=seconds + 60)
-    threads_priority, threads = words[0].replace("+", " "), jitter_ms([float(x) for x in words[1:]], 0.01)
+    threads_priority = words[0].replace("+", " ")
+    pairs = [tuple(float(x) for x in w.split(":")) for w in words[1:]]
+    # Lateness against each loop's own deadlines is the jitter that counts: a tick that always waits its
+    # turn for the GIL is late by the same ~5 ms every time, and the period between two ticks hides that.
+    ours, threads = [late * 1e3 for _, late in stamps], [late * 1e3 for _, late in pairs]
     p99, base = _p99(ours), _p99(threads)
+    period_p99 = _p99(jitter_ms([t for t, _ in stamps], 0.01))
+    threads_period_p99 = _p99(jitter_ms([t for t, _ in pairs], 0.01))
     return {
         "p50_us": round(float(np.median(ours)) * 1000, 2),
         "p99_us": p99 * 1000,
         "msgs_per_s": len(stamps) / seconds,
         "p99_jitter_ms": p99,
         "threads_p99_jitter_ms": base,
+        "threads_p50_late_ms": round(float(np.median(threads)), 3),
         "ratio": round(p99 / base, 3) if base > 0 else None,
+        "period_p99_jitter_ms": period_p99,
+        "threads_period_p99_jitter_ms": threads_period_p99,
         "control_priority": priority,
         "threads_control_priority": threads_priority,
         "note": f"100 Hz ticker next to a pure-Python busy loop, {seconds:.1f} s; processes vs pykka threads, the "
-                f"control loop's thread at {priority} in both; bar: ratio <= 0.2",
+                f"control loop's thread at {priority} in both; jitter = lateness against the loop's deadlines "
+                f"(period jitter p99 {period_p99:.3f} vs {threads_period_p99:.3f} ms); bar: ratio <= 0.2",
     }

@@ -253,6 +253,7 @@ def test_quick_run_measures_the_arm_control_loop_and_gil_isolation(quick_run: tu
     vla, gil = rows["vla_control_loop"], rows["gil_isolation"]
     assert vla["commands"] > 10 and type(vla["p99_jitter_ms"]) is float and type(vla["inprocess_p99_jitter_ms"]) is float
     assert type(gil["p99_jitter_ms"]) is float and gil["threads_p99_jitter_ms"] > 0 and gil["msgs_per_s"] > 50
+    assert type(gil["period_p99_jitter_ms"]) is float and type(gil["threads_period_p99_jitter_ms"]) is float
     names = {b["name"] for b in doc["bars"]}
     assert {"VLA 50 Hz command period p99 jitter", "VLA p99 jitter minus in-process",
             "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads"} <= names
