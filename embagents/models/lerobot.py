@@ -15,11 +15,11 @@ gRPC, service ``transport.AsyncInference``:
 The messages are built here from their field numbers (:func:`messages`), no
 generated code. **Payloads**: LeRobot pickles them (``RemotePolicyConfig``,
 ``TimedObservation`` and a list of ``TimedAction`` with torch tensors). A
-pickle can run code when it is loaded, so this client's own encoding is
-msgpack with numeric numpy arrays (``encoding="msgpack"``, what
-:mod:`embagents.models.lerobot_server` speaks), and LeRobot's server is reached
-with ``encoding="pickle"`` only when the user says they trust it
-(``allow_pickle=True``; it also needs the ``lerobot`` package for its classes).
+pickle can run code when it is loaded, and nothing of embagents pickles
+across processes: this client's payloads are msgpack with numeric numpy
+arrays, what :mod:`embagents.models.lerobot_server` speaks (it serves an ONNX
+policy over the same service). LeRobot's own server, which reads pickles
+only, answers the setup with an error that says so.
 
 Errors: a server that is down raises :class:`PolicyUnavailable` (the next
 call reconnects and says hello again), one that answers too late
@@ -36,9 +36,8 @@ Example::
 from __future__ import annotations
 
 import functools
-import io
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import msgpack
@@ -194,30 +193,21 @@ class LeRobotPolicyClient:
     - ``actions_per_chunk``: the chunk length asked for (and checked);
     - ``policy_type``, ``pretrained_name_or_path``, ``device``, ``lerobot_features``,
       ``rename_map``: the policy setup sent once per connection (LeRobot's ``RemotePolicyConfig``);
-    - ``encoding``: ``"msgpack"`` (embagents' policy server) or ``"pickle"`` (LeRobot's own
-      server; needs ``allow_pickle=True``, the ``lerobot`` package, and ``joint_names`` to turn
-      ``observation.state`` back into LeRobot's raw per-joint observation).
+    - payloads are msgpack (never pickle): the server is :mod:`embagents.models.lerobot_server`
+      or another that speaks it.
     """
 
     def __init__(self, address: str, *, actions_per_chunk: int, policy_type: str = "act",
                  pretrained_name_or_path: str = "", device: str = "cpu",
                  lerobot_features: Mapping[str, Any] | None = None, rename_map: Mapping[str, str] | None = None,
-                 encoding: str = "msgpack", allow_pickle: bool = False, joint_names: Sequence[str] | None = None,
                  name: str = "lerobot") -> None:
-        if encoding not in ("msgpack", "pickle"):
-            raise ValueError(f"encoding must be 'msgpack' (embagents' server) or 'pickle' (LeRobot's), got {encoding!r}")
-        if encoding == "pickle" and not allow_pickle:
-            raise ValueError("LeRobot's policy server sends pickles, and loading a pickle can run any code: pass "
-                             "allow_pickle=True only for a server you trust, or serve the policy with "
-                             "embagents.models.lerobot_server (msgpack)")
         if int(actions_per_chunk) < 1:
             raise ValueError(f"actions_per_chunk must be >= 1, got {actions_per_chunk!r}")
-        self.address, self.name, self.encoding = address, name, encoding
+        self.address, self.name = address, name
         self.actions_per_chunk = int(actions_per_chunk)
         self.setup = {"policy_type": policy_type, "pretrained_name_or_path": pretrained_name_or_path,
                       "device": device, "actions_per_chunk": self.actions_per_chunk,
                       "lerobot_features": dict(lerobot_features or {}), "rename_map": dict(rename_map or {})}
-        self.joint_names = list(joint_names) if joint_names is not None else None
         self._channel: Any = None
         self._ready = False
         self._timestep = 0
@@ -312,9 +302,9 @@ class LeRobotPolicyClient:
         if code == grpc.StatusCode.INVALID_ARGUMENT:
             return BadRequest(f"policy server {self.address} refused the request: {details}")
         hint = ""
-        if self.encoding == "msgpack" and code == grpc.StatusCode.UNKNOWN and in_setup:
-            hint = (" (LeRobot's own policy_server reads pickles only: reach it with encoding='pickle', "
-                    "allow_pickle=True)")
+        if code == grpc.StatusCode.UNKNOWN and in_setup:
+            hint = (" (LeRobot's own policy_server reads pickles only, and embagents never sends or loads one: "
+                    "serve the policy with python -m embagents.models.lerobot_server)")
         return PolicyError(f"policy server {self.address} failed: {code.name}: {details}{hint}")
 
     def _check_chunk(self, actions: np.ndarray, observation: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -328,36 +318,18 @@ class LeRobotPolicyClient:
 
     # -- payloads -----------------------------------------------------------------------------------------------
     def _encode_setup(self) -> bytes:
-        if self.encoding == "msgpack":
-            return encode_payload(self.setup)
-        import pickle  # LeRobot's encoding, with the user's consent (allow_pickle)
-
-        helpers = _lerobot_helpers()
-        return pickle.dumps(helpers.RemotePolicyConfig(**self.setup))
+        return encode_payload(self.setup)
 
     def _encode_observation(self, observation: Mapping[str, np.ndarray], task: str, timestep: int) -> bytes:
-        if self.encoding == "msgpack":
-            return encode_payload({"timestep": timestep, "timestamp": time.time(), "task": task, "must_go": True,
-                                   "observation": {k: np.asarray(v) for k, v in observation.items()}})
-        import pickle
-
-        helpers = _lerobot_helpers()
-        raw = _raw_observation(observation, self.joint_names)
-        raw["task"] = task
-        return pickle.dumps(helpers.TimedObservation(timestamp=time.time(), timestep=timestep, observation=raw,
-                                                     must_go=True))
+        return encode_payload({"timestep": timestep, "timestamp": time.time(), "task": task, "must_go": True,
+                               "observation": {k: np.asarray(v) for k, v in observation.items()}})
 
     def _decode_actions(self, data: bytes) -> np.ndarray:
-        if self.encoding == "msgpack":
-            try:
-                answer = decode_payload(data)
-            except ValueError as exc:
-                raise PolicyError(f"policy server {self.address} sent an unreadable chunk: {exc}") from None
-            return np.asarray(answer.get("actions"), np.float32)
-        import pickle
-
-        chunk = pickle.load(io.BytesIO(data))  # noqa: S301 - allow_pickle: the user trusts this server
-        return np.stack([np.asarray(a.get_action(), np.float32) for a in chunk])
+        try:
+            answer = decode_payload(data)
+        except ValueError as exc:
+            raise PolicyError(f"policy server {self.address} sent an unreadable chunk: {exc}") from None
+        return np.asarray(answer.get("actions"), np.float32)
 
     def close(self) -> None:
         """Close the channel (a later call opens a new one)."""
@@ -373,32 +345,3 @@ def _left(deadline: float) -> float:
     if left <= 0:
         raise _Late()
     return left
-
-
-def _lerobot_helpers() -> Any:
-    try:
-        from lerobot.async_inference import helpers
-    except ImportError as exc:
-        raise ModuleNotFoundError("encoding='pickle' builds LeRobot's own classes: pip install lerobot") from exc
-    return helpers
-
-
-def _raw_observation(observation: Mapping[str, np.ndarray], joint_names: Sequence[str] | None) -> dict[str, Any]:
-    """LeRobot's raw robot observation: one float per joint name, one image per camera name.
-
-    >>> _raw_observation({"observation.state": np.array([1.0, 2.0]), "observation.images.front": np.zeros(1)},
-    ...                  ["a", "b"])["b"]
-    2.0
-    """
-    raw: dict[str, Any] = {}
-    for key, value in observation.items():
-        if key == STATE_KEY:
-            if joint_names is None or len(joint_names) != np.size(value):
-                raise ValueError(f"encoding='pickle' needs joint_names, one per value of {STATE_KEY} "
-                                 f"({np.size(value)}), got {joint_names!r}")
-            raw.update({n: float(v) for n, v in zip(joint_names, np.ravel(value), strict=True)})
-        elif key.startswith("observation.images."):
-            raw[key.removeprefix("observation.images.")] = value
-        else:
-            raw[key] = value
-    return raw

@@ -177,13 +177,13 @@ def test_a_late_answer_is_a_timeout_error(policy: str) -> None:
             client.close()
 
 
-def test_pickles_are_never_loaded_unless_the_user_opts_in() -> None:
+def test_pickles_are_never_loaded_and_there_is_no_switch_to_load_them() -> None:
     import pickle
 
     with pytest.raises(ValueError, match="a pickle: LeRobot's own encoding, which this side never loads"):
         decode_payload(pickle.dumps({"actions": [1.0]}))
-    with pytest.raises(ValueError, match="loading a pickle can run any code: pass allow_pickle=True only for a server you trust"):
-        LeRobotPolicyClient("127.0.0.1:1", actions_per_chunk=4, encoding="pickle")
+    with pytest.raises(TypeError, match="allow_pickle"):
+        LeRobotPolicyClient("127.0.0.1:1", actions_per_chunk=4, allow_pickle=True)  # type: ignore[call-arg]
     with pytest.raises(TypeError, match="only numeric arrays"):
         encode_payload({"x": np.array([object()])})
     assert decode_payload(encode_payload({"a": np.arange(3, dtype=np.int16)}))["a"].tolist() == [0, 1, 2]
