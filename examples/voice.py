@@ -46,7 +46,7 @@ def question_wav() -> str:
     given = os.environ.get("EMBAGENTS_VOICE_WAV")
     if given:
         return given
-    from embagents.models.backends.sherpa_tts import spoken_clip_path
+    from embagents.components.audio_io import spoken_clip_path
 
     return spoken_clip_path(QUESTION)  # made once by the voice below, then cached
 

@@ -90,14 +90,15 @@ class Ticker(Component):
     def __init__(self, **kw: Any) -> None:
         self._ticks: list[tuple[float, float]] = []
         self.priority = "normal"
-        self._deadline = 0.0
+        self._deadline = self._period = 0.0
         super().__init__(**kw)
 
     def on_activate(self) -> None:
         self.priority = raise_priority()  # on the actor's loop thread, which runs the ticks
         # The actor sets its first deadline one period after this, a few us later: ours is that much
         # earlier, so the lateness measured is that much larger, never smaller.
-        self._deadline = time.monotonic() + 1.0 / float(self.rate_hz or 100.0)
+        self._period = 1.0 / float(self.rate_hz or 100.0)
+        self._deadline = time.monotonic() + self._period
 
     def got_priority(self) -> str:
         return self.priority
@@ -105,7 +106,7 @@ class Ticker(Component):
     def _execution_step(self, **inputs: Any) -> None:
         now = time.monotonic()
         self._ticks.append((now, now - self._deadline))
-        self._deadline, _ = next_deadline(self._deadline, 1.0 / float(self.rate_hz or 100.0), now)
+        self._deadline, _ = next_deadline(self._deadline, self._period, now)
 
     def ticks(self) -> list[tuple[float, float]]:
         """``(time, lateness)`` of each tick since the last call, in seconds."""

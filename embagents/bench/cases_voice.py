@@ -50,7 +50,7 @@ MAX_TOKENS = 64
 def question() -> np.ndarray:
     """The spoken question (16 kHz int16) without its trailing pause: it ends when the speech ends."""
     from embagents.components import read_wav
-    from embagents.models.backends.sherpa_tts import spoken_clip_path
+    from embagents.components.audio_io import spoken_clip_path
 
     samples, _, _ = read_wav(spoken_clip_path(QUESTION))
     return samples[:-8000]

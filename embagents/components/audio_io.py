@@ -35,7 +35,7 @@ from embagents.components.component import Component
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
 from embagents.msgs import Audio, String
 
-__all__ = ["WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav"]
+__all__ = ["WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav", "spoken_clip_path"]
 
 
 def _path(value: object) -> str:
@@ -56,6 +56,35 @@ def read_wav(path: str) -> tuple[np.ndarray, int, int]:
             return np.frombuffer(w.readframes(w.getnframes()), "<i2").astype(np.int16), w.getframerate(), w.getnchannels()
     except wave.Error as exc:
         raise ValueError(f"{path!r} is not a PCM WAV file ({exc}); convert it to 16-bit PCM WAV") from None
+
+
+def spoken_clip_path(text: str, *, progress: bool = True) -> str:
+    """A 16 kHz mono WAV of the voice joe saying ``text``: made once with the real TTS, then cached.
+
+    For examples and benches that need a spoken question of their choosing (the
+    clip in :func:`embagents.speechfiles.speech_clip_path` says only Beckett's lines), to
+    play with a :class:`WavFileSource`. Loads espeak-ng (GPL-3.0) in the calling process, once per text.
+    """
+    import hashlib
+
+    from embagents.clients.openai_audio import wav_bytes
+    from embagents.components.audio_format import TARGET_RATE, to_mono_16k
+    from embagents.models.backends.sherpa_tts import SherpaSpeaker
+    from embagents.speechfiles import piper_joe_dir
+    from embagents.wheelfiles import cache_dir
+
+    dest = cache_dir() / "prepared" / "spoken" / f"{hashlib.sha256(text.encode()).hexdigest()[:16]}.wav"
+    if dest.is_file():
+        return str(dest)
+    speaker = SherpaSpeaker(piper_joe_dir(progress=progress))
+    pause = np.zeros(speaker.sample_rate // 2, np.float32)
+    samples = np.concatenate([pause] + [np.concatenate([a, pause]) for a, _, _ in speaker.speak(text)])
+    clip, _ = to_mono_16k(Audio(data=samples, sample_rate=speaker.sample_rate))
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_suffix(f".part{os.getpid()}")
+    tmp.write_bytes(wav_bytes(clip, TARGET_RATE))
+    os.replace(tmp, dest)
+    return str(dest)
 
 
 @define(kw_only=True)

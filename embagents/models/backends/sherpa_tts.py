@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable", "spoken_clip_path"]
+__all__ = ["SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable"]
 
 _PIPER = ("model.onnx", "tokens.txt", "voice.json")
 
@@ -96,38 +96,3 @@ class SherpaSpeaker:
 
     def describe(self) -> dict[str, Any]:
         return {"sample_rate": self.sample_rate, "voice": self.espeak_voice, "path": self.path}
-
-
-def spoken_clip_path(text: str, *, progress: bool = True) -> str:
-    """A 16 kHz mono WAV of the voice joe saying ``text``: made once with the real TTS, then cached.
-
-    For examples and tests that need a spoken question of their choosing (the
-    clip in :func:`embagents.speechfiles.speech_clip_path` says only Beckett's lines). Loads
-    espeak-ng (GPL-3.0) in the calling process, once per text.
-    """
-    import hashlib
-    import math
-    import wave
-
-    from scipy.signal import resample_poly
-
-    from embagents.speechfiles import piper_joe_dir
-    from embagents.wheelfiles import cache_dir
-
-    dest = cache_dir() / "prepared" / "spoken" / f"{hashlib.sha256(text.encode()).hexdigest()[:16]}.wav"
-    if dest.is_file():
-        return str(dest)
-    speaker = SherpaSpeaker(piper_joe_dir(progress=progress))
-    pause = np.zeros(speaker.sample_rate // 2, np.float32)
-    samples = np.concatenate([pause] + [np.concatenate([a, pause]) for a, _, _ in speaker.speak(text)])
-    g = math.gcd(speaker.sample_rate, 16000)
-    pcm = np.clip(resample_poly(samples, 16000 // g, speaker.sample_rate // g) * 32767, -32768, 32767)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_suffix(f".part{os.getpid()}")
-    with wave.open(str(tmp), "wb") as w:
-        w.setnchannels(1)
-        w.setsampwidth(2)
-        w.setframerate(16000)
-        w.writeframes(pcm.astype("<i2").tobytes())
-    os.replace(tmp, dest)
-    return str(dest)
