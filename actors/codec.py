@@ -125,11 +125,12 @@ class ShmSource(Protocol):
 class _Enc:
     """Per-thread encoding state: a reusable Packer (building one per frame costs ~1 us)."""
 
-    __slots__ = ("sink", "threshold", "segments", "packer", "source", "owner_prefix")
+    __slots__ = ("sink", "threshold", "segments", "packer", "source", "owner_prefix", "forward")
 
     def __init__(self, threshold: int, source: Any = None) -> None:
         self.source = source
         self.owner_prefix: str | None = None  # segments of this prefix go back as they are
+        self.forward = False  # received topic frames go on as their handles
         self.sink: ShmSink | None = None
         self.threshold = threshold
         self.segments: list[str] = []
@@ -152,6 +153,11 @@ class _Enc:
                     if origin is not None and origin[0].startswith(prefix):
                         # The frame goes back to the process that owns its segment: no copy.
                         return msgpack.ExtType(EXT_SHM, msgpack.packb(origin))
+                if self.forward and self.source is not None:
+                    origin = self.source.origin(obj, forwardable=True)
+                    if origin is not None:
+                        # A topic frame goes on to a third process as it is: written once, by its publisher.
+                        return msgpack.ExtType(EXT_SHM, msgpack.packb(origin))
                 handle = self.sink.put(obj)
                 self.segments.append(handle[0])
                 return msgpack.ExtType(EXT_SHM, msgpack.packb(handle))
@@ -169,11 +175,12 @@ class _Enc:
 class _Dec:
     """Per-thread decoding state: one ext hook, told where releases go before each frame."""
 
-    __slots__ = ("source", "on_release")
+    __slots__ = ("source", "on_release", "mapped")
 
     def __init__(self, source: ShmSource | None) -> None:
         self.source = source
         self.on_release: Callable[[str, int], None] | None = None
+        self.mapped: list[list[Any]] | None = None  # the handles of this frame's shared-memory arrays
 
     def ext_hook(self, code: int, payload: bytes) -> Any:
         if code == EXT_NDARRAY:
@@ -185,7 +192,11 @@ class _Dec:
         if code == EXT_SHM:
             if self.source is None:
                 raise CorruptFrame("shared-memory handle on a channel that does not accept them")
-            return self.source.view(msgpack.unpackb(payload), self.on_release)
+            handle = msgpack.unpackb(payload)
+            arr = self.source.view(handle, self.on_release)
+            if self.mapped is not None:
+                self.mapped.append(handle)
+            return arr
         raise CorruptFrame(f"unknown msgpack extension type {code}")
 
 
@@ -224,6 +235,7 @@ class Codec:
         shm: bool = True,
         owner_prefix: str | None = None,
         sink: ShmSink | None = None,
+        forward: bool = False,
     ) -> tuple[bytes, list[str]]:
         """Return the frame and the names of the shared-memory segments it refers to.
 
@@ -232,9 +244,13 @@ class Codec:
         ``sink``: where this frame's large arrays go instead of the codec's own
         sink (a topic's ring); it applies to this call only, so encodes on other
         threads never see it.
+        ``forward``: a received topic frame (another process's ring segment)
+        goes as its handle, not copied; the receiver checks that it is still
+        whole after using it (:meth:`actors.shm.ShmReader.unchanged`).
         """
         enc = self._state()[0]
         enc.owner_prefix = owner_prefix
+        enc.forward = forward
         enc.sink = (sink or self.sink) if shm else None
         segments: list[Any] = []
         enc.segments = segments
@@ -247,13 +263,44 @@ class Codec:
             raise MessageTooLarge(len(data), self.max_frame_bytes)
         return data, segments
 
-    def decode(self, data: bytes | memoryview, on_release: Callable[[str, int], None] | None = None) -> Any:
-        """Decode one frame; raise :class:`CorruptFrame` for anything that is not ours."""
+    def decode(
+        self,
+        data: bytes | memoryview,
+        on_release: Callable[[str, int], None] | None = None,
+        *,
+        mapped: list[list[Any]] | None = None,
+    ) -> Any:
+        """Decode one frame; raise :class:`CorruptFrame` for anything that is not ours.
+
+        ``mapped``: gets the handle of each shared-memory array of the frame
+        (to check later that forwarded frames stayed whole).
+        """
         dec = self._state()[1]
         dec.on_release = on_release
+        dec.mapped = mapped
         try:
             return msgpack.unpackb(data, ext_hook=dec.ext_hook, strict_map_key=False)
         except (CorruptFrame, UnregisteredType, StaleFrame):
             raise
         except Exception as exc:  # msgpack raises many types for garbage input
             raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc
+        finally:
+            dec.mapped = None
+
+    def peek(self, data: bytes | memoryview) -> Any:
+        """Decode one frame without mapping shared memory (its arrays are None): to name a frame
+        whose arrays cannot be read (a :class:`StaleFrame`) in the error answered for it."""
+        dec = _Dec(_NoShm())
+        try:
+            return msgpack.unpackb(data, ext_hook=dec.ext_hook, strict_map_key=False)
+        except (CorruptFrame, UnregisteredType):
+            raise
+        except Exception as exc:
+            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc
+
+
+class _NoShm:
+    """A source that maps nothing: :meth:`Codec.peek`'s."""
+
+    def view(self, handle: list[Any], on_release: Callable[[str, int], None] | None) -> None:
+        return None

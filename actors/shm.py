@@ -14,6 +14,12 @@ Lifetime is explicit:
   after ``ring`` newer frames *and* ``min_age`` seconds; a subscriber that
   maps a reused segment gets :class:`~actors.errors.StaleFrame` (the frame
   is dropped, as sensor data may be). Copy a frame to keep it longer.
+* forwarded topic frames: a subscriber may pass a received topic frame on to
+  a third process as its handle, not a copy (``Codec.encode(forward=True)``:
+  a camera frame to a detector is written once, by the camera). The ring's
+  rule still holds, so whoever uses a forwarded frame checks it afterwards
+  with :meth:`ShmReader.unchanged`: a frame its publisher reused meanwhile
+  may be torn, and what was computed from it is dropped.
 * segment names carry the run and the owner pid (``ea<run>_<pid>_<n>``), so
   whoever reaps a dead process removes its segments with :func:`sweep`, and
   the run's end removes all of them.
@@ -237,6 +243,7 @@ class ShmReader:
         self.max_cached = max_cached
         self.pool = pool
         self._origins: dict[int, list[Any]] = {}  # data address of a received frame -> its handle
+        self._forwardable: set[int] = set()  # ...of those, the topic frames (no release owed to anyone)
 
     def _map(self, name: str) -> mmap.mmap:
         mm = self._maps.get(name)
@@ -273,8 +280,14 @@ class ShmReader:
         arr = np.frombuffer(mm, dtype=dt, count=count, offset=offset)
         addr = arr.__array_interface__["data"][0]
         self._origins[addr] = handle
-        weakref.finalize(arr.base, self._origins.pop, addr, None)
+        # Only this view's own entry goes with it: a newer view of the same segment may have replaced it.
+        weakref.finalize(arr.base, self._forget_origin, addr, handle)
         pool = self.pool
+        if on_release is None and (pool is None or not name.startswith(pool.prefix)):
+            # Nobody counts views of it (a topic frame): the ring's rule decides its life, wherever it goes.
+            self._forwardable.add(addr)
+        else:
+            self._forwardable.discard(addr)
         if pool is not None and name.startswith(pool.prefix):
             pool.sent([name], LOCAL)  # our own segment came back: a local view now holds it
             weakref.finalize(arr.base, pool.local_release, name)
@@ -286,12 +299,37 @@ class ShmReader:
             weakref.finalize(arr.base, on_release, name, gen)
         return arr.reshape(shape)
 
-    def origin(self, arr: np.ndarray) -> list[Any] | None:
-        """The handle of the received frame ``arr`` is, whole and unchanged in shape; else None."""
-        handle = self._origins.get(arr.__array_interface__["data"][0])
+    def _forget_origin(self, addr: int, handle: list[Any]) -> None:
+        if self._origins.get(addr) is handle:
+            del self._origins[addr]
+            self._forwardable.discard(addr)
+
+    def origin(self, arr: np.ndarray, *, forwardable: bool = False) -> list[Any] | None:
+        """The handle of the received frame ``arr`` is, whole and unchanged in shape; else None.
+
+        ``forwardable``: only a topic frame of another process (one a third
+        process may map by its handle; see the module docstring).
+        """
+        addr = arr.__array_interface__["data"][0]
+        handle = self._origins.get(addr)
         if handle is None or arr.dtype.str != handle[3] or list(arr.shape) != list(handle[4]):
             return None
+        if forwardable and addr not in self._forwardable:  # a mailbox frame: its sender counts views
+            return None
         return handle if arr.flags.c_contiguous else None
+
+    def unchanged(self, handle: list[Any]) -> bool:
+        """Whether the frame ``handle`` names still holds what was sent (its writer has not reused it).
+
+        A writer stamps the new generation before it writes a byte, so a frame
+        still of its generation after it was used was whole while it was used.
+        A segment that is gone (its writer died) counts as changed: nobody can say.
+        """
+        try:
+            mm = self._map(handle[0])
+        except StaleFrame:
+            return False
+        return bool(_HDR.unpack_from(mm, 0)[2] == handle[1])
 
     def forget(self, name: str) -> None:
         self._maps.pop(name, None)

@@ -2,8 +2,10 @@
 
 Each new ``Image`` or ``CompressedImage`` goes to the detector's model actor
 (:class:`~embagents.models.DetectorModel` behind a
-:class:`~embagents.models.LocalModelClient`: the frame crosses through shared
-memory). The answer is published as :class:`~embagents.msgs.Detections`; with
+:class:`~embagents.models.LocalModelClient`): a camera frame crosses as the
+camera wrote it, in the camera's shared memory, never copied. If the camera
+reuses that frame's memory before the detector is done (its topic ring came
+round), the answer is dropped with the frame and counted (``stale_frames``). The answer is published as :class:`~embagents.msgs.Detections`; with
 tracking on (``enable_tracking`` or the ``track(label)`` action), as
 :class:`~embagents.msgs.Trackings` too, ids kept over frames by ByteTrack
 (from ``supervision``); with ``enable_visualization``, as an ``Image`` with
@@ -37,6 +39,7 @@ from embagents.components.component import ComponentProblem
 from embagents.components.imaging import annotate, image_rgb
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, to_bool
+from embagents.models.protocol import StaleInput
 from embagents.msgs import CompressedImage, Detections, Image, Trackings
 from embagents.topic import Topic
 
@@ -103,6 +106,7 @@ class Vision(ModelComponent):
         self._writer: Any = None
         self._record_until = 0.0
         self._media_count = 0
+        self.stale_frames = 0  # frames the camera overwrote before their detection was done: dropped
         super().__init__(name=name, **kw)
 
     def default_trigger(self) -> Topic | None:
@@ -128,7 +132,12 @@ class Vision(ModelComponent):
         rgb = image_rgb(msg)
         self._frame = rgb
         options = {} if self.config.threshold is None else {"threshold": self.config.threshold}
-        found = self.model_client.detect(rgb, **options)
+        try:
+            found = self.model_client.detect(rgb, **options)
+        except StaleInput as exc:  # sensor data: the next frame is on its way
+            self.stale_frames += 1
+            self.logger.debug("%s: dropped a frame: %s", self._label(), exc)
+            return
         h, w = rgb.shape[:2]
         det = Detections(boxes=found["boxes"], labels=list(found["labels"]), scores=found["scores"],
                          image_width=w, image_height=h, stamp=msg.stamp, frame_id=msg.frame_id)

@@ -35,7 +35,13 @@ from embagents.models.declarations import (
 from embagents.models.inventory import models_of
 from embagents.models.lerobot import LeRobotPolicyClient, PolicyError, PolicyUnavailable
 from embagents.models.policy import LocalPolicyClient, PolicyClient, PolicyLate, PolicyModel
-from embagents.models.protocol import BadRequest, ModelCrashed, ModelError, ModelUnavailable
+from embagents.models.protocol import (
+    BadRequest,
+    ModelCrashed,
+    ModelError,
+    ModelUnavailable,
+    StaleInput,
+)
 from embagents.models.remote import RemoteModelClient, RemoteRefused
 
 __all__ = [
@@ -51,6 +57,7 @@ __all__ = [
     "ModelCrashed",
     "ModelError",
     "ModelUnavailable",
+    "StaleInput",
     "PolicyClient",
     "PolicyError",
     "PolicyLate",

@@ -9,8 +9,13 @@ cannot starve a quiet one. A batching backend (a detector) takes up to
 queued than clients were recently active, it waits at most ``batch_wait_ms``
 for the others. Streams (tokens) go out chunk by chunk; a cancel from the
 client stops the stream between two chunks. Answers are small and travel
-inline; request arrays are views of the client's shared memory, let go of
-before the answer is sent.
+inline; request arrays are views of shared memory, let go of before the
+answer is sent: the client's own, or a camera's topic frame the client
+forwarded (written once, by the camera). A topic ring may reuse a frame's
+segment meanwhile, so a request whose forwarded frame was overwritten
+before the model read it, or while it ran (before the answer, or a
+stream's first chunk, goes out), is answered ``kind="stale"``: its result
+would be of a torn frame.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from typing import Any
 import zmq
 
 from actors import Actor
+from actors.errors import StaleFrame
 from actors.runtime import current
 from embagents.models.protocol import (
     BadRequest,
@@ -70,14 +76,16 @@ class ModelActor(Actor):
         s.setsockopt(zmq.LINGER, 0)
         s.bind(inference_endpoint(rt.run_dir, self.name))
         self.sock = s
-        self.codec = rt.codec
+        self.codec, self.reader = rt.codec, rt.reader
         self.queues: OrderedDict[bytes, deque[InferRequest]] = OrderedDict()
         self.last_seen: dict[bytes, float] = {}
         self.cancelled: set[tuple[bytes, int]] = set()
         self.streaming: tuple[bytes, int] | None = None  # the request whose chunks are going out
-        # cancels_late: a cancel that came after its answer went out (the client drops that answer).
+        self.frames: dict[tuple[bytes, int], list[list[Any]]] = {}  # shared-memory inputs, checked after use
+        # cancels_late: a cancel that came after its answer went out (the client drops that answer);
+        # stale: requests whose forwarded frame was overwritten before the model was done with it.
         self.stats = {"served": 0, "batches": 0, "max_batch_seen": 0, "bad_requests": 0, "cancelled": 0,
-                      "cancels_late": 0}
+                      "cancels_late": 0, "stale": 0}
         self.context.watch(s, self._on_readable)
 
     # -- receiving ---------------------------------------------------------------------------
@@ -101,8 +109,16 @@ class ModelActor(Actor):
             if len(parts) != 2:
                 self._refuse(ident, 0, f"expected one frame per request, got {len(parts) - 1}")
                 continue
+            mapped: list[list[Any]] = []
             try:
-                msg = self._decode(frames[1])
+                msg = self._decode(frames[1], mapped)
+            except StaleFrame as exc:  # a forwarded frame reused before we got to it: drop, as a topic would
+                try:
+                    rid = int(getattr(self.codec.peek(frames[1].bytes), "id", 0))
+                except Exception:  # noqa: BLE001 - the frame's handle was fine, so this should not happen
+                    rid = 0
+                self._stale(ident, rid, str(exc))
+                continue
             except Exception as exc:  # garbage: say what was expected, keep serving
                 self._refuse(ident, 0, f"undecodable frame ({exc}); send an actors-codec encoded InferRequest")
                 continue
@@ -118,16 +134,38 @@ class ModelActor(Actor):
                     continue
                 self.queues.setdefault(ident, deque()).append(msg)
                 self.last_seen[ident] = time.monotonic()
+                if mapped:
+                    self.frames[(ident, msg.id)] = mapped
 
-    def _decode(self, frame: zmq.Frame) -> Any:
-        """One request frame (a subclass may pick the codec by the frame's peer)."""
-        return self.codec.decode(frame.bytes)
+    def _decode(self, frame: zmq.Frame, mapped: list[list[Any]]) -> Any:
+        """One request frame (a subclass may pick the codec by the frame's peer); ``mapped`` gets the
+        handles of its shared-memory arrays."""
+        return self.codec.decode(frame.bytes, mapped=mapped)
+
+    def _stale(self, ident: bytes, rid: int, why: str) -> None:
+        self.stats["stale"] += 1
+        log.debug("dropped request %d: %s", rid, why)
+        self._send(ident, InferError(id=rid, kind="stale", error=(
+            f"{why}: its publisher's topic ring reused the frame before the model was done with it; the "
+            "answer is dropped as the frame would be (keep frames longer with a bigger ring on the publisher)")))
+
+    def _whole(self, ident: bytes, req: InferRequest) -> bool:
+        """Whether every shared-memory input of ``req`` still holds what was sent; the request's record goes."""
+        handles = self.frames.pop((ident, req.id), None)
+        if not handles:
+            return True
+        for h in handles:
+            if not self.reader.unchanged(h):
+                self._stale(ident, req.id, f"shared-memory frame {h[0]} was overwritten while the model used it")
+                return False
+        return True
 
     def _cancel(self, ident: bytes, rid: int) -> None:
         q = self.queues.get(ident, deque())
         for req in q:
             if req.id == rid:
                 q.remove(req)
+                self.frames.pop((ident, rid), None)
                 self._send(ident, InferError(id=rid, error="cancelled by the client", kind="cancelled"))
                 self.stats["cancelled"] += 1
                 return
@@ -185,10 +223,12 @@ class ModelActor(Actor):
         except Exception as exc:
             log.exception("%s failed", task)
             for ident, req in batch:
+                self.frames.pop((ident, req.id), None)
                 self._send(ident, InferError(id=req.id, error=f"{type(exc).__name__}: {exc}"))
             return
         for (ident, req), out in zip(batch, outputs, strict=True):
-            self._send(ident, InferAnswer(id=req.id, outputs=out, done=True))
+            if self._whole(ident, req):
+                self._send(ident, InferAnswer(id=req.id, outputs=out, done=True))
         self.stats["served"] += len(batch)
         self.stats["batches"] += 1
         self.stats["max_batch_seen"] = max(self.stats["max_batch_seen"], len(batch))
@@ -197,10 +237,15 @@ class ModelActor(Actor):
     def _serve_stream(self, ident: bytes, req: InferRequest) -> None:
         chunks = None
         self.streaming = (ident, req.id)
+        first = True
         try:
             chunks = self.serving.run(req.task, req.inputs, req.options)
             for chunk in chunks:
                 done = bool(chunk.get("done")) if isinstance(chunk, dict) else False
+                # A backend has read its input arrays by its first chunk (a VLM encodes its images first).
+                if first and not self._whole(ident, req):
+                    return
+                first = False
                 self._send(ident, InferAnswer(id=req.id, outputs=chunk, done=done))
                 self.context.beat()  # long generations are work, not a hang
                 if done:
@@ -219,6 +264,7 @@ class ModelActor(Actor):
         finally:
             if chunks is not None and hasattr(chunks, "close"):
                 chunks.close()
+            self.frames.pop((ident, req.id), None)
             self.streaming = None
             self.cancelled.discard((ident, req.id))
         self.stats["served"] += 1

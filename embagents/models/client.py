@@ -39,6 +39,7 @@ from embagents.models.protocol import (
     ModelCrashed,
     ModelError,
     ModelUnavailable,
+    StaleInput,
     inference_endpoint,
 )
 
@@ -110,12 +111,19 @@ class LocalModelClient:
         self._local.conn = None
 
     # -- the protocol ----------------------------------------------------------------------
-    def stream(self, task: str, inputs: dict[str, Any], **options: Any) -> Iterator[dict[str, Any]]:
+    def stream(self, task: str, inputs: dict[str, Any], *, forward_frames: bool = False,
+               **options: Any) -> Iterator[dict[str, Any]]:
         """Yield the outputs of each answer frame of ``task``; the last one came with ``done``.
 
         Raises :class:`BadRequest` / :class:`ModelError` for an error answer,
         :class:`ModelCrashed` if the actor dies meanwhile, :class:`ModelUnavailable`
         after ``timeout`` seconds of silence. Closing the iterator early cancels the request.
+
+        ``forward_frames``: a topic frame this process received (a camera's
+        ``Image`` data) goes to the model as its shared-memory handle, not
+        copied: written once, by the camera. For short work (a detection): the
+        camera's ring may reuse the frame meanwhile (after ``ring`` newer
+        frames and 0.5 s), and then the answer is :class:`StaleInput`.
         """
         from actors.runtime import current
 
@@ -124,7 +132,8 @@ class LocalModelClient:
         self._drain_monitor(conn)
         rid = next(_req_ids)
         codec = self._codec(rt)
-        data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options))
+        data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options),
+                                      forward=forward_frames)
         asked: float | None = time.monotonic()  # the first answer is due within timeout of the ask, not of the end of the send
         self._send(rt, conn, data)
         finished = False
@@ -136,6 +145,8 @@ class LocalModelClient:
                     finished = True
                     if answer.kind == "bad_request":
                         raise BadRequest(f"model {self.name!r} refused the request: {answer.error}")
+                    if answer.kind == "stale":
+                        raise StaleInput(f"model {self.name!r} dropped the request: {answer.error}")
                     raise ModelError(f"model {self.name!r} failed: {answer.error}", answer.kind)
                 rt.beat()
                 if answer.done:
@@ -153,7 +164,8 @@ class LocalModelClient:
                 conn.sock.send(codec.encode(InferCancel(id=rid), shm=False)[0])
                 conn.orphans[rid] = segments  # freed when the actor says it let go of them
 
-    def infer(self, task: str, inputs: dict[str, Any], **options: Any) -> dict[str, Any]:
+    def infer(self, task: str, inputs: dict[str, Any], *, forward_frames: bool = False,
+              **options: Any) -> dict[str, Any]:
         """One answer (the outputs of the ``done`` frame) of ``task``.
 
         Example::
@@ -162,7 +174,7 @@ class LocalModelClient:
             {'boxes': array(...), 'scores': array(...), 'labels': ['face']}
         """
         last: dict[str, Any] = {}
-        for last in self.stream(task, inputs, **options):  # noqa: B007 - the last one is the answer
+        for last in self.stream(task, inputs, forward_frames=forward_frames, **options):  # noqa: B007
             pass
         return last
 
@@ -255,8 +267,12 @@ class LocalModelClient:
         return collect_stream(self.chat_stream(messages, images=images, **options))
 
     def detect(self, image: Any, **options: Any) -> dict[str, Any]:
-        """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``."""
-        return self.infer("detect", {"image": image}, **options)
+        """Detections in ``image`` (H, W, 3 uint8, RGB): ``{"boxes", "scores", "labels"}``.
+
+        A camera frame received on a topic is forwarded, not copied (see :meth:`stream`);
+        :class:`StaleInput` if the camera overwrote it before the detector was done.
+        """
+        return self.infer("detect", {"image": image}, forward_frames=True, **options)
 
     def transcribe(self, audio: Any, **options: Any) -> dict[str, Any]:
         """The text said in ``audio`` (1-D 16 kHz float32 or int16 samples): ``{"text", "seconds"}``."""

@@ -34,6 +34,7 @@ __all__ = [
     "ModelCrashed",
     "ModelError",
     "ModelUnavailable",
+    "StaleInput",
     "inference_endpoint",
 ]
 
@@ -61,6 +62,14 @@ class BadRequest(ModelError, ValueError):
         super().__init__(text, "bad_request")
 
 
+class StaleInput(ModelError):
+    """A camera frame the request forwarded was overwritten by its publisher before the model was done
+    with it (its topic ring came round): the answer is dropped, as the frame would have been. Take the next."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text, "stale")
+
+
 @message("embagents/InferRequest")
 @attrs.define
 class InferRequest:
@@ -85,7 +94,7 @@ class InferAnswer:
 @message("embagents/InferError")
 @attrs.define
 class InferError:
-    """Request ``id`` failed: ``kind`` is bad_request, failed or cancelled; ``error`` says why."""
+    """Request ``id`` failed: ``kind`` is bad_request, failed, cancelled or stale; ``error`` says why."""
 
     id: int = 0
     error: str = ""

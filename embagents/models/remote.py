@@ -111,11 +111,11 @@ class RemoteModelActor(ModelActor):
                                  "not one of this host's? pick another --bind") from None
         log.info("serving %s on %s for %d allowed key(s)", self.name, ", ".join(self.binds), len(self.allowed))
 
-    def _decode(self, frame: zmq.Frame) -> Any:
+    def _decode(self, frame: zmq.Frame, mapped: list[list[Any]]) -> Any:
         try:
             frame.get("User-Id")  # set by the allow list: the peer came over CURVE
         except zmq.ZMQError:
-            return super()._decode(frame)
+            return super()._decode(frame, mapped)
         return _COPY_CODEC.decode(frame.bytes)
 
     def on_receive(self, message: Any) -> Any:

@@ -1,12 +1,15 @@
 from __future__ import annotations
 
+import os
+
 import attrs
 import msgpack
 import numpy as np
 import pytest
 
 from actors.codec import Codec, message
-from actors.errors import CorruptFrame, MessageTooLarge, UnregisteredType
+from actors.errors import CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
+from actors.shm import ShmPool, ShmReader
 
 
 @message("test/Point")
@@ -70,3 +73,40 @@ def test_a_frame_cannot_run_code() -> None:
     evil = pickle.dumps(print)
     with pytest.raises(CorruptFrame):
         Codec().decode(evil)
+
+
+def test_a_forwarded_topic_frame_goes_on_as_its_handle_and_is_not_copied() -> None:
+    camera, vision = ShmPool(f"eatest{os.getpid()}_7_"), ShmPool(f"eatest{os.getpid()}_8_")
+    try:
+        codec = Codec(vision, ShmReader(pool=vision))
+        frame_out, _ = Codec().encode({"image": np.zeros((1080, 1920, 3), np.uint8)},
+                                      sink=_RingOf(camera))  # as the camera publishes it
+        frame = codec.decode(frame_out)["image"]  # as Vision's subscription receives it
+        mapped: list[list[object]] = []
+        data, segments = codec.encode({"image": frame}, forward=True)
+        assert segments == [] and vision.segment_count == 0  # Vision wrote nothing
+        assert Codec(source=ShmReader()).decode(data, mapped=mapped)["image"].shape == (1080, 1920, 3)
+        assert mapped[0][0].startswith(camera.prefix)  # the detector maps the camera's own segment
+        _, copied = codec.encode({"image": frame})  # without forward: copied, as before
+        assert len(copied) == 1 and vision.segment_count == 1
+        del frame
+    finally:
+        camera.close()
+        vision.close()
+
+
+class _RingOf:
+    def __init__(self, pool: ShmPool) -> None:
+        self.pool = pool
+
+    def put(self, arr: np.ndarray) -> list[object]:
+        return self.pool.put_ring("cam", arr)
+
+
+def test_peek_names_a_frame_whose_shared_memory_is_gone() -> None:
+    pool = ShmPool(f"eatest{os.getpid()}_9_")
+    data, _ = Codec(pool).encode({"id": 7, "a": np.zeros(70_000, np.uint8)})
+    pool.close()  # the writer is gone
+    with pytest.raises(StaleFrame):
+        Codec(source=ShmReader()).decode(data)
+    assert Codec().peek(data) == {"id": 7, "a": None}

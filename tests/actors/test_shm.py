@@ -65,3 +65,30 @@ def test_sweep_removes_a_prefix() -> None:
     p.put(np.ones(70_000, np.uint8))
     assert sweep(f"easweep{os.getpid()}_") == 1
     p.close()
+
+
+def test_a_topic_frame_reused_after_it_was_read_is_no_longer_unchanged(pool: ShmPool) -> None:
+    reader = ShmReader()
+    first = pool.put_ring("cam", np.zeros(70_000, np.uint8), ring=1, min_age=0.0)
+    view = reader.view(first, None)
+    assert reader.unchanged(first)
+    pool.put_ring("cam", np.full(70_000, 9, np.uint8), ring=1, min_age=0.0)  # the ring comes round
+    assert not reader.unchanged(first)
+    assert int(view[0]) == 9, "the view shows the new frame: a result computed from it meanwhile is torn"
+
+
+def test_only_topic_frames_of_other_processes_may_be_forwarded(pool: ShmPool) -> None:
+    own = ShmPool(f"eatest{os.getpid()}_2_")
+    try:
+        reader = ShmReader(pool=own)
+        topic = reader.view(pool.put_ring("cam", np.zeros(70_000, np.uint8)), None)
+        told = reader.view(pool.put(np.zeros(70_000, np.uint8)), lambda n, g: None)
+        mine = reader.view(own.put(np.zeros(70_000, np.uint8)), None)
+        assert reader.origin(topic, forwardable=True) is not None
+        assert reader.origin(told, forwardable=True) is None  # its sender counts views: a third one it cannot see
+        assert reader.origin(told) is not None
+        assert reader.origin(mine, forwardable=True) is None
+        assert reader.origin(topic[:10], forwardable=True) is None  # a part is not the frame that was sent
+        del topic, told, mine
+    finally:
+        own.close()

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -15,8 +17,15 @@ pytest.importorskip("onnxruntime")
 
 import embagents.models.client as client_module  # noqa: E402
 import embagents.msgs  # noqa: E402,F401 - registers the message types
-from actors import ActorSystem  # noqa: E402
-from embagents.models import BadRequest, LocalModelClient, ModelCrashed, ModelUnavailable  # noqa: E402
+from actors import Actor, ActorSystem  # noqa: E402
+from actors.runtime import current  # noqa: E402
+from embagents.models import (  # noqa: E402
+    BadRequest,
+    LocalModelClient,
+    ModelCrashed,
+    ModelUnavailable,
+    StaleInput,
+)
 from embagents.models.protocol import InferError, inference_endpoint  # noqa: E402
 from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from tests.helpers import wait_until  # noqa: E402
@@ -138,3 +147,115 @@ def test_a_client_that_gives_up_cancels_its_request_in_the_model_actor(served: A
     assert (dropped, late) in ((1, 0), (0, 1))
     assert after["served"] == before["served"] + late, "a cancelled request is never served"
     assert impatient.detect(np.zeros((64, 64, 3), np.uint8))["labels"] == ["robot"]  # the late answer is not taken
+
+
+class FramePublisher(Actor):
+    """A camera stand-in: publishes 1080p frames of one value on ``frames`` (its ring: 8 frames, 0.5 s)."""
+
+    def on_receive(self, value: int) -> None:
+        self.context.publish("frames", np.full((1080, 1920, 3), value, np.uint8))
+
+
+class Detecting(Actor):
+    """A Vision stand-in: detects in each frame it receives; says what came of each."""
+
+    def on_start(self) -> None:
+        self.results: list[str] = []
+        self.client = LocalModelClient("det", timeout=30)
+        self.context.subscribe("frames", self._on_frame, queue_size=1, keep="latest")
+
+    def _on_frame(self, frame: np.ndarray) -> None:
+        try:
+            self.results.append(",".join(self.client.detect(frame)["labels"]))
+        except StaleInput:
+            self.results.append("stale")
+
+    def on_receive(self, message: str) -> Any:
+        if message == "segments":
+            return current().pool.segment_count  # the frames this process wrote to shared memory
+        return list(self.results)
+
+
+class GatedModelActor(ModelActor):
+    """A detector actor that, with its batch's frames read, writes ``<gate>.held`` and holds the batch
+    until the file ``gate`` exists."""
+
+    def __init__(self, gate: str, *args: Any) -> None:
+        super().__init__(*args)
+        self.gate = gate
+
+    def _serve_batch(self, batch: list[Any]) -> None:
+        if not os.path.exists(self.gate):
+            open(self.gate + ".held", "w").close()
+            wait_until(lambda: os.path.exists(self.gate), timeout=30, what="the test to open the gate")
+        super()._serve_batch(batch)
+
+
+def _first_frame_through(asys: ActorSystem) -> None:
+    """Publish until the Detecting actor has a result (its subscription connects in its own time)."""
+    def seen() -> bool:
+        asys.ref("cam").tell(0)
+        return bool(asys.ref("vision").ask("results", timeout=30).get())
+
+    wait_until(seen, timeout=30, interval=0.2, what="the first frame to be detected")
+
+
+def test_a_camera_frame_reaches_the_detector_written_once(tiny_yolo: str) -> None:
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "det", "detector", tiny_yolo, OPTIONS, True, wait=60)
+        asys.spawn(FramePublisher, "cam", wait=30)
+        asys.spawn(Detecting, "vision", wait=30)
+        _first_frame_through(asys)
+        for value in range(1, 6):
+            asys.ref("cam").ask(value, timeout=10).get()
+        wait_until(lambda: len(asys.ref("vision").ask("results", timeout=30).get()) >= 3, what="more detections")
+        assert set(asys.ref("vision").ask("results", timeout=30).get()) == {"robot"}
+        # The frames went from the camera's ring to the detector: Vision's process wrote none of them.
+        assert asys.ref("vision").ask("segments", timeout=30).get() == 0
+        assert asys.ref("det").ask("stats", timeout=5).get()["stale"] == 0
+
+
+def _come_round(asys: ActorSystem) -> None:
+    """Publish until the camera's ring has reused every segment older than 0.5 s (the ring's rule)."""
+    time.sleep(0.6)
+    for value in range(2, 18):  # at most 8 kept; a segment of 0.5 s or older goes to the next frame
+        asys.ref("cam").ask(value, timeout=10).get()
+
+
+def test_a_frame_the_camera_overwrites_before_the_detector_reads_it_is_dropped(tiny_yolo: str) -> None:
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "det", "detector", tiny_yolo, OPTIONS, True, wait=60)
+        asys.spawn(FramePublisher, "cam", wait=30)
+        asys.spawn(Detecting, "vision", wait=30)
+        _first_frame_through(asys)
+        asys.signal("det", signal.SIGSTOP)
+        try:
+            asys.ref("cam").ask(1, timeout=10).get()  # Vision asks the stopped detector about this frame...
+            _come_round(asys)  # ...and the camera reuses the frame's memory before the detector reads it
+        finally:
+            asys.signal("det", signal.SIGCONT)
+        wait_until(lambda: "stale" in asys.ref("vision").ask("results", timeout=30).get(), what="a stale answer")
+        assert asys.ref("det").ask("stats", timeout=5).get()["stale"] >= 1
+        # The next frame is detected as ever: nothing is stuck.
+        n = len(asys.ref("vision").ask("results", timeout=30).get())
+        asys.ref("cam").ask(0, timeout=10).get()
+        wait_until(lambda: len(asys.ref("vision").ask("results", timeout=30).get()) > n, what="the next frame")
+        assert asys.ref("vision").ask("results", timeout=30).get()[-1] == "robot"
+
+
+def test_a_frame_the_camera_overwrites_while_the_detector_runs_gives_no_answer(tiny_yolo: str,
+                                                                                 tmp_path: Any) -> None:
+    gate = str(tmp_path / "gate")
+    open(gate, "w").close()
+    with ActorSystem() as asys:
+        asys.spawn(GatedModelActor, "det", gate, "detector", tiny_yolo, OPTIONS, True, wait=60)
+        asys.spawn(FramePublisher, "cam", wait=30)
+        asys.spawn(Detecting, "vision", wait=30)
+        _first_frame_through(asys)
+        os.unlink(gate)
+        asys.ref("cam").ask(1, timeout=10).get()
+        wait_until(lambda: os.path.exists(gate + ".held"), what="the detector to hold a frame it has read")
+        _come_round(asys)  # the camera reuses it while the detector has it
+        open(gate, "w").close()
+        wait_until(lambda: "stale" in asys.ref("vision").ask("results", timeout=30).get(), what="a stale answer")
+        assert asys.ref("det").ask("stats", timeout=5).get()["stale"] == 1
