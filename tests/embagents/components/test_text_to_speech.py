@@ -54,9 +54,9 @@ class Loop:
             pass
 
 
-def voice(system: ActorSystem, **config: Any) -> tuple[TextToSpeech, list[Audio], Loop]:
+def voice(system: ActorSystem, model: str = "joe", **config: Any) -> tuple[TextToSpeech, list[Audio], Loop]:
     comp = TextToSpeech(name="voice", inputs=[Topic("answer", String), Topic("tokens", StreamingString)],
-                        outputs=[Topic("speaker", Audio, keep="all")], model_client=LocalModelClient("joe"),
+                        outputs=[Topic("speaker", Audio, keep="all")], model_client=LocalModelClient(model),
                         config=TextToSpeechConfig(**config))
     sent: list[Audio] = []
     loop = Loop()
@@ -169,3 +169,17 @@ def test_a_voice_folder_missing_a_file_names_it_and_how_to_prepare_the_default(t
     problem = TextToSpeechModel(name="v", local_model_path=str(tmp_path / "nope")).file_problem()
     assert problem is not None and "not found" in problem
     assert TextToSpeechModel(name="v").file_problem() is None
+
+
+def test_a_kokoro_voice_speaks_from_its_own_model_actor(system: ActorSystem, tiny_kokoro: str) -> None:
+    system.spawn(ModelActor, "kokoro", "tts", tiny_kokoro, {"speaker_id": 1}, True, wait=60)
+    try:
+        comp, sent, loop = voice(system, model="kokoro")
+        assert comp.on_message("answer", String(data="Hello there. I am a robot."))
+        assert comp.execute()
+        loop.run()
+        chunks = [a for a in sent if a.data.size]
+        assert len(chunks) == 2 and {a.sample_rate for a in chunks} == {24000}  # a chunk per sentence
+        assert sent[-1].data.size == 0 and comp.spoken == 2
+    finally:
+        system.stop("kokoro")
