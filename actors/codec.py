@@ -302,5 +302,5 @@ class Codec:
 class _NoShm:
     """A source that maps nothing: :meth:`Codec.peek`'s."""
 
-    def view(self, handle: list[Any], on_release: Callable[[str, int], None] | None) -> None:
+    def view(self, handle: list[Any], on_release: Callable[[str, int], None] | None) -> Any:
         return None

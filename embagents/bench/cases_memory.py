@@ -5,7 +5,10 @@
   model actor (another) and comes back routed; against the same model and
   routing called in one process (a subprocess: onnxruntime must not load in
   this one, whose later ActorSystems fork from it). Interleaved, one text in
-  flight. ``ratio`` = runtime p50 / in-process p50.
+  flight. ``ratio`` = runtime p50 / in-process p50. ``pyzmq_ratio``: the
+  same three processes and four hops on raw pyzmq and msgpack (blocking
+  recv, no supervision, no checks), interleaved in the same run: the floor
+  that this machine's wake-ups put under any multi-process router.
 - ``memory_scale``: the memory database (:class:`~embagents.components.MemoryStore`,
   SQLite WAL) filled with 100,000 items (384-dimensional unit vectors,
   clustered like sentence embeddings, positions on a 100 m square); semantic
@@ -86,6 +89,60 @@ for line in sys.stdin:
 """
 
 
+# The same topology on raw pyzmq: a driver (asked a line at a time) -> router process -> model process -> back.
+_RAW_MODEL = """
+import sys, msgpack, zmq
+from embagents.models.backends.embeddings import SentenceEncoder
+enc = SentenceEncoder(sys.argv[1])
+enc.embed(["warm up"])
+sock = zmq.Context().socket(zmq.ROUTER)
+sock.bind(sys.argv[2] + "/model")
+while True:
+    ident, data = sock.recv_multipart()
+    sock.send_multipart([ident, enc.embed(msgpack.unpackb(data)).tobytes()])
+"""
+_RAW_ROUTER = """
+import sys, msgpack, zmq
+import numpy as np
+from embagents.bench.cases_memory import ROUTES
+ctx = zmq.Context()
+inbox, outbox, model = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH), ctx.socket(zmq.DEALER)
+inbox.bind(sys.argv[1] + "/in")
+outbox.connect(sys.argv[1] + "/out")
+model.connect(sys.argv[1] + "/model")
+def embed(texts):
+    model.send(msgpack.packb(texts))
+    return np.frombuffer(model.recv(), np.float32).reshape(len(texts), -1)
+names = [n for n, s in ROUTES.items() for _ in s]
+vecs = embed([x for s in ROUTES.values() for x in s])
+while True:
+    text = msgpack.unpackb(inbox.recv())
+    d = np.sqrt(np.maximum(2 - 2 * (vecs @ embed([text])[0]), 0))
+    outbox.send(msgpack.packb(names[int(np.argmin(d))]))
+"""
+_RAW_DRIVER = """
+import subprocess, sys, tempfile, time, msgpack, zmq
+from embagents.bench.cases_memory import _RAW_MODEL, _RAW_ROUTER
+where = "ipc://" + tempfile.mkdtemp(prefix="ea-raw-")
+ctx = zmq.Context()
+out, inp = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+out.bind(where + "/out")
+kids = [subprocess.Popen([sys.executable, "-c", _RAW_MODEL, sys.argv[1], where]),
+        subprocess.Popen([sys.executable, "-c", _RAW_ROUTER, where])]
+inp.connect(where + "/in")
+try:
+    for line in sys.stdin:
+        t0 = time.monotonic()
+        inp.send(msgpack.packb(line.strip()))
+        route = msgpack.unpackb(out.recv())
+        print(time.monotonic() - t0, route, flush=True)
+finally:
+    for k in kids:
+        k.kill()
+        k.wait()
+"""
+
+
 @case("router_latency", transport="embagents", kind="router", needs="onnxruntime")
 def router_latency(opts: BenchOptions) -> dict[str, Any]:
     from actors.topics import Publisher, Subscription
@@ -97,8 +154,10 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
     n = 6 if opts.quick else 120
     runtime: list[float] = []
     inproc: list[float] = []
+    raw: list[float] = []
     agree = 0
-    with Baseline(_BASELINE, folder, what="in-process router") as base, ActorSystem() as asys:
+    with Baseline(_BASELINE, folder, what="in-process router") as base, \
+            Baseline(_RAW_DRIVER, folder, what="raw pyzmq router") as floor, ActorSystem() as asys:
         asys.spawn(ModelActor, "bench_minilm", "embedding", folder, {}, True, wait=120, heartbeat=None)
         asys.spawn(RouterHost, "bench_router", "bench_minilm", wait=60)
         got: queue.Queue[tuple[float, str]] = queue.Queue()
@@ -120,10 +179,12 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
             t1, ours = got.get(timeout=60)  # waited for, not polled
             t0 = sent[0]
             secs, theirs = base.ask(text).split()
+            raw_secs, raw_route = floor.ask(text).split()
             if i >= 2:
                 runtime.append(t1 - t0)
                 inproc.append(float(secs))
-                agree += ours == theirs
+                raw.append(float(raw_secs))
+                agree += ours == theirs == raw_route
     ours_p50, base_p50 = statistics.median(runtime), statistics.median(inproc)
     return {
         "p50_us": ours_p50 * 1e6,
@@ -131,8 +192,11 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
         "msgs_per_s": 1.0 / ours_p50,
         "ratio": ours_p50 / base_p50,
         "inprocess_p50_us": base_p50 * 1e6,
+        "pyzmq_p50_us": statistics.median(raw) * 1e6,
+        "pyzmq_ratio": statistics.median(raw) / base_p50,
         "same_route": f"{agree}/{len(runtime)}",
-        "note": f"all-MiniLM-L6-v2, 3 routes x 3 samples, {len(runtime)} texts; bar: ratio <= 1.15",
+        "note": f"all-MiniLM-L6-v2, 3 routes x 3 samples, {len(runtime)} texts; raw pyzmq, same 4 hops: "
+                f"{statistics.median(raw) / base_p50:.2f}x; bar: ratio <= 1.15",
     }
 
 

@@ -99,11 +99,10 @@ class ModelActor(Actor):
 
     def _drain(self) -> None:
         """Take every frame waiting on the socket (requests queue, cancels apply at once)."""
-        while True:
-            try:
-                frames = self.sock.recv_multipart(zmq.NOBLOCK, copy=False)
-            except zmq.Again:
-                return
+        sock = self.sock
+        # EVENTS, not a NOBLOCK recv that raises Again: an exception per drain is a cost on every request.
+        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
             parts = [f.bytes for f in frames]
             ident = parts[0]
             if len(parts) != 2:

@@ -204,7 +204,7 @@ class LocalModelClient:
 
     def _drain_monitor(self, conn: _Conn) -> None:
         # Events from before this request (an old incarnation's exit) say nothing about it.
-        while conn.monitor.poll(0):
+        while conn.monitor.getsockopt(zmq.EVENTS) & zmq.POLLIN:  # type: ignore[operator]  # no poll per request
             self._on_event(conn, recv_monitor_message(conn.monitor)["event"], before=True)
 
     def _on_event(self, conn: _Conn, event: int, before: bool = False) -> bool:
