@@ -46,6 +46,7 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.audio_format import AudioFormatError, to_pcm16
+from embagents.components.audio_io import AudioSink
 from embagents.components.component import Component
 from embagents.components.device_retry import DeviceRetry
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
@@ -101,6 +102,10 @@ def input_device_present(device: int | str | None = None) -> bool:
                 sd._terminate()
     except Exception:  # no library, no device, no default: not present
         return False
+
+
+def _seconds(chunks: list[Audio]) -> float:
+    return sum(m.data.size / max(1, m.channels) / max(1, m.sample_rate) for m in chunks)
 
 
 def _device(value: object) -> int | str | None:
@@ -326,7 +331,7 @@ class Microphone(_SoundDevice):
                                       channels=self.config.channels))
 
 
-class Speaker(_SoundDevice):
+class Speaker(_SoundDevice, AudioSink):
     """Plays the ``Audio`` it receives on an output device (see the module docstring)."""
 
     allowed_inputs = {"Required": [Audio]}
@@ -335,7 +340,6 @@ class Speaker(_SoundDevice):
     kind = "output"
 
     def __init__(self, *, name: str, **kw: Any) -> None:
-        self._received: list[Audio] = []
         self._queue: collections.deque[np.ndarray | None] = collections.deque()  # None: an utterance ends
         self._rate = self._channels = 0
         self._notes: set[str] = set()
@@ -345,14 +349,6 @@ class Speaker(_SoundDevice):
         self.dropped_s = 0.0
         self.utterances = 0
         super().__init__(name=name, **kw)
-
-    def default_trigger(self) -> list[Any]:
-        return list(self.inputs)
-
-    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
-        if topic_name in self._subscribed and isinstance(msg, Audio):
-            self._received.append(msg)  # every chunk: one dropped is a hole in a word
-        return super().on_message(topic_name, msg, now)
 
     def on_activate(self) -> None:
         self._open()  # health says at once whether the speaker is there, before anything is said
@@ -384,10 +380,9 @@ class Speaker(_SoundDevice):
         self._later(self._retry.wait_s())  # try again even when nothing more is sent
 
     def _execution_step(self, **inputs: Any) -> None:
-        received, self._received = self._received, []
+        received = self.take()
         if self._stream is None and (self._retry.waiting() or not self._open()):
-            self._drop(sum(m.data.size / max(1, m.channels) / max(1, m.sample_rate) for m in received),
-                       "the speaker is not there")
+            self._drop(_seconds(received), "the speaker is not there")
             self._health_set_in_step = True
             return
         for msg in received:
@@ -467,9 +462,7 @@ class Speaker(_SoundDevice):
 
     def stop_playback(self) -> float:
         """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped."""
-        dropped = self._queue_s() + sum(m.data.size / max(1, m.channels) / max(1, m.sample_rate)
-                                        for m in self._received)
-        self._received.clear()
+        dropped = self._queue_s() + _seconds(self.take())
         self._queue.clear()
         if self._stream is not None and self._stream.active:
             self._stream.abort()  # abort, not stop: what the device holds is not played
