@@ -169,7 +169,7 @@ def test_the_speaker_plays_exactly_the_samples_it_got_and_converts_other_formats
         send(Audio(data=np.zeros(0, np.float32), sample_rate=22050))
         wait_until(lambda: played(devices).size >= tone.size + 16000, 10, "the voice played")
         written = played(devices)
-        assert written.size == tone.size + 16000 and stats()["played_s"] == 1.5
+        assert written.size == tone.size + 16000 and stats()["played_s"] == pytest.approx(1.5)
         assert abs(np.abs(written[tone.size:].astype(np.float32)).max() / 32767 - 0.25) < 0.01
         wait_until(lambda: not stats()["queued_s"], 5, "the queue empty")
         assert health(asys, "speaker")["status"] == HealthStatus.HEALTHY
@@ -230,3 +230,41 @@ def test_audio_of_a_wrong_dtype_is_a_named_skip_and_the_next_is_played(devices: 
         assert np.array_equal(written, np.full(1600, 1000, np.int16))
         assert health(asys, "speaker")["status"] == HealthStatus.HEALTHY
 
+
+
+def test_stop_playback_drops_what_is_queued_and_the_speaker_plays_on_after_it(devices: Path) -> None:
+    with ActorSystem() as asys:
+        start(asys, devices, "speaker")
+        pub = asys.rt.on_client(lambda: Publisher(asys.rt, "said"))
+
+        def send(msg: Audio) -> None:
+            asys.rt.on_client(lambda: pub.publish(msg))
+
+        def stats() -> dict[str, Any]:
+            return dict(asys.ref("speaker").ask(Call("stats"), timeout=5).get())
+
+        wait_until(lambda: stats()["utterances"] >= 1, 10, "the speaker's subscription", interval=0.2,
+                   poke=lambda: send(Audio(data=np.zeros(0, np.int16))))
+        send(Audio(data=np.full(160000, 500, np.int16)))  # 10 s: the device takes 0.2 s of it per 0.1 s
+        wait_until(lambda: stats()["played_s"] > 0, 10, "playing")
+        dropped = asys.ref("speaker").ask(Call("stop_playback"), timeout=5).get()
+        assert 5.0 < dropped < 10.0
+        size = played(devices).size
+        time.sleep(0.5)
+        assert played(devices).size == size < 80000, "nothing more is played after the stop"
+        send(Audio(data=np.full(1600, -700, np.int16)))
+        wait_until(lambda: played(devices).size >= size + 1600, 10, "the next audio played")
+        assert np.array_equal(played(devices)[size:], np.full(1600, -700, np.int16))
+
+
+def test_input_device_present_says_whether_portaudio_finds_the_microphone(devices: Path, speech_clip: tuple) -> None:
+    import subprocess
+    import sys
+
+    def present(device: str) -> str:
+        code = f"from embagents.components.audio_devices import input_device_present as p; print(p({device!r}))"
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60).stdout.strip()
+
+    assert present("robotmic") == "False"  # its input file is not there yet: ALSA cannot open it
+    write_mic_input(devices, speech_clip[0])
+    assert present("robotmic") == "True" and present("nomic") == "False"
