@@ -81,7 +81,11 @@ def portaudio() -> ModuleType:
 
 
 def _rescan(sd: ModuleType) -> None:
-    """Read PortAudio's device list anew (it is read once, at initialisation): finds devices added since."""
+    """Read PortAudio's device list anew (it is read once, at initialisation): finds devices added since.
+
+    sounddevice has no public call for it; its own ``_terminate``/``_initialize`` pair is the known way.
+    Only called while this component holds no stream (PortAudio's terminate closes them all).
+    """
     while sd._initialized > 0:
         sd._terminate()
     sd._initialize()

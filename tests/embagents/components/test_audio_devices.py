@@ -125,22 +125,6 @@ def cpu_s(pid: int) -> float:
     return float(t.user + t.system)
 
 
-def test_the_microphone_hears_the_clip_and_speech_to_text_gets_its_words(
-        devices: Path, whisper_dir: str, speech_clip: tuple) -> None:
-    write_mic_input(devices, speech_clip[0])
-    with ActorSystem() as asys:
-        asys.spawn(ModelActor, "whisper", "stt", whisper_dir, {"threads": 1}, True, wait=60)
-        heard = collect(asys, "heard")
-        start(asys, devices, "ears", "mic")
-        phrases = [words(heard.get(timeout=30).data)]
-        while " ".join(phrases) != SPEECH_CLIP_WORDS and len(phrases) < 8:
-            phrases.append(words(heard.get(timeout=30).data))
-        assert " ".join(phrases) == SPEECH_CLIP_WORDS
-        assert health(asys, "mic")["status"] == HealthStatus.HEALTHY
-        stats = asys.ref("mic").ask(Call("stats"), timeout=5).get()
-        assert stats["open"] and stats["chunks"] >= 100 and stats["overflows"] == 0  # 10 s in 100 ms chunks
-
-
 def test_the_speaker_plays_exactly_the_samples_it_got_and_converts_other_formats(devices: Path) -> None:
     tone = (8000 * np.sin(np.arange(8000) / 7)).astype(np.int16)
     tone[tone == 0] = 1  # no silent sample: what the file holds besides the tone must be nothing
@@ -268,3 +252,19 @@ def test_input_device_present_says_whether_portaudio_finds_the_microphone(device
     assert present("robotmic") == "False"  # its input file is not there yet: ALSA cannot open it
     write_mic_input(devices, speech_clip[0])
     assert present("robotmic") == "True" and present("nomic") == "False"
+
+
+def test_the_microphone_hears_the_clip_and_speech_to_text_gets_its_words(
+        devices: Path, whisper_dir: str, speech_clip: tuple) -> None:
+    write_mic_input(devices, speech_clip[0])
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "whisper", "stt", whisper_dir, {"threads": 1}, True, wait=60)
+        heard = collect(asys, "heard")
+        start(asys, devices, "ears", "mic")
+        phrases = [words(heard.get(timeout=30).data)]
+        while " ".join(phrases) != SPEECH_CLIP_WORDS and len(phrases) < 8:
+            phrases.append(words(heard.get(timeout=30).data))
+        assert " ".join(phrases) == SPEECH_CLIP_WORDS
+        assert health(asys, "mic")["status"] == HealthStatus.HEALTHY
+        stats = asys.ref("mic").ask(Call("stats"), timeout=5).get()
+        assert stats["open"] and stats["chunks"] >= 100 and stats["overflows"] == 0  # 10 s in 100 ms chunks
