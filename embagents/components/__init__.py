@@ -7,6 +7,7 @@ Example::
     10
 """
 
+from embagents.components.audio_devices import Microphone, MicrophoneConfig, Speaker, SpeakerConfig
 from embagents.components.audio_io import (
     WavFileSink,
     WavFileSinkConfig,
@@ -67,8 +68,12 @@ __all__ = [
     "MemoryLocked",
     "MemoryStore",
     "MemoryStoreError",
+    "Microphone",
+    "MicrophoneConfig",
     "ModelComponent",
     "NoImageYet",
+    "Speaker",
+    "SpeakerConfig",
     "SpeechToText",
     "TextToSpeech",
     "TextToSpeechConfig",

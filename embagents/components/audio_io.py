@@ -35,7 +35,7 @@ from embagents.components.component import Component
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
 from embagents.msgs import Audio, String
 
-__all__ = ["WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav", "spoken_clip_path"]
+__all__ = ["AudioSink", "WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav", "spoken_clip_path"]
 
 
 def _path(value: object) -> str:
@@ -130,19 +130,17 @@ class WavFileSinkConfig(BaseComponentConfig):
     prefix: str = field(default="utterance", converter=_path)
 
 
-class WavFileSink(Component):
-    """Writes each utterance to a WAV file (see the module docstring)."""
+class AudioSink(Component):
+    """Base of the components that take every ``Audio`` chunk in order (a file, a speaker): a step per message.
+
+    The runtime keeps only the latest message of a topic for a step; a sink
+    keeps them all (:meth:`take`), as one dropped chunk is a hole in a word.
+    """
 
     allowed_inputs = {"Required": [Audio]}
-    allowed_outputs = {"Optional": [String]}
-    config_class = WavFileSinkConfig
 
     def __init__(self, *, name: str, **kw: Any) -> None:
         self._received: list[Audio] = []
-        self._file: wave.Wave_write | None = None
-        self._path = ""
-        self._format: tuple[int, int] = (0, 0)
-        self.written: list[str] = []
         super().__init__(name=name, **kw)
 
     def default_trigger(self) -> list[Any]:
@@ -150,12 +148,30 @@ class WavFileSink(Component):
 
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
         if topic_name in self._subscribed and isinstance(msg, Audio):
-            self._received.append(msg)  # every chunk: one dropped is a hole in a word
+            self._received.append(msg)
         return super().on_message(topic_name, msg, now)
 
-    def _execution_step(self, **inputs: Any) -> None:
+    def take(self) -> list[Audio]:
+        """The chunks received since the last call, oldest first."""
         received, self._received = self._received, []
-        for msg in received:
+        return received
+
+
+class WavFileSink(AudioSink):
+    """Writes each utterance to a WAV file (see the module docstring)."""
+
+    allowed_outputs = {"Optional": [String]}
+    config_class = WavFileSinkConfig
+
+    def __init__(self, *, name: str, **kw: Any) -> None:
+        self._file: wave.Wave_write | None = None
+        self._path = ""
+        self._format: tuple[int, int] = (0, 0)
+        self.written: list[str] = []
+        super().__init__(name=name, **kw)
+
+    def _execution_step(self, **inputs: Any) -> None:
+        for msg in self.take():
             if msg.data.size == 0:
                 self._close()
                 continue

@@ -28,6 +28,7 @@ from typing import Any
 from attrs import define, field
 
 from embagents.components.component import Component
+from embagents.components.device_retry import DeviceRetry
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
 from embagents.msgs import Image
 
@@ -74,8 +75,7 @@ class Camera(Component):
 
     def __init__(self, *, name: str, **kw: Any) -> None:
         self._cap: Any = None
-        self._retry_at = 0.0
-        self._backoff = 0.0
+        self._retry = DeviceRetry()
         self.frames = 0
         self.finished = False
         super().__init__(name=name, **kw)
@@ -103,7 +103,8 @@ class Camera(Component):
             cap.release()
             self._lost("cannot be opened")
             return False
-        self._cap, self._backoff = cap, 0.0
+        self._cap = cap
+        self._retry.opened()
         self.logger.info("%s: opened %s", self._label(), self._describe())
         return True
 
@@ -111,16 +112,15 @@ class Camera(Component):
         if self._cap is not None:
             self._cap.release()
             self._cap = None
-        self._backoff = min(self.config.retry_max_s, self._backoff * 2 or self.config.retry_s)
-        self._retry_at = time.monotonic() + self._backoff
+        delay = self._retry.failed(self.config.retry_s, self.config.retry_max_s)
         fix = ("check the index (ls /dev/video*) and that no other program holds it" if isinstance(self.config.source, int)
                else "check the path" if "://" not in str(self.config.source) else "check the URL and the network")
-        self.set_system_failure(f"{self._describe()} {what}; {fix}; retrying in {self._backoff:.1f} s")
+        self.set_system_failure(f"{self._describe()} {what}; {fix}; retrying in {delay:.1f} s")
 
     def _execution_step(self, **inputs: Any) -> None:
         import cv2
 
-        if self.finished or (self._cap is None and (time.monotonic() < self._retry_at or not self._open())):
+        if self.finished or (self._cap is None and (self._retry.waiting() or not self._open())):
             self._health_set_in_step = True  # the failure (or the end) stands between retries
             return
         ok, bgr = self._cap.read()

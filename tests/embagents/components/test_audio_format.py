@@ -24,7 +24,7 @@ def peak_hz(samples: np.ndarray, rate: int = 16000) -> float:
 def test_48_khz_keeps_a_tone_below_8_khz_and_drops_one_above_instead_of_folding_it() -> None:
     out, note = to_mono_16k(Audio(data=tone(1000, 48000), sample_rate=48000))
     assert out.dtype == np.float32 and len(out) == 16000 and abs(peak_hz(out) - 1000) < 2
-    assert note == "audio at 48000 Hz, 1 channels: resampled to 16 kHz mono"
+    assert note == "audio at 48000 Hz, 1 channel: resampled to 16 kHz mono"
     high, _ = to_mono_16k(Audio(data=tone(10000, 48000), sample_rate=48000))  # would alias to 6 kHz
     assert np.abs(high[800:-800]).max() < 0.01  # filtered out (past the filter's edges), not folded into speech
 

@@ -1,0 +1,474 @@
+"""Microphone and Speaker: each owns a sound device (PortAudio, through ``sounddevice``) in its own process.
+
+``Microphone`` publishes what a capture device hears as ``Audio`` chunks of
+``chunk_ms`` (int16 by default, ``sample_rate`` Hz, ``channels``
+interleaved). It runs at its trigger rate (default ``1000 / chunk_ms`` Hz)
+and each step takes every whole chunk the device has buffered: no busy
+wait, nothing dropped while a step is late by less than ``buffer_ms``.
+
+``Speaker`` plays the ``Audio`` it receives (int16 or float32, any rate and
+channels: converted to the device's with :func:`~embagents.components.audio_format.to_pcm16`,
+logged once per format). An empty ``Audio`` ends an utterance, as
+TextToSpeech sends it. It writes only what the device has room for and comes
+back when there is room again, so an idle speaker (its stream stopped once
+the last audio has played) costs nothing; the ``stop_playback()`` action
+drops what is queued and silences the device at once.
+
+``device`` is a PortAudio device index, a substring of its name (``"USB"``,
+``"pulse"``), or ``None`` for the system's default; ``python -m sounddevice``
+lists them. A device that is missing or busy, PortAudio's library that is
+not installed, or a stream that fails mid-way is reported on health as
+SYSTEM_FAILURE naming the device and the fix, and tried again with
+exponential backoff (``retry_s`` doubling up to ``retry_max_s``, PortAudio's
+device list read anew each time, so a device plugged in later is found);
+the process and the system keep running.
+
+Example::
+
+    >>> from embagents.msgs import Audio
+    >>> from embagents.topic import Topic
+    >>> mic = Microphone(name="mic", outputs=[Topic("mic", Audio, keep="all")],
+    ...                  config=MicrophoneConfig(device="USB", chunk_ms=50))
+    >>> mic.rate_hz, mic.config.sample_rate, mic.config.dtype
+    (20.0, 16000, 'int16')
+    >>> Speaker(name="speaker", inputs=[Topic("said", Audio, keep="all")]).config.buffer_ms
+    200.0
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from attrs import define, field
+
+from embagents.components.audio_format import AudioFormatError, to_pcm16
+from embagents.components.audio_io import AudioSink
+from embagents.components.component import Component
+from embagents.components.device_retry import DeviceRetry
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
+from embagents.msgs import Audio
+
+__all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
+
+LIST_HINT = ("list the devices with `python -m sounddevice` (ALSA's own view: `arecord -l`, `aplay -l`); "
+             "check it is plugged in and that the user is in group 'audio' (`sudo usermod -aG audio $USER`, "
+             "then log in again)")
+BUSY_HINT = ("another program holds it (`fuser -v /dev/snd/*` names it): close that program, or use a device "
+             "that mixes ('default', 'pulse' or 'pipewire')")
+# PortAudio's error codes (portaudio.h) that say what to fix.
+_PA_INVALID_CHANNELS, _PA_INVALID_RATE, _PA_DEVICE_UNAVAILABLE = -9998, -9997, -9985
+
+
+class DeviceUnavailable(Exception):
+    """A sound device cannot be used now; the message says what is wrong and how to fix it."""
+
+
+def portaudio() -> ModuleType:
+    """The ``sounddevice`` module, or :class:`DeviceUnavailable` naming the install that is missing."""
+    try:
+        import sounddevice
+    except ModuleNotFoundError:
+        raise DeviceUnavailable("the sounddevice package is not installed; `pip install sounddevice` "
+                                "(it is in embagents' speech extra)") from None
+    except OSError as exc:  # sounddevice found no libportaudio.so
+        raise DeviceUnavailable(f"PortAudio's library is missing ({exc}); install it: "
+                                "`sudo apt install libportaudio2` (Debian, Ubuntu), `dnf install portaudio`") from None
+    return sounddevice
+
+
+def _rescan(sd: ModuleType) -> None:
+    """Read PortAudio's device list anew (it is read once, at initialisation): finds devices added since.
+
+    sounddevice has no public call for it; its own ``_terminate``/``_initialize`` pair is the known way.
+    Only called while this component holds no stream (PortAudio's terminate closes them all).
+    """
+    while sd._initialized > 0:
+        sd._terminate()
+    sd._initialize()
+
+
+def input_device_present(device: int | str | None = None) -> bool:
+    """True when PortAudio finds an input device (``device``, or the default one); never raises.
+
+    PortAudio is shut again afterwards, so a process that forks components after asking starts them clean.
+    """
+    try:
+        sd = portaudio()
+        _rescan(sd)
+        try:
+            return bool(sd.query_devices(device, "input")["max_input_channels"] > 0)
+        finally:
+            while sd._initialized > 0:
+                sd._terminate()
+    except Exception:  # no library, no device, no default: not present
+        return False
+
+
+def _seconds(chunks: list[Audio]) -> float:
+    return sum(m.data.size / max(1, m.channels) / max(1, m.sample_rate) for m in chunks)
+
+
+def _device(value: object) -> int | str | None:
+    if value is None or (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+        return value
+    if isinstance(value, str) and value.strip():
+        return int(value) if value.strip().isdigit() else value
+    raise ConfigError(f"device is a PortAudio device index (0), part of its name ('USB'), or None for the "
+                      f"default; got {value!r} (`python -m sounddevice` lists them)")
+
+
+def _optional_int(value: object) -> int | None:
+    return None if value is None else int_at_least(1)(value)
+
+
+def _dtype(value: object) -> str:
+    if value not in ("int16", "float32"):
+        raise ConfigError(f"dtype is 'int16' or 'float32', got {value!r}")
+    return str(value)
+
+
+@define(kw_only=True)
+class _DeviceConfig(BaseComponentConfig):
+    device: int | str | None = field(default=None, converter=_device)
+    retry_s: float = field(default=0.5, converter=positive_float)
+    retry_max_s: float = field(default=10.0, converter=positive_float)
+
+
+@define(kw_only=True)
+class MicrophoneConfig(_DeviceConfig):
+    """Settings of :class:`Microphone`; ``buffer_ms``: audio the device holds between two steps.
+
+    >>> MicrophoneConfig(device="2").device
+    2
+    """
+
+    sample_rate: int = field(default=16000, converter=int_at_least(1))
+    channels: int = field(default=1, converter=int_at_least(1))
+    chunk_ms: float = field(default=100.0, converter=positive_float)
+    dtype: str = field(default="int16", converter=_dtype)
+    buffer_ms: float = field(default=500.0, converter=positive_float)
+
+
+@define(kw_only=True)
+class SpeakerConfig(_DeviceConfig):
+    """Settings of :class:`Speaker`; ``sample_rate`` / ``channels`` ``None``: the device's own (at most 2 channels).
+
+    >>> SpeakerConfig(sample_rate=48000).channels is None
+    True
+    """
+
+    sample_rate: int | None = field(default=None, converter=_optional_int)
+    channels: int | None = field(default=None, converter=_optional_int)
+    buffer_ms: float = field(default=200.0, converter=positive_float)
+
+
+class _SoundDevice(Component):
+    """What a microphone and a speaker share: open the stream, report and retry a device that fails."""
+
+    kind = "input"  # PortAudio's word for the direction
+
+    def __init__(self, *, name: str, **kw: Any) -> None:
+        self._sd: Any = None
+        self._stream: Any = None
+        self._retry = DeviceRetry()
+        self._reported = ""
+        super().__init__(name=name, **kw)
+
+    def _describe(self) -> str:
+        what = "microphone" if self.kind == "input" else "speaker"
+        device = self.config.device
+        return f"the default {what}" if device is None else f"{what} {device!r}"
+
+    def _make_stream(self, sd: ModuleType) -> Any:
+        raise NotImplementedError
+
+    def _open(self) -> bool:
+        """Open and start the stream; False (reported, retry scheduled) when it cannot be had."""
+        try:
+            sd = self._sd = portaudio()
+            _rescan(sd)
+            stream = self._make_stream(sd)
+        except DeviceUnavailable as exc:
+            self._lost(str(exc))
+            return False
+        except ValueError as exc:  # sounddevice: no device of that name or index
+            self._lost(f"is not there ({exc}); {LIST_HINT}")
+            return False
+        except Exception as exc:  # sounddevice.PortAudioError: cannot be opened
+            self._lost(self._open_error(exc))
+            return False
+        self._stream = stream
+        self._retry.opened()
+        self._reported = ""
+        self.logger.info("%s: opened %s: %s", self._label(), self._describe(), self._format())
+        self.set_healthy()
+        return True
+
+    def _open_error(self, exc: Exception) -> str:
+        code = exc.args[1] if len(exc.args) > 1 else None
+        if code == _PA_DEVICE_UNAVAILABLE or "busy" in str(exc).lower():
+            return f"is busy or unavailable ({exc}); {BUSY_HINT}"
+        if code in (_PA_INVALID_RATE, _PA_INVALID_CHANNELS):
+            return (f"does not take this format ({exc}); set sample_rate and channels to what it takes "
+                    "(`python -m sounddevice` shows its default rate and channels), or use the 'default', "
+                    "'pulse' or 'pipewire' device, which convert")
+        if "querying device -1" in str(exc):
+            return f"is not there: PortAudio has no default {self.kind} device; {LIST_HINT}"
+        return f"cannot be opened ({exc}); {LIST_HINT}"
+
+    def _format(self) -> str:
+        return ""
+
+    def _lost(self, what: str) -> None:
+        """Report ``what`` (with its fix) as SYSTEM_FAILURE and wait before trying again."""
+        self._close(abort=True)
+        delay = self._retry.failed(self.config.retry_s, self.config.retry_max_s)
+        if what != self._reported:  # the log says each new problem once; health says it every time
+            self._reported = what
+            self.logger.warning("%s: %s %s; retrying with backoff", self._label(), self._describe(), what)
+        self.set_system_failure(f"{self._describe()} {what}; retrying in {delay:.1f} s")
+
+    def _close(self, abort: bool = False) -> None:
+        stream, self._stream = self._stream, None
+        if stream is not None:
+            try:
+                stream.abort() if abort else stream.stop()
+                stream.close()
+            except Exception:  # a stream whose device is gone may fail to close: it is dropped all the same
+                self.logger.debug("%s: closing the stream failed", self._label(), exc_info=True)
+
+    def on_reconfigure(self, old_config: Any) -> None:
+        # Another device or format: close this one and try the new one at the next chance, without waiting.
+        device_fields = ("device", "sample_rate", "channels", "dtype", "buffer_ms")
+        if any(getattr(old_config, f, None) != getattr(self.config, f, None) for f in device_fields):
+            self._close()
+            self._retry.opened()
+            self._reported = ""
+            self._reopen()
+
+    def _reopen(self) -> None:
+        """After a reconfigure: a microphone opens at its next step; a speaker opens at once (see Speaker)."""
+
+    def on_deactivate(self) -> None:
+        self._close()
+
+    def on_shutdown(self) -> None:
+        self._close()
+
+
+class Microphone(_SoundDevice):
+    """Publishes what a capture device hears as ``Audio`` chunks (see the module docstring)."""
+
+    allowed_inputs = {"Optional": []}
+    allowed_outputs = {"Required": [Audio]}
+    config_class = MicrophoneConfig
+    kind = "input"
+
+    def __init__(self, *, name: str, **kw: Any) -> None:
+        self.chunks = 0
+        self.overflows = 0
+        self._overflows_said = 0
+        super().__init__(name=name, **kw)
+
+    def default_trigger(self) -> float:
+        return 1000.0 / self.config.chunk_ms
+
+    @property
+    def _frames(self) -> int:
+        return max(1, round(self.config.sample_rate * self.config.chunk_ms / 1000))
+
+    def _make_stream(self, sd: ModuleType) -> Any:
+        c = self.config
+        # Blocking mode: the device buffers between steps and a step reads what is there (no callback thread).
+        stream = sd.InputStream(device=c.device, samplerate=c.sample_rate, channels=c.channels, dtype=c.dtype,
+                                latency=c.buffer_ms / 1000)
+        stream.start()
+        return stream
+
+    def _format(self) -> str:
+        c = self.config
+        return f"{c.sample_rate} Hz, {c.channels} channel(s), {c.dtype}, chunks of {c.chunk_ms:g} ms"
+
+    def _execution_step(self, **inputs: Any) -> None:
+        if self._stream is None and (self._retry.waiting() or not self._open()):
+            self._health_set_in_step = True  # the failure stands between retries
+            return
+        c, frames = self.config, self._frames
+        try:
+            available = self._stream.read_available
+            chunks = []
+            for _ in range(available // frames):
+                data, overflowed = self._stream.read(frames)
+                self.overflows += bool(overflowed)
+                chunks.append(data)
+        except self._sd.PortAudioError as exc:
+            self._end_of_stream()
+            self._lost(f"stopped giving audio ({exc}); {LIST_HINT}")
+            return
+        if self.overflows and self.overflows != self._overflows_said:
+            self._overflows_said = self.overflows  # a step late by more than buffer_ms: audio was lost
+            self.logger.warning("%s: the device's buffer overflowed (%d times so far): audio was lost; raise "
+                                "buffer_ms (now %g) or give this process more CPU", self._label(), self.overflows,
+                                c.buffer_ms)
+        now = time.time()
+        for i, data in enumerate(chunks):
+            ends = now - (available - (i + 1) * frames) / c.sample_rate  # when this chunk's last sample was heard
+            msg = Audio(data=np.ascontiguousarray(data).reshape(-1), sample_rate=c.sample_rate, channels=c.channels,
+                        stamp=ends)
+            for t in self.outputs:
+                self.publish(t, msg)
+            self.chunks += 1
+
+    def stats(self) -> dict[str, float]:
+        """Chunks published and reads that found the device's buffer overflowed (``embagents call mic stats``)."""
+        return {"chunks": self.chunks, "overflows": self.overflows, "open": self._stream is not None}
+
+    def _end_of_stream(self) -> None:
+        # An empty Audio: a listener (SpeechToText) transcribes what it holds instead of waiting for silence.
+        if self.chunks:
+            for t in self.outputs:
+                self.publish(t, Audio(data=np.zeros(0, self.config.dtype), sample_rate=self.config.sample_rate,
+                                      channels=self.config.channels))
+
+
+class Speaker(_SoundDevice, AudioSink):
+    """Plays the ``Audio`` it receives on an output device (see the module docstring)."""
+
+    allowed_inputs = {"Required": [Audio]}
+    allowed_outputs = {"Optional": []}
+    config_class = SpeakerConfig
+    kind = "output"
+
+    def __init__(self, *, name: str, **kw: Any) -> None:
+        self._queue: collections.deque[np.ndarray | None] = collections.deque()  # None: an utterance ends
+        self._rate = self._channels = 0
+        self._notes: set[str] = set()
+        self._pump_due = False
+        self._last_write = 0.0
+        self.played_s = 0.0
+        self.dropped_s = 0.0
+        self.utterances = 0
+        super().__init__(name=name, **kw)
+
+    def on_activate(self) -> None:
+        self._open()  # health says at once whether the speaker is there, before anything is said
+
+    def _make_stream(self, sd: ModuleType) -> Any:
+        c = self.config
+        info = sd.query_devices(c.device, "output")
+        self._rate = c.sample_rate or int(info["default_samplerate"])
+        self._channels = c.channels or min(2, int(info["max_output_channels"]))
+        # Opened, not started: a stopped stream costs nothing; it starts when there is audio to play.
+        return sd.OutputStream(device=c.device, samplerate=self._rate, channels=self._channels, dtype="int16",
+                               latency=c.buffer_ms / 1000)
+
+    def _format(self) -> str:
+        return f"{self._rate} Hz, {self._channels} channel(s), int16"
+
+    def _reopen(self) -> None:
+        self._drop(self._queue_s(), "the speaker was reconfigured")
+        self._open()
+
+    def stats(self) -> dict[str, float]:
+        """Seconds played, dropped and queued, and utterances ended (``embagents call speaker stats``)."""
+        return {"played_s": self.played_s, "dropped_s": self.dropped_s, "queued_s": self._queue_s(),
+                "utterances": self.utterances, "open": self._stream is not None}
+
+    def _lost(self, what: str) -> None:
+        super()._lost(what)
+        self._drop(self._queue_s(), "the speaker is not there")
+        self._later(self._retry.wait_s())  # try again even when nothing more is sent
+
+    def _execution_step(self, **inputs: Any) -> None:
+        received = self.take()
+        if self._stream is None and (self._retry.waiting() or not self._open()):
+            self._drop(_seconds(received), "the speaker is not there")
+            self._health_set_in_step = True
+            return
+        for msg in received:
+            if msg.data.size == 0:
+                self._queue.append(None)
+                continue
+            try:
+                frames, note = to_pcm16(msg, self._rate, self._channels)
+            except AudioFormatError as exc:
+                self.logger.error("%s: skipped Audio: %s", self._label(), exc)
+                self.set_algorithm_failure(f"skipped Audio: {exc}")
+                continue
+            if note and note not in self._notes:
+                self._notes.add(note)
+                self.logger.info("%s: %s", self._label(), note)
+            self._queue.append(frames)
+        self._pump()
+
+    def _pump(self) -> None:
+        """Write what the device has room for; come back when it has room again, or to stop it once played."""
+        self._pump_due = False
+        if self._stream is None:
+            if self._retry.waiting():
+                self._later(self._retry.wait_s())
+                return
+            if not self._open():
+                return  # reported; _lost scheduled the next try
+        stream = self._stream
+        try:
+            while self._queue and self._queue[0] is None:
+                self._queue.popleft()
+                self.utterances += 1
+            if self._queue:
+                if not stream.active:
+                    stream.start()
+                room = stream.write_available
+                while room > 0 and self._queue:
+                    frames = self._queue[0]
+                    if frames is None:
+                        self._queue.popleft()
+                        self.utterances += 1
+                        continue
+                    n = min(room, len(frames))
+                    stream.write(frames[:n])  # never blocks: there is room for n frames
+                    room -= n
+                    self.played_s += n / self._rate
+                    self._last_write = time.monotonic()
+                    if n == len(frames):
+                        self._queue.popleft()
+                    else:
+                        self._queue[0] = frames[n:]
+            buffered_s = self.config.buffer_ms / 1000
+            if self._queue:
+                self._later(buffered_s / 2)
+            elif stream.active:
+                played_out = self._last_write + buffered_s + 0.05
+                if time.monotonic() >= played_out:
+                    stream.stop()  # all of it has played: an idle stream costs nothing
+                else:
+                    self._later(played_out - time.monotonic())
+        except self._sd.PortAudioError as exc:
+            self._lost(f"stopped playing ({exc}); {LIST_HINT}")
+
+    def _later(self, delay: float) -> None:
+        if not self._pump_due and self._call_later is not None:
+            self._pump_due = True
+            self.call_later(delay, self._pump)
+
+    def _queue_s(self) -> float:
+        return sum(len(f) for f in self._queue if f is not None) / max(1, self._rate)
+
+    def _drop(self, seconds: float, why: str) -> None:
+        self._queue.clear()
+        if seconds > 0:
+            self.dropped_s += seconds
+            self.logger.warning("%s: dropped %.2f s of audio: %s", self._label(), seconds, why)
+
+    def stop_playback(self) -> float:
+        """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped."""
+        dropped = self._queue_s() + _seconds(self.take())
+        self._queue.clear()
+        if self._stream is not None and self._stream.active:
+            self._stream.abort()  # abort, not stop: what the device holds is not played
+        self.logger.info("%s: stopped; %.2f s of audio dropped", self._label(), dropped)
+        return dropped
