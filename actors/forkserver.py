@@ -57,15 +57,20 @@ def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: C
     # Keep only stdio and our socket: an inherited fd must not outlive the root through us.
     # /dev/null stays: it holds nothing open, and libraries imported before the fork keep
     # module-level handles on it (llama_cpp redirects its C output through one).
+    # The others become /dev/null rather than closed: Python objects of the parent's (a file, an
+    # mmap, a socket waiting in a garbage cycle) still own those numbers and close them when they
+    # are collected, here or in a child, and a closed number would by then be a ZeroMQ socket's.
     devnull = os.stat(os.devnull).st_rdev
+    null = os.open(os.devnull, os.O_RDWR | os.O_CLOEXEC)
     for fd in [int(f) for f in os.listdir("/proc/self/fd")]:
-        if fd < 3 or fd == sock.fileno():
+        if fd < 3 or fd in (sock.fileno(), null):
             continue
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError):  # the listing's own fd is closed by now
             st = os.fstat(fd)
             if stat.S_ISCHR(st.st_mode) and st.st_rdev == devnull:
                 continue
-            os.close(fd)
+            os.dup2(null, fd, inheritable=False)
+    os.close(null)
     # Streams a test runner swapped in may sit on fds we just closed.
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import gc
 import os
+from typing import Any
 
 import msgpack
 import pykka
 import pytest
 
 from actors import ActorSystem
-from tests.actors.workers import Echo, FdProbe
+from tests.actors.workers import Echo, FdProbe, FdReuse
 
 
 @pytest.mark.parametrize("bad", [b"\xc1", msgpack.packb(7), msgpack.packb([]), msgpack.packb(["spawn", 1]),
@@ -37,6 +39,22 @@ def test_actors_keep_devnull_handles_opened_before_the_fork_server_and_nothing_e
         devnull.close()
         os.close(r)
         os.close(w)
+
+
+def test_a_root_object_collected_in_an_actor_does_not_close_the_actors_own_fds(tmp_path: Any) -> None:
+    # A file of the root's, waiting in a garbage cycle when the fork server forks, is collected in the
+    # actor later and closes its fd number there: that number must not be one the actor uses by then.
+    gc.disable()
+    try:
+        cycle: list[Any] = [open(tmp_path / "root-file", "w")]  # noqa: SIM115
+        cycle.append(cycle)
+        n = cycle[0].fileno()
+        del cycle
+        with ActorSystem() as system:
+            assert system.spawn(FdReuse, "reuser").ask(n, timeout=10).get() == []
+    finally:
+        gc.enable()
+        gc.collect()
 
 
 def test_a_dead_fork_server_is_reported_and_no_start_or_ask_waits_forever() -> None:
