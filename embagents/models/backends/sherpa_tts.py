@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable", "voice_family"]
+__all__ = ["KOKORO_FILES", "SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable", "voice_family"]
 
 _PIPER = ("model.onnx", "tokens.txt", "voice.json")
-_KOKORO = ("model.onnx", "voices.bin", "tokens.txt")
+_KOKORO = KOKORO_FILES = ("model.onnx", "voices.bin", "tokens.txt")
 
 
 def voice_family(folder: str) -> str:

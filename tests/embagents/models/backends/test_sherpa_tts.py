@@ -39,3 +39,16 @@ def test_a_kokoro_folder_missing_a_file_names_it(tiny_kokoro: str, tmp_path: Any
         os.symlink(os.path.join(tiny_kokoro, name), tmp_path / name)
     problem = TextToSpeechModel(name="kokoro", local_model_path=str(tmp_path)).file_problem()
     assert problem is not None and "Kokoro voice folder" in problem and "lacks tokens.txt" in problem
+
+
+def test_a_kokoro_repo_on_an_unreachable_hub_says_so_and_what_to_give_instead(monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("huggingface_hub")
+    from embagents.modelfiles import HubUnreachableError
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_HUB_CACHE", "/nonexistent-embagents-cache")
+    voice = TextToSpeechModel(name="kokoro", local_model_path="csukuangfj/kokoro-en-v0_19")
+    assert voice.file_problem() is None  # a repo is fetched at start, not checked as a path
+    with pytest.raises(HubUnreachableError, match=r"fetch 'csukuangfj/kokoro-en-v0_19' \(HF_HUB_OFFLINE is set\).*"
+                                                  r"Give the path of a Kokoro folder"):
+        voice.resolve()
