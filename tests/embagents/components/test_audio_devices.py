@@ -17,6 +17,7 @@ import queue
 import re
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -125,22 +126,28 @@ def cpu_s(pid: int) -> float:
     return float(t.user + t.system)
 
 
+def speaker_connected(asys: ActorSystem, devices: Path) -> tuple[Callable[[Audio], None], Callable[[], dict[str, Any]]]:
+    """Start the speaker; ``(send, stats)`` once its subscription is connected."""
+    start(asys, devices, "speaker")
+    pub = asys.rt.on_client(lambda: Publisher(asys.rt, "said"))
+
+    def send(msg: Audio) -> None:
+        asys.rt.on_client(lambda: pub.publish(msg))
+
+    def stats() -> dict[str, Any]:
+        return dict(asys.ref("speaker").ask(Call("stats"), timeout=5).get())
+
+    # An empty Audio ends an utterance: sent until one has arrived, so the subscription is connected.
+    wait_until(lambda: stats()["utterances"] >= 1, 10, "the speaker's subscription", interval=0.2,
+               poke=lambda: send(Audio(data=np.zeros(0, np.int16))))
+    return send, stats
+
+
 def test_the_speaker_plays_exactly_the_samples_it_got_and_converts_other_formats(devices: Path) -> None:
     tone = (8000 * np.sin(np.arange(8000) / 7)).astype(np.int16)
     tone[tone == 0] = 1  # no silent sample: what the file holds besides the tone must be nothing
     with ActorSystem() as asys:
-        start(asys, devices, "speaker")
-        pub = asys.rt.on_client(lambda: Publisher(asys.rt, "said"))
-
-        def send(msg: Audio) -> None:
-            asys.rt.on_client(lambda: pub.publish(msg))
-
-        def stats() -> dict[str, Any]:
-            return dict(asys.ref("speaker").ask(Call("stats"), timeout=5).get())
-
-        # An empty Audio ends an utterance: sent until one has arrived, so the subscription is connected.
-        wait_until(lambda: stats()["utterances"] >= 1, 10, "the speaker's subscription", interval=0.2,
-                   poke=lambda: send(Audio(data=np.zeros(0, np.int16))))
+        send, stats = speaker_connected(asys, devices)
         for i in range(0, tone.size, 1600):  # 100 ms chunks, then the end of the utterance
             send(Audio(data=tone[i:i + 1600], sample_rate=16000))
         send(Audio(data=np.zeros(0, np.int16)))
@@ -218,17 +225,7 @@ def test_audio_of_a_wrong_dtype_is_a_named_skip_and_the_next_is_played(devices: 
 
 def test_stop_playback_drops_what_is_queued_and_the_speaker_plays_on_after_it(devices: Path) -> None:
     with ActorSystem() as asys:
-        start(asys, devices, "speaker")
-        pub = asys.rt.on_client(lambda: Publisher(asys.rt, "said"))
-
-        def send(msg: Audio) -> None:
-            asys.rt.on_client(lambda: pub.publish(msg))
-
-        def stats() -> dict[str, Any]:
-            return dict(asys.ref("speaker").ask(Call("stats"), timeout=5).get())
-
-        wait_until(lambda: stats()["utterances"] >= 1, 10, "the speaker's subscription", interval=0.2,
-                   poke=lambda: send(Audio(data=np.zeros(0, np.int16))))
+        send, stats = speaker_connected(asys, devices)
         send(Audio(data=np.full(160000, 500, np.int16)))  # 10 s: the device takes 0.2 s of it per 0.1 s
         wait_until(lambda: stats()["played_s"] > 0, 10, "playing")
         dropped = asys.ref("speaker").ask(Call("stop_playback"), timeout=5).get()

@@ -191,8 +191,15 @@ class GatedModelActor(ModelActor):
         super()._serve_batch(batch)
 
 
-def _first_frame_through(asys: ActorSystem) -> None:
-    """Publish until the Detecting actor has a result (its subscription connects in its own time)."""
+def _camera_vision_detector(asys: ActorSystem, *detector: Any, actor: type = ModelActor) -> None:
+    """Start the detector (``actor`` with ``detector`` args), the camera and Vision; return once a frame is through.
+
+    Vision's subscription connects in its own time: the camera publishes until Vision has a result.
+    """
+    asys.spawn(actor, "det", *detector, wait=60)
+    asys.spawn(FramePublisher, "cam", wait=30)
+    asys.spawn(Detecting, "vision", wait=30)
+
     def seen() -> bool:
         asys.ref("cam").tell(0)
         return bool(asys.ref("vision").ask("results", timeout=30).get())
@@ -202,10 +209,7 @@ def _first_frame_through(asys: ActorSystem) -> None:
 
 def test_a_camera_frame_reaches_the_detector_written_once(tiny_yolo: str) -> None:
     with ActorSystem() as asys:
-        asys.spawn(ModelActor, "det", "detector", tiny_yolo, OPTIONS, True, wait=60)
-        asys.spawn(FramePublisher, "cam", wait=30)
-        asys.spawn(Detecting, "vision", wait=30)
-        _first_frame_through(asys)
+        _camera_vision_detector(asys, "detector", tiny_yolo, OPTIONS, True)
         for value in range(1, 6):
             asys.ref("cam").ask(value, timeout=10).get()
         wait_until(lambda: len(asys.ref("vision").ask("results", timeout=30).get()) >= 3, what="more detections")
@@ -224,10 +228,7 @@ def _come_round(asys: ActorSystem) -> None:
 
 def test_a_frame_the_camera_overwrites_before_the_detector_reads_it_is_dropped(tiny_yolo: str) -> None:
     with ActorSystem() as asys:
-        asys.spawn(ModelActor, "det", "detector", tiny_yolo, OPTIONS, True, wait=60)
-        asys.spawn(FramePublisher, "cam", wait=30)
-        asys.spawn(Detecting, "vision", wait=30)
-        _first_frame_through(asys)
+        _camera_vision_detector(asys, "detector", tiny_yolo, OPTIONS, True)
         asys.signal("det", signal.SIGSTOP)
         try:
             asys.ref("cam").ask(1, timeout=10).get()  # Vision asks the stopped detector about this frame...
@@ -248,10 +249,7 @@ def test_a_frame_the_camera_overwrites_while_the_detector_runs_gives_no_answer(t
     gate = str(tmp_path / "gate")
     open(gate, "w").close()
     with ActorSystem() as asys:
-        asys.spawn(GatedModelActor, "det", gate, "detector", tiny_yolo, OPTIONS, True, wait=60)
-        asys.spawn(FramePublisher, "cam", wait=30)
-        asys.spawn(Detecting, "vision", wait=30)
-        _first_frame_through(asys)
+        _camera_vision_detector(asys, gate, "detector", tiny_yolo, OPTIONS, True, actor=GatedModelActor)
         os.unlink(gate)
         asys.ref("cam").ask(1, timeout=10).get()
         wait_until(lambda: os.path.exists(gate + ".held"), what="the detector to hold a frame it has read")
