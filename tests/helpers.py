@@ -59,3 +59,37 @@ def serve_http(handler: type) -> Iterator[str]:
         httpd.shutdown()
         httpd.server_close()
         thread.join(5)
+
+
+#: The system's own ALSA config, which the test devices are added to.
+ALSA_CONF = "/usr/share/alsa/alsa.conf"
+_ASOUND = """
+pcm.robotmic {{
+    type file
+    slave.pcm "null"
+    file "/dev/null"
+    infile "{dir}/mic.raw"
+    format "raw"
+}}
+pcm.robotspeaker {{
+    type file
+    slave.pcm "null"
+    file "{dir}/speaker.raw"
+    format "raw"
+}}
+"""
+
+
+def alsa_file_devices(folder: Any) -> str:
+    """Define ALSA devices ``robotmic`` (captures ``folder/mic.raw``, 16-bit raw) and ``robotspeaker``
+    (writes ``folder/speaker.raw``) on ALSA's file plugin; returns the ``ALSA_CONFIG_PATH`` that shows them.
+
+    A sound card without one: PortAudio lists them as it lists real devices. Their slave is ALSA's
+    ``null`` PCM, which does not pace (a device is as fast as it is read).
+    """
+    import os
+
+    conf = os.path.join(str(folder), "asound.conf")
+    with open(conf, "w") as f:
+        f.write(_ASOUND.format(dir=folder))
+    return f"{ALSA_CONF}:{conf}"  # the system's config, then ours

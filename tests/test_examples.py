@@ -13,7 +13,10 @@ import sys
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from tests.helpers import ALSA_CONF, alsa_file_devices, wait_until
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
 
@@ -97,6 +100,43 @@ def test_voice_example_hears_the_question_and_speaks_an_answer_a_recognizer_hear
     heard = SherpaRecognizer(whisper_tiny_en_dir(progress=False)).transcribe(
         to_mono_16k(Audio(data=samples, sample_rate=rate, channels=channels))[0])
     assert "paris" in heard.lower(), heard
+
+
+def test_voice_example_listens_live_on_a_microphone_and_answers_through_a_speaker(tmp_path: Path) -> None:
+    # A microphone and a speaker with no sound card: ALSA's file plugin (tests/helpers.alsa_file_devices).
+    pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
+    pytest.importorskip("sounddevice", reason="live listening needs the speech extra (pip install 'embagents[speech]')")
+    import ctypes.util
+
+    if ctypes.util.find_library("portaudio") is None or not os.path.isfile(ALSA_CONF):
+        pytest.skip("live listening needs PortAudio and ALSA's library: sudo apt install libportaudio2")
+    from embagents.components import read_wav
+    from embagents.components.audio_io import spoken_clip_path
+
+    question, rate, _ = read_wav(spoken_clip_path("What is the capital of France?", progress=False))
+    assert rate == 16000
+    np.concatenate([question, np.zeros(3 * rate, np.int16)]).astype("<i2").tofile(tmp_path / "mic.raw")
+    env = {**os.environ, "EMBAGENTS_KEEP_RUNNING": "1", "EMBAGENTS_MIC_DEVICE": "robotmic",
+           "EMBAGENTS_SPEAKER_DEVICE": "robotspeaker", "ALSA_CONFIG_PATH": alsa_file_devices(tmp_path),
+           "EMBAGENTS_VOICE_OUT": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "voice.py")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    lines: list[str] = []
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # it keeps listening: read until the answer has been spoken
+            lines.append(line.rstrip("\n"))
+            if line.startswith("answer audio: "):
+                break
+        played = tmp_path / "speaker.raw"
+        wait_until(lambda: played.is_file() and played.stat().st_size > 16000, 30, "the speaker to play the answer")
+    finally:
+        proc.send_signal(signal.SIGINT)  # Ctrl-C: a clean stop
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, "\n".join(lines) + err[-3000:]
+    assert "voice: listening live on robotmic; Ctrl-C or `embagents stop` stops it" in lines, lines
+    assert "heard: What is the capital of France?" in lines, lines
+    assert any(x.startswith("said: ") and "Paris" in x for x in lines), lines
 
 
 def test_pick_place_resumes_its_state_machine_after_a_sigkill_of_the_manager() -> None:

@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-ALSA_CONF = "/usr/share/alsa/alsa.conf"
+from tests.helpers import ALSA_CONF, alsa_file_devices, wait_until
+
 if importlib.util.find_spec("sounddevice") is None:
     pytest.skip("the Microphone and Speaker need sounddevice (pip install -e '.[speech]')", allow_module_level=True)
 if ctypes.util.find_library("portaudio") is None or not os.path.isfile(ALSA_CONF):
@@ -39,23 +40,6 @@ from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.runtime.requests import Call, HealthQuery, Reconfigure  # noqa: E402
 from embagents.speechfiles import SPEECH_CLIP_WORDS  # noqa: E402
 from embagents.system import load_system  # noqa: E402
-from tests.helpers import wait_until  # noqa: E402
-
-ASOUND = '''
-pcm.robotmic {{
-    type file
-    slave.pcm "null"
-    file "/dev/null"
-    infile "{dir}/mic.raw"
-    format "raw"
-}}
-pcm.robotspeaker {{
-    type file
-    slave.pcm "null"
-    file "{dir}/speaker.raw"
-    format "raw"
-}}
-'''
 
 SYSTEM = '''
 from embagents.components import Microphone, MicrophoneConfig, Speaker, SpeakerConfig, SpeechToText, SpeechToTextConfig
@@ -84,9 +68,7 @@ def words(text: str) -> str:
 @pytest.fixture
 def devices(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A folder with the ALSA config of robotmic and robotspeaker; the actor processes started after see them."""
-    conf = tmp_path / "asound.conf"
-    conf.write_text(ASOUND.format(dir=tmp_path))
-    monkeypatch.setenv("ALSA_CONFIG_PATH", f"{ALSA_CONF}:{conf}")  # the system's config, then ours
+    monkeypatch.setenv("ALSA_CONFIG_PATH", alsa_file_devices(tmp_path))
     return tmp_path
 
 
