@@ -14,6 +14,7 @@ removes the run's segments and directory: no orphans, no leaks.
 from __future__ import annotations
 
 import contextlib
+import gc
 import glob
 import logging
 import os
@@ -71,6 +72,10 @@ def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: C
                 continue
             os.dup2(null, fd, inheritable=False)
     os.close(null)
+    # What the root built is never garbage to an actor: frozen, the collector of every child skips it.
+    # Walked, a late full collection in an actor of a big root (a test runner at the end of a suite)
+    # touched every object, copied their pages and stalled the actor for half a second.
+    gc.freeze()
     # Streams a test runner swapped in may sit on fds we just closed.
     sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
     sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115

@@ -156,11 +156,15 @@ class FdProbe(Actor):
         return out
 
 
+#: Files the root (the test) opened before its fork server: the actor drops them (see FdReuse).
+INHERITED: list[Any] = []
+
+
 class FdReuse(Actor):
-    """Opens files until fd ``n`` is in use, collects garbage, and names the fds it lost (not /dev/null ones)."""
+    """Opens files until fd ``n`` is in use, drops the root's :data:`INHERITED` files (as a library
+    re-initialised after a fork drops its handles), and names the fds it lost (not /dev/null ones)."""
 
     def on_receive(self, n: Any) -> Any:
-        import gc
         import stat
 
         mine = [os.open(os.devnull, os.O_RDONLY)]  # numbers up to n in use, as a busy actor's would be
@@ -172,7 +176,7 @@ class FdReuse(Actor):
                 before[int(name)] = os.fstat(int(name))
             except OSError:
                 pass
-        gc.collect()  # an object of the root's that owned fd n closes it now
+        INHERITED.clear()  # the root's file object that owned fd n closes it now
         null = os.stat(os.devnull).st_rdev
         lost = []
         for fd, st in before.items():
@@ -187,3 +191,12 @@ class FdReuse(Actor):
             except OSError:
                 pass
         return lost
+
+
+class GcProbe(Actor):
+    """Says how many objects its garbage collector leaves alone (frozen) and how many it tracks."""
+
+    def on_receive(self, message: Any) -> Any:
+        import gc
+
+        return [gc.get_freeze_count(), len(gc.get_objects())]
