@@ -22,12 +22,15 @@ inside the functions that need them, so importing this module is cheap.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import glob
 import os
 import re
 import socket
 import urllib.parse
+from collections.abc import Iterator
+from typing import Any
 
 from embagents.wheelfiles import wheel_file
 
@@ -183,7 +186,6 @@ def resolve_model_dir(spec: str, files: list[str], *, hint: str, progress: bool 
     if not is_repo_id(spec):
         return os.path.abspath(os.path.expanduser(spec))
     hub = _import_hub()
-    from huggingface_hub import utils as hub_utils
 
     def cached() -> str | None:
         try:
@@ -197,11 +199,9 @@ def resolve_model_dir(spec: str, files: list[str], *, hint: str, progress: bool 
         if folder:
             return folder
         raise _unreachable(spec, unreachable, hint)
-    was_disabled = hub_utils.are_progress_bars_disabled()
-    if not progress:
-        hub_utils.disable_progress_bars()
     try:
-        return str(hub.snapshot_download(spec, allow_patterns=files))
+        with _progress_bars(progress):
+            return str(hub.snapshot_download(spec, allow_patterns=files))
     except Exception as exc:
         if not _is_network_error(exc):
             raise
@@ -209,9 +209,6 @@ def resolve_model_dir(spec: str, files: list[str], *, hint: str, progress: bool 
         if folder:
             return folder
         raise _unreachable(spec, f"{type(exc).__name__}: {str(exc).splitlines()[0]}", hint) from exc
-    finally:
-        if not progress and not was_disabled:
-            hub_utils.enable_progress_bars()
 
 
 def _import_hub():  # -> module huggingface_hub
@@ -299,8 +296,6 @@ def _download_from_hub(
     repo_id: str, filename: str | None, filename_glob: str, *, progress: bool
 ) -> str:
     hub = _import_hub()
-    from huggingface_hub import utils as hub_utils  # a lazy submodule: not an attribute of hub
-
     pattern = filename if filename and any(c in filename for c in "*?[") else None
     if filename is None:
         pattern = filename_glob
@@ -311,27 +306,9 @@ def _download_from_hub(
         if cached:
             return cached
         raise _unreachable(wanted, unreachable)
-    was_disabled = hub_utils.are_progress_bars_disabled()
-    if not progress:
-        hub_utils.disable_progress_bars()
     try:
-        if pattern is None:
-            assert filename is not None
-            return hub.hf_hub_download(repo_id, filename)
-        files = hub.list_repo_files(repo_id)
-        matches = sorted(
-            f
-            for f in files
-            if fnmatch.fnmatch(f, pattern) or fnmatch.fnmatch(os.path.basename(f), pattern)
-        )
-        if not matches:
-            ggufs = [f for f in files if f.endswith(".gguf")]
-            raise FileNotFoundError(
-                f"No file matching {pattern!r} in Hugging Face repo {repo_id!r}. "
-                f"GGUF files there: {ggufs or 'none'}. Use '{repo_id}:<filename>' or another "
-                f"filename_glob."
-            )
-        return hub.hf_hub_download(repo_id, matches[0])
+        with _progress_bars(progress):
+            return _fetch_from_hub(hub, repo_id, filename, pattern)
     except Exception as exc:
         if not _is_network_error(exc):
             raise
@@ -340,9 +317,38 @@ def _download_from_hub(
             return cached
         why = "HF_HUB_OFFLINE is set" if _offline_env() else f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
         raise _unreachable(wanted, why) from exc
+
+
+@contextlib.contextmanager
+def _progress_bars(enabled: bool) -> Iterator[None]:
+    """huggingface_hub's progress bars on (as they are) or off for the duration."""
+    from huggingface_hub import utils as hub_utils  # a lazy submodule: not an attribute of hub
+
+    was_disabled = hub_utils.are_progress_bars_disabled()
+    if not enabled:
+        hub_utils.disable_progress_bars()
+    try:
+        yield
     finally:
-        if not progress and not was_disabled:
+        if not enabled and not was_disabled:
             hub_utils.enable_progress_bars()
+
+
+def _fetch_from_hub(hub: Any, repo_id: str, filename: str | None, pattern: str | None) -> str:
+    """Download ``filename``, or the first repo file matching ``pattern`` (the hub is reachable)."""
+    if pattern is None:
+        assert filename is not None
+        return str(hub.hf_hub_download(repo_id, filename))
+    files = hub.list_repo_files(repo_id)
+    matches = sorted(f for f in files if fnmatch.fnmatch(f, pattern) or fnmatch.fnmatch(os.path.basename(f), pattern))
+    if not matches:
+        ggufs = [f for f in files if f.endswith(".gguf")]
+        raise FileNotFoundError(
+            f"No file matching {pattern!r} in Hugging Face repo {repo_id!r}. "
+            f"GGUF files there: {ggufs or 'none'}. Use '{repo_id}:<filename>' or another "
+            f"filename_glob."
+        )
+    return str(hub.hf_hub_download(repo_id, matches[0]))
 
 
 def _cached_snapshot_match(hub, repo_id: str, pattern: str) -> str | None:

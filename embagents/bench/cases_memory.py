@@ -121,14 +121,17 @@ while True:
     outbox.send(msgpack.packb(names[int(np.argmin(d))]))
 """
 _RAW_DRIVER = """
-import subprocess, sys, tempfile, time, msgpack, zmq
+import functools, os, shutil, subprocess, sys, tempfile, time, msgpack, zmq
+from actors import die_with_parent
 from embagents.bench.cases_memory import _RAW_MODEL, _RAW_ROUTER
-where = "ipc://" + tempfile.mkdtemp(prefix="ea-raw-")
+folder = tempfile.mkdtemp(prefix="ea-raw-")
+where = "ipc://" + folder
 ctx = zmq.Context()
 out, inp = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
 out.bind(where + "/out")
-kids = [subprocess.Popen([sys.executable, "-c", _RAW_MODEL, sys.argv[1], where]),
-        subprocess.Popen([sys.executable, "-c", _RAW_ROUTER, where])]
+orphan_guard = functools.partial(die_with_parent, os.getpid())  # the two go with this driver, even on SIGKILL
+kids = [subprocess.Popen([sys.executable, "-c", _RAW_MODEL, sys.argv[1], where], preexec_fn=orphan_guard),
+        subprocess.Popen([sys.executable, "-c", _RAW_ROUTER, where], preexec_fn=orphan_guard)]
 inp.connect(where + "/in")
 try:
     for line in sys.stdin:
@@ -140,6 +143,8 @@ finally:
     for k in kids:
         k.kill()
         k.wait()
+    ctx.destroy(linger=0)
+    shutil.rmtree(folder, ignore_errors=True)  # the ipc socket files
 """
 
 
