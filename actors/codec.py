@@ -123,9 +123,16 @@ class ShmSource(Protocol):
 
 
 class _Enc:
-    """Per-thread encoding state: a reusable Packer (building one per frame costs ~1 us)."""
+    """Per-thread encoding state: reusable Packers, the frame's and one per nesting depth.
 
-    __slots__ = ("sink", "threshold", "segments", "packer", "source", "owner_prefix", "forward")
+    A message's fields and an array's header are packed inside the frame (an
+    extension's payload). ``msgpack.packb`` would build a Packer, with its
+    256 KB buffer, for each: in a process with a small heap that buffer went
+    back to the system after every frame (three ``brk`` calls, measured: an
+    answer holding an array took 13.8 us to encode instead of 3.9 us).
+    """
+
+    __slots__ = ("sink", "threshold", "segments", "packer", "nested", "depth", "source", "owner_prefix", "forward")
 
     def __init__(self, threshold: int, source: Any = None) -> None:
         self.source = source
@@ -135,6 +142,19 @@ class _Enc:
         self.threshold = threshold
         self.segments: list[str] = []
         self.packer = msgpack.Packer(default=self.default)
+        self.nested: list[msgpack.Packer] = []  # nested[d]: packs payloads d + 1 levels deep
+        self.depth = 0
+
+    def pack_nested(self, obj: Any) -> bytes:
+        """``obj`` packed as an extension's payload (a message inside a message is one level deeper)."""
+        depth = self.depth
+        if depth == len(self.nested):
+            self.nested.append(msgpack.Packer(default=self.default))
+        self.depth = depth + 1
+        try:
+            return self.nested[depth].pack(obj)  # a Packer empties itself after a failed pack
+        finally:
+            self.depth = depth
 
     def default(self, obj: Any) -> Any:
         cls = type(obj)
@@ -142,7 +162,7 @@ class _Enc:
         if entry is not None:
             wire, fields = entry
             body = [wire, {f: getattr(obj, f) for f in fields}]
-            return msgpack.ExtType(EXT_MESSAGE, msgpack.packb(body, default=self.default))
+            return msgpack.ExtType(EXT_MESSAGE, self.pack_nested(body))
         if isinstance(obj, np.ndarray):
             if obj.dtype.hasobject:
                 raise UnregisteredType("numpy arrays of dtype object cannot be sent; use a plain dtype")
@@ -152,19 +172,17 @@ class _Enc:
                     origin = self.source.origin(obj)
                     if origin is not None and origin[0].startswith(prefix):
                         # The frame goes back to the process that owns its segment: no copy.
-                        return msgpack.ExtType(EXT_SHM, msgpack.packb(origin))
+                        return msgpack.ExtType(EXT_SHM, self.pack_nested(origin))
                 if self.forward and self.source is not None:
                     origin = self.source.origin(obj, forwardable=True)
                     if origin is not None:
                         # A topic frame goes on to a third process as it is: written once, by its publisher.
-                        return msgpack.ExtType(EXT_SHM, msgpack.packb(origin))
+                        return msgpack.ExtType(EXT_SHM, self.pack_nested(origin))
                 handle = self.sink.put(obj)
                 self.segments.append(handle[0])
-                return msgpack.ExtType(EXT_SHM, msgpack.packb(handle))
+                return msgpack.ExtType(EXT_SHM, self.pack_nested(handle))
             arr = np.ascontiguousarray(obj)
-            return msgpack.ExtType(
-                EXT_NDARRAY, msgpack.packb([arr.dtype.str, list(arr.shape), arr.tobytes()])
-            )
+            return msgpack.ExtType(EXT_NDARRAY, self.pack_nested([arr.dtype.str, list(arr.shape), arr.tobytes()]))
         if isinstance(obj, np.generic):
             return obj.item()
         if isinstance(obj, (set, frozenset, tuple)):
@@ -254,6 +272,7 @@ class Codec:
         enc.sink = (sink or self.sink) if shm else None
         segments: list[Any] = []
         enc.segments = segments
+        enc.depth = 0
         try:
             data = enc.packer.pack(obj)
         except BaseException:

@@ -40,6 +40,19 @@ def test_unregistered_type_names_the_class_and_the_fix() -> None:
         Codec().encode(NotRegistered())
 
 
+def test_messages_inside_messages_round_trip_after_a_frame_that_failed_deep_inside() -> None:
+    # Payloads are packed by reused packers, one per depth: a message inside a message needs its own,
+    # and a failure two levels down must leave every one of them empty for the next frame.
+    c = Codec()
+    with pytest.raises(UnregisteredType, match="NotRegistered"):
+        c.encode({"p": Point(2.0, ["x"], np.zeros(3)), "q": [Point(3.0, [NotRegistered()])]})  # type: ignore[list-item]
+    inner = Point(4.0, ["y"], np.arange(3, dtype=np.int16))
+    out = c.decode(c.encode({"outer": Point(5.0, [], None), "deep": [inner, {"again": Point(6.0, [], inner)}]})[0])
+    assert out["outer"] == Point(5.0, [], None)
+    for p in (out["deep"][0], out["deep"][1]["again"].arr):
+        assert p.x == 4.0 and p.tags == ["y"] and p.arr.tolist() == [0, 1, 2] and p.arr.dtype == np.int16
+
+
 def test_object_arrays_are_refused() -> None:
     with pytest.raises(UnregisteredType, match="dtype object"):
         Codec().encode(np.array([object()], dtype=object))
