@@ -46,6 +46,8 @@ EXT_SHM = 3
 
 #: Arrays at or above this many bytes travel through shared memory.
 SHM_THRESHOLD = 64 * 1024
+#: A nested payload larger than this is packed by a Packer that is not kept (its buffer goes with it).
+_KEEP_PACKER_BYTES = 1 << 20
 #: Default cap on one encoded frame (shared-memory payloads not counted).
 MAX_FRAME_BYTES = 64 * 1024 * 1024
 
@@ -152,9 +154,12 @@ class _Enc:
             self.nested.append(msgpack.Packer(default=self.default))
         self.depth = depth + 1
         try:
-            return self.nested[depth].pack(obj)  # a Packer empties itself after a failed pack
+            data = self.nested[depth].pack(obj)  # a Packer empties itself after a failed pack
         finally:
             self.depth = depth
+        if len(data) > _KEEP_PACKER_BYTES:  # a Packer keeps its largest buffer: not a big one per depth
+            self.nested[depth] = msgpack.Packer(default=self.default)
+        return data
 
     def default(self, obj: Any) -> Any:
         cls = type(obj)
