@@ -13,8 +13,9 @@ the task when the first joint state arrives. ``report`` prints the largest
 joint error each second; within ``TOLERANCE`` it saves the camera frame
 (``$EMBAGENTS_ARM_OUT``, default ``./arm_out``) and stops the system (exit 0).
 With a VLM (``EMBAGENTS_VLM_MODEL``, ``EMBAGENTS_VLM_PROJECTOR``, ``EMBAGENTS_VLM_HANDLER``
-as in examples/vlm.py) an event calls ``vlm.describe`` on the first camera frame and
-``report`` prints the answer before it stops; without one it prints why it is skipped.
+as in examples/vlm.py) an event asks the VLM on its question topic when the first camera
+frame comes (the VLM answers about its latest frame, holding the question until it has one)
+and ``report`` prints the answer before it stops; without one it prints why it is skipped.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 
 from embagents.components import VLA, VLM, Component, Sim, SimConfig, VLAConfig, VLMConfig
 from embagents.components.sim import PANDA_READY
-from embagents.events import Event, call, on
+from embagents.events import Event, call, on, publish
 from embagents.launch import SYSTEM_STOP
 from embagents.models import LocalModelClient, LocalPolicyClient, PolicyModel, VLMModel
 from embagents.msgs import Image, JointState, String, TaskFeedback
@@ -145,8 +146,10 @@ if VLM_FILE:  # a describe of the camera by a vision-language model (examples/vl
     vlm = VLM(name="vlm", inputs=[question, image], outputs=[said],
               model_client=LocalModelClient(eyes), config=VLMConfig(max_new_tokens=48, temperature=0.0))
     seeing, models = [vlm], [reach, eyes]
-    events[Event("first_frame", on(image).field("stamp") >= 0, once=True)] = call(
-        vlm, "describe", image.name, "Describe what you see.")
+    # A question, not call(vlm, "describe", ...): the events actor may see the first frame before the VLM
+    # does, and describe() refuses without a frame, while a question waits in the VLM for its first frame.
+    events[Event("first_frame", on(image).field("stamp") >= 0, once=True)] = publish(
+        question, String(data="Describe what you see."))
 
 system = System(
     [
