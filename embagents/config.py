@@ -35,6 +35,7 @@ __all__ = [
     "config_fields",
     "int_at_least",
     "load_configs",
+    "one_of",
     "optional_positive_float",
     "positive_float",
     "to_bool",
@@ -98,6 +99,28 @@ def int_at_least(low: int) -> Callable[[object], int]:
         if out is None or out < low:
             raise ConfigError(f"expected an integer >= {low}, got {value!r}")
         return out
+
+    return conv
+
+
+def one_of(name: str, *allowed: str, meanings: Mapping[str, str] | None = None) -> Callable[[object], str]:
+    """Converter factory: one of the strings ``allowed``; the error names the field and each choice
+    (with what it means, where ``meanings`` says).
+
+    >>> one_of("mode", "vector", "llm")("llm")
+    'llm'
+    >>> one_of("durability", "normal", "full", meanings={"full": "also a power loss"})("fast")
+    Traceback (most recent call last):
+    ...
+    embagents.config.ConfigError: durability must be 'normal' or 'full' (also a power loss), got 'fast'
+    """
+    shown = [repr(a) + (f" ({meanings[a]})" if meanings and a in meanings else "") for a in allowed]
+    choices = f"{', '.join(shown[:-1])} or {shown[-1]}" if len(shown) > 1 else shown[0]
+
+    def conv(value: object) -> str:
+        if value not in allowed:
+            raise ConfigError(f"{name} must be {choices}, got {value!r}")
+        return str(value)
 
     return conv
 

@@ -49,7 +49,7 @@ from embagents.components.audio_format import AudioFormatError, to_pcm16
 from embagents.components.audio_io import AudioSink
 from embagents.components.component import Component
 from embagents.components.device_retry import DeviceRetry
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, positive_float
 from embagents.msgs import Audio
 
 __all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
@@ -125,12 +125,6 @@ def _optional_int(value: object) -> int | None:
     return None if value is None else int_at_least(1)(value)
 
 
-def _dtype(value: object) -> str:
-    if value not in ("int16", "float32"):
-        raise ConfigError(f"dtype is 'int16' or 'float32', got {value!r}")
-    return str(value)
-
-
 @define(kw_only=True)
 class _DeviceConfig(BaseComponentConfig):
     device: int | str | None = field(default=None, converter=_device)
@@ -149,7 +143,7 @@ class MicrophoneConfig(_DeviceConfig):
     sample_rate: int = field(default=16000, converter=int_at_least(1))
     channels: int = field(default=1, converter=int_at_least(1))
     chunk_ms: float = field(default=100.0, converter=positive_float)
-    dtype: str = field(default="int16", converter=_dtype)
+    dtype: str = field(default="int16", converter=one_of("dtype", "int16", "float32"))
     buffer_ms: float = field(default=500.0, converter=positive_float)
 
 

@@ -45,7 +45,7 @@ from attrs import define, field
 
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, to_bool
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, to_bool
 from embagents.models.chat import openai_tool_call
 from embagents.msgs import StreamingString, String
 from embagents.topic import Topic
@@ -107,10 +107,6 @@ def _check_template(_inst: object, _attr: object, value: str | None) -> None:
         raise ConfigError(f"prompt_template {value!r} must contain the {{text}} placeholder (the input text)")
 
 
-def _tool_choice(value: object) -> str:
-    if value not in ("auto", "required"):
-        raise ConfigError(f"tool_choice must be 'auto' or 'required' (the first reply must call a tool), got {value!r}")
-    return str(value)
 
 
 def _check_tools(_inst: object, _attr: object, value: dict[str, Any]) -> None:
@@ -188,7 +184,8 @@ class LLMConfig(BaseComponentConfig):
     tools: dict[str, Callable[..., Any]] = field(factory=dict, validator=_check_tools)
     tool_schemas: dict[str, dict[str, Any]] = field(factory=dict)
     max_tool_rounds: int = field(default=3, converter=int_at_least(0))
-    tool_choice: str = field(default="auto", converter=_tool_choice)
+    tool_choice: str = field(default="auto", converter=one_of(
+        "tool_choice", "auto", "required", meanings={"required": "the first reply must call a tool"}))
 
     def __attrs_post_init__(self) -> None:
         extra = sorted(set(self.tool_schemas) - set(self.tools))

@@ -54,7 +54,7 @@ from embagents.components.memory_store import (
     MemoryStore,
     MemoryStoreError,
 )
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
+from embagents.config import BaseComponentConfig, int_at_least, one_of, positive_float
 from embagents.msgs import Detections, OccupancyGrid, Odometry, StreamingString, String
 from embagents.topic import Topic
 
@@ -81,12 +81,6 @@ class MapLayer:
         return self.subscribes_to.name
 
 
-def _durability(value: object) -> str:
-    if value not in ("normal", "full"):
-        raise ConfigError(f"durability must be 'normal' (survives a crash) or 'full' (also a power loss), got {value!r}")
-    return str(value)
-
-
 @define(kw_only=True)
 class MemoryConfig(BaseComponentConfig):
     """Settings of :class:`Memory`.
@@ -107,7 +101,8 @@ class MemoryConfig(BaseComponentConfig):
 
     db_path: str | None = None
     map_name: str = "memory"
-    durability: str = field(default="normal", converter=_durability)
+    durability: str = field(default="normal", converter=one_of(
+        "durability", "normal", "full", meanings={"normal": "survives a crash", "full": "also a power loss"}))
     locate_max_distance: float = field(default=0.35, converter=positive_float)
     max_pending: int = field(default=10000, converter=int_at_least(1))
     near_m: float = field(default=1.5, converter=positive_float)

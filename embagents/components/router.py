@@ -41,7 +41,7 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.component import Component, ComponentProblem
-from embagents.config import BaseComponentConfig, ConfigError, positive_float
+from embagents.config import BaseComponentConfig, ConfigError, one_of, positive_float
 from embagents.events import Action
 from embagents.models.chat import collect_stream
 from embagents.msgs import String
@@ -57,14 +57,6 @@ class Route:
     routes_to: Topic
     samples: list[str] = field(factory=list)
     actions: Sequence[Action] = ()
-
-
-def _choice(*allowed: str) -> Any:
-    def convert(value: object) -> str:
-        if value not in allowed:
-            raise ConfigError(f"expected one of {', '.join(map(repr, allowed))}, got {value!r}")
-        return str(value)
-    return convert
 
 
 def _routes(value: object) -> dict[str, list[str]]:
@@ -95,8 +87,8 @@ class SemanticRouterConfig(BaseComponentConfig):
     """
 
     router_name: str = "router"
-    mode: str = field(default="vector", converter=_choice("vector", "llm"))
-    distance_func: str = field(default="l2", converter=_choice("l2", "cosine"))
+    mode: str = field(default="vector", converter=one_of("mode", "vector", "llm"))
+    distance_func: str = field(default="l2", converter=one_of("distance_func", "l2", "cosine"))
     maximum_distance: float = field(default=0.4, converter=positive_float)
     routes: dict[str, list[str]] = field(factory=dict, converter=_routes)
     system_prompt: str = "Pick the route for the user's text by calling one tool."

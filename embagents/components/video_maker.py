@@ -34,19 +34,13 @@ from attrs import define, field
 
 from embagents.components.component import Component
 from embagents.components.imaging import image_rgb
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, positive_float
 from embagents.msgs import Image, Video
 from embagents.topic import Topic
 
 __all__ = ["VideoMakerConfig", "VideoMessageMaker", "motion_percent"]
 
 METHODS = ("difference", "optical_flow")
-
-
-def _method(value: object) -> str:
-    if value not in METHODS:
-        raise ConfigError(f"method must be one of {', '.join(METHODS)}, got {value!r}")
-    return str(value)
 
 
 def _percent(value: object) -> float:
@@ -64,7 +58,7 @@ class VideoMakerConfig(BaseComponentConfig):
     'optical_flow'
     """
 
-    method: str = field(default="difference", converter=_method)
+    method: str = field(default="difference", converter=one_of("method", *METHODS))
     threshold_percent: float = field(default=1.0, converter=_percent)
     pixel_threshold: int = field(default=25, converter=int_at_least(1))
     flow_threshold: float = field(default=1.0, converter=positive_float)

@@ -48,7 +48,14 @@ from attrs import define, field
 
 from embagents.components.component import Component, ComponentProblem
 from embagents.components.joint_limits import Clipper, merge_limits
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    int_at_least,
+    one_of,
+    positive_float,
+    to_bool,
+)
 from embagents.events import Event
 from embagents.models.policy import STATE_KEY, PolicyLate, image_key
 from embagents.models.protocol import ModelError, ModelUnavailable
@@ -62,15 +69,6 @@ def _str_map(value: object) -> dict[str, str]:
     if not isinstance(value, Mapping) or not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
         raise ConfigError(f"expected a dict of name -> name, got {value!r}")
     return dict(value)
-
-
-def _choice(*allowed: str) -> Any:
-    def conv(value: object) -> str:
-        if value not in allowed:
-            raise ConfigError(f"expected one of {', '.join(allowed)}, got {value!r}")
-        return str(value)
-
-    return conv
 
 
 def _weight(value: object) -> float:
@@ -104,9 +102,9 @@ class VLAConfig(BaseComponentConfig):
     camera_inputs_map: dict[str, str] = field(factory=dict, converter=_str_map)
     observation_rate_hz: float = field(default=10.0, converter=positive_float)
     actions_per_chunk: int = field(default=10, converter=int_at_least(1))
-    chunk_merge: str = field(default="newest", converter=_choice("newest", "average"))
+    chunk_merge: str = field(default="newest", converter=one_of("chunk_merge", "newest", "average"))
     merge_weight: float = field(default=0.5, converter=_weight)
-    action_type: str = field(default="position", converter=_choice("position", "velocity"))
+    action_type: str = field(default="position", converter=one_of("action_type", "position", "velocity"))
     input_timeout_s: float = field(default=0.5, converter=positive_float)
     policy_timeout_s: float = field(default=0.2, converter=positive_float)
     urdf: str | None = None

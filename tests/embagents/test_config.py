@@ -11,6 +11,7 @@ from embagents.config import (
     apply_config,
     config_fields,
     load_configs,
+    one_of,
 )
 
 
@@ -114,3 +115,16 @@ def test_bad_files_name_the_file(tmp_path, name, text, match):
 def test_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="cannot read config file"):
         load_configs(tmp_path / "nope.yaml")
+
+
+@define(kw_only=True)
+class Moded(BaseComponentConfig):
+    mode: str = field(default="fast", converter=one_of("mode", "fast", "safe", meanings={"safe": "checks each step"}))
+
+
+def test_a_choice_names_its_field_and_each_choice_with_its_meaning():
+    assert apply_config(Moded(), {"mode": "safe"}).mode == "safe"
+    with pytest.raises(ConfigError, match=r"mode must be 'fast' or 'safe' \(checks each step\), got 'quick'"):
+        Moded(mode="quick")
+    with pytest.raises(ConfigError, match=r"invalid value \['fast'\] for 'mode': mode must be"):
+        apply_config(Moded(), {"mode": ["fast"]})  # not a string: refused, not compared by accident
