@@ -131,7 +131,7 @@ class _Enc:
     extension's payload). ``msgpack.packb`` would build a Packer, with its
     256 KB buffer, for each: in a process with a small heap that buffer went
     back to the system after every frame (three ``brk`` calls, measured: an
-    answer holding an array took 13.8 us to encode instead of 3.9 us).
+    answer holding an array took 13.8 us to encode; 3.3 us now).
     """
 
     __slots__ = ("sink", "threshold", "segments", "packer", "nested", "depth", "source", "owner_prefix", "forward")
