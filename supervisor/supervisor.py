@@ -205,12 +205,21 @@ class Supervisor:
         """Forget a stopped child's spec (and its journal and snapshot)."""
         self._call(lambda: self._delete_child(child_id))
 
-    def bounce(self, child_id: str) -> int | None:
+    def bounce(self, child_id: str, *, deadline: float | None = None) -> int | None:
         """Stop a child and start it again now (an operator's restart); returns the new pid.
 
         Counted in the child's restarts column, not in the restart intensity.
+        ``deadline`` (``time.monotonic()``): if the job is still queued behind
+        others then, it is not carried out (``SupervisorError("expired")``).
         """
-        return self._call(lambda: self._bounce(child_id))
+        async def job() -> int | None:
+            late = 0.0 if deadline is None else time.monotonic() - deadline
+            if late > 0:
+                raise SupervisorError("expired", f"restart of {child_id!r} not carried out: its deadline passed "
+                                      f"{late:.2f} s before {self.path} got to it (other jobs ran first)")
+            return await self._bounce(child_id)
+
+        return self._call(job)
 
     def child(self, child_id: str) -> Supervisor:
         """The current incarnation of nested supervisor ``child_id``."""

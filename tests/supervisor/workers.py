@@ -78,18 +78,22 @@ class FailStart(Actor):
 
 
 class SlowStop(Actor):
-    """Takes ``seconds`` to stop cleanly (or ignores SIGTERM with ``ignore_term``)."""
+    """Takes ``seconds`` to stop cleanly (or ignores SIGTERM with ``ignore_term``); creates ``stopping`` as it begins."""
 
-    def __init__(self, seconds: float, log: str | None = None, ignore_term: bool = False) -> None:
+    def __init__(self, seconds: float, log: str | None = None, ignore_term: bool = False,
+                 stopping: str | None = None) -> None:
         self.seconds = seconds
         self.log = log
         self.ignore_term = ignore_term
+        self.stopping = stopping
 
     def on_start(self) -> None:
         if self.ignore_term:
             signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
     def on_stop(self) -> None:
+        if self.stopping:
+            open(self.stopping, "w").close()
         time.sleep(self.seconds)
         if self.log:
             _append(self.log, f"stopped {self.name}")
