@@ -128,6 +128,11 @@ class ComponentActor(Actor):
     def on_receive(self, message: Any) -> Any:
         comp = self.component
         if isinstance(message, Call):
+            late = 0.0 if message.deadline is None else time.monotonic() - message.deadline
+            if late > 0:  # its caller gave up and said so: running it now would surprise them
+                comp.logger.warning("%s: call of %s not run: its deadline passed %.2f s before its turn",
+                                    comp._label(), message.method, late)
+                raise TimeoutError(f"{message.method} not run: its deadline passed {late:.2f} s before its turn")
             return getattr(comp, message.method)(*message.args, **message.kwargs)
         if isinstance(message, HealthQuery):
             return {"status": int(comp.health_status), "text": comp.health.text}
