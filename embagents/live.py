@@ -31,7 +31,7 @@ Example (``EMBAGENTS_KEEP_RUNNING=1 embagents supervise examples/chat.py`` in an
         print([(r["name"], r["pid"], r["lifecycle"]) for r in run.status()["rows"]])
         print(run.call("llm", "answer", "What is the capital of Italy?"))
         answers = run.echo("text_out", timeout=60)   # subscribed now: nothing published from here on is missed
-        run.publish("text_in", "And of Spain?")
+        run.publish("text_in", "What is the capital of Spain?")
         for chunk in answers:
             print(chunk.data, end="", flush=True)
             if chunk.done:
@@ -49,12 +49,22 @@ from typing import Any
 
 from supervisor.client import ControlClient, ControlError, pick_run
 
-__all__ = ["LiveRun", "Messages", "Subscribed", "connect", "is_ready"]
+__all__ = ["LiveRun", "Messages", "Subscribed", "connect", "find_topic", "is_ready"]
 
 
 def connect(run: str | None = None, *, timeout: float = 5.0) -> LiveRun:
     """The live run ``run`` (run id, system name or pid; default: the only one); ``timeout``: per request."""
     return LiveRun(run, timeout=timeout)
+
+
+def find_topic(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
+    """The row of topic ``name`` (a leading ``/`` is ignored); ControlError naming the run's topics if there is none."""
+    name = name.removeprefix("/")
+    for r in rows:
+        if r["name"] == name:
+            return r
+    raise ControlError(f"no topic {name!r} in this run; its topics: {', '.join(r['name'] for r in rows)} "
+                       "(see `embagents topic list`)")
 
 
 def _row_ready(row: dict[str, Any]) -> bool:
@@ -168,8 +178,6 @@ class LiveRun:
 
     def topic(self, name: str) -> dict[str, Any]:
         """The row of topic ``name``; ControlError naming the run's topics if it has none."""
-        from embagents.tools.attach import find_topic
-
         return find_topic(self.topics(), name)
 
     def call(self, component: str, method: str, *args: Any, timeout: float = 60.0, **kwargs: Any) -> Any:

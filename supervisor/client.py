@@ -145,7 +145,7 @@ class ControlClient:
             if left <= 0 or not sock.poll(int(left * 1000) + 1):
                 raise ControlError(f"no answer from the run at {self.run_dir} within {timeout:g} s "
                                    "(is it still running? a slow command needs a longer --timeout); "
-                                   "the root will not start it now")
+                                   "if the run had not started it yet, it will not")
             reply = msgpack.unpackb(sock.recv_multipart()[-1])
             if isinstance(reply, dict) and reply.get("id") == rid:
                 break  # else: the late answer to a request this thread gave up on

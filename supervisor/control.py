@@ -187,6 +187,7 @@ class ControlServer:
 
     def _take(self, envelope: list[bytes], body: bytes) -> None:
         """One request (control thread): answered at once if it is bad, late, ``stop`` or one too many."""
+        msg: Any = None
         try:
             msg = msgpack.unpackb(body)
             if not isinstance(msg, dict):
@@ -194,7 +195,7 @@ class ControlServer:
             if msg.get("deadline") is not None and not isinstance(msg["deadline"], (int, float)):
                 raise ValueError(f"'deadline' is time.monotonic() seconds, got {msg['deadline']!r}")
         except Exception as exc:
-            self._send(envelope, {"ok": False, "error": f"{type(exc).__name__}: {exc}"})
+            self._send(envelope, {"ok": False, "error": f"{type(exc).__name__}: {exc}"}, msg if isinstance(msg, dict) else None)
             return
         late = expired(msg)
         if late is not None:

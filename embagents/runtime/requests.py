@@ -11,7 +11,7 @@ Example::
     >>> from actors.codec import Codec
     >>> frame, _ = Codec().encode(Call("greet", ("ada",)), shm=False)
     >>> Codec().decode(frame)
-    Call(method='greet', args=['ada'], kwargs={})
+    Call(method='greet', args=['ada'], kwargs={}, deadline=None)
     >>> SupervisorRequest("reboot", "camera")
     Traceback (most recent call last):
     ...

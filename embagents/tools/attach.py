@@ -21,7 +21,8 @@ from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import Any
 
-from supervisor.client import ControlError, pick_run, request
+from embagents.live import find_topic
+from supervisor.client import pick_run, request
 
 __all__ = ["Attached", "find_topic", "interrupted_by_sigterm", "run_topics"]
 
@@ -30,16 +31,6 @@ def run_topics(run: str | None = None, timeout: float = 5.0) -> tuple[dict[str, 
     """``(run, topic rows)`` of the live run ``run`` (see :mod:`embagents.tools.root`)."""
     found = pick_run(run)
     return found, request(found["run_dir"], {"cmd": "topics"}, timeout)["topics"]
-
-
-def find_topic(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
-    """The row of topic ``name``; ControlError naming the run's topics if there is none."""
-    name = name.removeprefix("/")
-    for r in rows:
-        if r["name"] == name:
-            return r
-    raise ControlError(f"no topic {name!r} in this run; its topics: {', '.join(r['name'] for r in rows)} "
-                       "(see `embagents topic list`)")
 
 
 def _interrupt(*_: Any) -> None:
