@@ -6,6 +6,7 @@ import json
 import os
 import threading
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -109,17 +110,24 @@ def test_the_discovery_file_lives_as_long_as_the_endpoint(system: ActorSystem) -
     assert not os.path.exists(path)
 
 
-def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: ActorSystem) -> None:
-    import msgpack
+def _dealer(system: ActorSystem) -> Any:
+    """A raw DEALER on the run's control endpoint (frames as a client in any language sends them)."""
     import zmq
 
-    tree(system)
-    control = ControlServer(system, "demo")
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.RCVTIMEO, 5000)
+    sock.connect(f"ipc://{system.run_dir}/_control")
+    return sock
+
+
+def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: ActorSystem) -> None:
+    import msgpack
+
+    tree(system)
+    control = ControlServer(system, "demo")
+    sock = _dealer(system)
     try:
-        sock.connect(f"ipc://{system.run_dir}/_control")
         for junk in [b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"cmd": 7}), msgpack.packb({"cmd": "restart", "name": ["x"]})]:
             sock.send_multipart([b"", junk])
             reply = msgpack.unpackb(sock.recv_multipart()[-1])
@@ -174,16 +182,12 @@ def test_a_request_whose_deadline_passed_is_answered_and_not_carried_out(system:
     import time
 
     import msgpack
-    import zmq
 
     tree(system)
     control = ControlServer(system, "demo")
-    sock = zmq.Context.instance().socket(zmq.DEALER)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.setsockopt(zmq.RCVTIMEO, 5000)
+    sock = _dealer(system)
     try:
         pid = ask(system, "a")
-        sock.connect(f"ipc://{system.run_dir}/_control")
         late = {"cmd": "restart", "name": "a", "deadline": time.monotonic() - 1.0, "id": 7}
         sock.send_multipart([b"", msgpack.packb(late)])
         reply = msgpack.unpackb(sock.recv_multipart()[-1])
