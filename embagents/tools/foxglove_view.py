@@ -12,7 +12,8 @@ the robot.
 
 Who may watch: a browser lets any page open a WebSocket to 127.0.0.1, and
 says which page in the handshake's ``Origin``. The SDK's server listens on
-a loopback port of its own, behind a front on ``--host:--port`` that reads
+a random loopback address and port of its own (a page cannot scan 127/8
+for it), behind a front on ``--host:--port`` that reads
 each handshake first: one without ``Origin`` (the desktop app, a program),
 from an allowed origin (``https://app.foxglove.dev``; ``--allow-origin``
 adds one) or with the run's token (``?token=``) goes through; any other is
@@ -31,6 +32,7 @@ import argparse
 import asyncio
 import collections
 import contextlib
+import secrets
 import sys
 import threading
 import time
@@ -91,12 +93,19 @@ class FoxgloveView:
         import foxglove
 
         foxglove.set_log_level("WARN")
-        try:  # on a loopback port of its own: the front below is the way in
-            self.server = foxglove.start_server(name="embagents", host="127.0.0.1", port=0)
+        # On a loopback address and port of its own: the front below is the way in. A random address
+        # of 127/8 (Linux answers on all of it) keeps a page from finding it by scanning ports.
+        inner = f"127.{secrets.randbelow(254) + 1}.{secrets.randbelow(256)}.{secrets.randbelow(254) + 1}"
+        try:
+            try:
+                self.server = foxglove.start_server(name="embagents", host=inner, port=0)
+            except Exception:  # a system with 127.0.0.1 alone (macOS)
+                inner = "127.0.0.1"
+                self.server = foxglove.start_server(name="embagents", host=inner, port=0)
         except Exception as exc:  # the SDK's own error
             raise ValueError(f"cannot start the Foxglove server ({exc})") from None
         try:
-            self.front = _Front(host, port, self.server.port, origins)
+            self.front = _Front(host, port, (inner, self.server.port), origins)
         except BaseException:
             self.server.stop()
             raise
@@ -144,11 +153,12 @@ class _Front:
     """The view's public port: reads each WebSocket handshake, refuses a page of a foreign origin (403),
     and passes the rest byte for byte to the SDK's server on ``inner`` (its backpressure stays)."""
 
-    def __init__(self, host: str, port: int, inner: int, origins: tuple[str, ...]) -> None:
+    def __init__(self, host: str, port: int, inner: tuple[str, int], origins: tuple[str, ...]) -> None:
         self.host, self.inner, self.origins = host, inner, {o.rstrip("/") for o in origins}
         self.token = new_token()
         self.port, self._asked = 0, port
         self._refused: set[str] = set()
+        self._writers: set[asyncio.StreamWriter] = set()
         self._loop = asyncio.new_event_loop()
         self._stop = asyncio.Event()
         started: collections.deque[BaseException | None] = collections.deque()
@@ -170,9 +180,16 @@ class _Front:
             ready.set()
             async with server:
                 await self._stop.wait()
+                for w in self._writers:  # the clients' connections end with the view
+                    w.close()
+                await asyncio.sleep(0)
 
         try:
             self._loop.run_until_complete(serve())
+            left = asyncio.all_tasks(self._loop)  # pipes of connections just closed
+            for task in left:
+                task.cancel()
+            self._loop.run_until_complete(asyncio.gather(*left, return_exceptions=True))
         except BaseException as exc:  # a bind error: told to __init__, which raises it
             if not ready.is_set():
                 started.append(exc)
@@ -192,6 +209,13 @@ class _Front:
                 "`embagents view --allow-origin ORIGIN`, or connect to the ?token= URL that `embagents view` printed")
 
     async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._writers.add(writer)
+        try:
+            await self._handle(reader, writer)
+        finally:
+            self._writers.discard(writer)
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
             head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 10)
         except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError, OSError):
@@ -215,7 +239,7 @@ class _Front:
             return
         lines[0] = f"{request[0]} {urlsplit(target).path or '/'} {request[-1]}"  # the token stays here
         try:
-            inner_reader, inner_writer = await asyncio.open_connection("127.0.0.1", self.inner)
+            inner_reader, inner_writer = await asyncio.open_connection(*self.inner)
         except OSError:
             writer.close()
             return
