@@ -158,7 +158,7 @@ class _Front:
         self.token = new_token()
         self.port, self._asked = 0, port
         self._refused: set[str] = set()
-        self._writers: set[asyncio.StreamWriter] = set()
+        self._clients: set[asyncio.Transport] = set()
         self._loop = asyncio.new_event_loop()
         self._stop = asyncio.Event()
         started: collections.deque[BaseException | None] = collections.deque()
@@ -174,22 +174,18 @@ class _Front:
 
     def _main(self, started: collections.deque[BaseException | None], ready: threading.Event) -> None:
         async def serve() -> None:
-            server = await asyncio.start_server(self._connection, self.host, self._asked)
+            server = await asyncio.get_running_loop().create_server(lambda: _Client(self), self.host, self._asked)
             self.port = int(server.sockets[0].getsockname()[1])
             started.append(None)
             ready.set()
             async with server:
                 await self._stop.wait()
-                for w in self._writers:  # the clients' connections end with the view
-                    w.close()
-                await asyncio.sleep(0)
+                for client in list(self._clients):  # the clients' connections end with the view
+                    client.close()
+                await asyncio.sleep(0.1)  # their closes (and their inner connections') run
 
         try:
             self._loop.run_until_complete(serve())
-            left = asyncio.all_tasks(self._loop)  # pipes of connections just closed
-            for task in left:
-                task.cancel()
-            self._loop.run_until_complete(asyncio.gather(*left, return_exceptions=True))
         except BaseException as exc:  # a bind error: told to __init__, which raises it
             if not ready.is_set():
                 started.append(exc)
@@ -208,43 +204,22 @@ class _Front:
         return (f"a page of origin {', '.join(origins)} may not watch this run: allow it with "
                 "`embagents view --allow-origin ORIGIN`, or connect to the ?token= URL that `embagents view` printed")
 
-    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            await self._handle(reader, writer)
-        finally:
-            self._writers.discard(writer)
-
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 10)
-        except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, TimeoutError, OSError):
-            writer.close()  # not an HTTP request, or one too long or too slow
-            return
+    def answer(self, head: bytes) -> tuple[bytes | None, bytes]:
+        """``(request to pass on, b"")`` for a handshake that may go on, else ``(None, the 403 response)``."""
         lines = head.decode("latin-1").split("\r\n")
         request = lines[0].split(" ")
         target = request[1] if len(request) == 3 else "/"
         origins = [v.strip() for k, _, v in (line.partition(":") for line in lines[1:]) if k.strip().lower() == "origin"]
         why = self.refusal(origins, target)
-        if why is not None:
-            if origins[0] not in self._refused:  # said once per origin: a page may retry without end
-                self._refused.add(origins[0])
-                print(f"embagents view: refused {why}", file=sys.stderr, flush=True)
-            body = why.encode()
-            writer.write(b"HTTP/1.1 403 Forbidden\r\nContent-Type: text/plain; charset=utf-8\r\n"
-                         b"Content-Length: %d\r\nConnection: close\r\n\r\n%s" % (len(body), body))
-            with contextlib.suppress(OSError):
-                await writer.drain()
-            writer.close()
-            return
-        lines[0] = f"{request[0]} {urlsplit(target).path or '/'} {request[-1]}"  # the token stays here
-        try:
-            inner_reader, inner_writer = await asyncio.open_connection(*self.inner)
-        except OSError:
-            writer.close()
-            return
-        inner_writer.write("\r\n".join(lines).encode("latin-1"))
-        await asyncio.gather(_pipe(reader, inner_writer), _pipe(inner_reader, writer))
+        if why is None:
+            lines[0] = f"{request[0]} {urlsplit(target).path or '/'} {request[-1]}"  # the token stays here
+            return "\r\n".join(lines).encode("latin-1"), b""
+        if origins[0] not in self._refused:  # said once per origin: a page may retry without end
+            self._refused.add(origins[0])
+            print(f"embagents view: refused {why}", file=sys.stderr, flush=True)
+        body = why.encode()
+        return None, (b"HTTP/1.1 403 Forbidden\r\nContent-Type: text/plain; charset=utf-8\r\n"
+                      b"Content-Length: %d\r\nConnection: close\r\n\r\n%s" % (len(body), body))
 
     def close(self) -> None:
         with contextlib.suppress(RuntimeError):  # already closed
@@ -252,16 +227,107 @@ class _Front:
         self._thread.join(5)
 
 
-async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-    """Copy until either side ends, then close both (closing ``writer`` ends the other pipe's read)."""
-    try:
-        while data := await reader.read(1 << 18):
-            writer.write(data)
-            await writer.drain()  # a slow reader slows this copy, and the SDK drops for it as before
-    except OSError:
-        pass
-    finally:
-        writer.close()
+class _Client(asyncio.Protocol):
+    """One connection to the front: its handshake is read and judged, then bytes go both ways as they come.
+
+    A protocol rather than streams: no copy through a reader's buffer, and flow control passes
+    straight through (a slow client pauses the reads from the SDK's server, which then drops for it).
+    """
+
+    def __init__(self, front: _Front) -> None:
+        self.front, self.head = front, bytearray()
+        self.transport: asyncio.Transport | None = None
+        self.inner: asyncio.Transport | None = None
+        self.early: bytearray | None = None  # bytes after the handshake, before the inner connection is up
+        self.closed = False
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        transport.set_write_buffer_limits(high=1 << 20)
+        self.front._clients.add(transport)
+        self.timer = asyncio.get_running_loop().call_later(10, self._slow)
+
+    def _slow(self) -> None:
+        if self.early is None and self.transport is not None:
+            self.transport.close()  # no whole request in 10 s
+
+    def data_received(self, data: bytes) -> None:
+        if self.inner is not None:
+            self.inner.write(data)
+        elif self.early is not None:
+            self.early += data
+        else:
+            self.head += data
+            end = self.head.find(b"\r\n\r\n")
+            if end < 0:
+                if len(self.head) > 1 << 16 and self.transport is not None:
+                    self.transport.close()  # no HTTP request has a head this long
+                return
+            self.timer.cancel()
+            passed, refusal = self.front.answer(bytes(self.head[:end + 4]))
+            assert self.transport is not None
+            if passed is None:
+                self.transport.write(refusal)
+                self.transport.close()
+                return
+            self.early = bytearray(passed + self.head[end + 4:])
+            self.transport.pause_reading()
+            self.connecting = asyncio.ensure_future(self._connect())  # kept: the loop holds tasks weakly
+
+    async def _connect(self) -> None:
+        assert self.transport is not None and self.early is not None
+        client = self.transport
+        try:
+            inner, _ = await asyncio.get_running_loop().create_connection(lambda: _Inner(client), *self.front.inner)
+        except OSError:
+            client.close()
+            return
+        if self.closed:
+            inner.close()
+            return
+        inner.write(bytes(self.early))
+        self.inner = inner
+        client.resume_reading()
+
+    def pause_writing(self) -> None:  # the client reads slower than the SDK's server sends
+        if self.inner is not None:
+            self.inner.pause_reading()
+
+    def resume_writing(self) -> None:
+        if self.inner is not None:
+            self.inner.resume_reading()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.closed = True
+        self.timer.cancel()
+        if self.transport is not None:
+            self.front._clients.discard(self.transport)
+        if self.inner is not None:
+            self.inner.close()
+
+
+class _Inner(asyncio.Protocol):
+    """The front's connection to the SDK's server, for one client."""
+
+    def __init__(self, client: asyncio.Transport) -> None:
+        self.client = client
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        transport.set_write_buffer_limits(high=1 << 20)
+
+    def data_received(self, data: bytes) -> None:
+        self.client.write(data)
+
+    def pause_writing(self) -> None:  # the SDK's server reads slower than the client sends
+        self.client.pause_reading()
+
+    def resume_writing(self) -> None:
+        self.client.resume_reading()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.client.close()
 
 
 def run(args: argparse.Namespace) -> int:
