@@ -1,11 +1,12 @@
 """The dashboard: a page served by the root of ``embagents supervise --dashboard``, and its API.
 
 On ``http://127.0.0.1:8420/?token=...`` (``--dashboard-host`` /
-``--dashboard-port``; the token is new each run): the status table (what ``embagents status`` shows, live), per-topic rates,
-the latest image of each image topic with the latest detections drawn, the
-latest text of each text topic, the supervisor's events, and buttons to
-restart an actor or run a lifecycle transition. The same data for other
-front ends:
+``--dashboard-port``; the token is new each run): the status table (what
+``embagents status`` shows, live), per-topic rates, the latest image of
+each image topic with the latest detections drawn, the latest text of each
+text topic (a ``StreamingString`` stream joined), the supervisor's events,
+and buttons to restart an actor or run a lifecycle transition. The same
+data for other front ends:
 
 - ``GET /api/state``: the state as JSON (``system``, ``run_id``, ``uptime``,
   ``rows``, ``topics``, ``texts``, ``images``, ``events``);
@@ -208,6 +209,7 @@ class Dashboard:
             try:
                 state = lifecycle.transition(self.control.system, name, str(req.get("transition")))
             except Exception as exc:
+                log.debug("lifecycle %s of %s failed: %s", req.get("transition"), name, exc)  # a remote traceback too
                 return {"op": "result", "ok": False, "error": f"{name}: {_one_line(exc)}"}
             return {"op": "result", "ok": True, "name": name, "lifecycle": state}
         return {"op": "result", "ok": False, "error": f"unknown op {op!r}: restart or lifecycle"}
@@ -223,6 +225,7 @@ class Dashboard:
         """Serve on ``host:port`` from a thread of its own; DashboardError if it cannot."""
         started: collections.deque[BaseException | None] = collections.deque()
         ready = threading.Event()
+        self.host = host  # before the first request: its Host is checked against it
 
         def main() -> None:
             loop = asyncio.new_event_loop()
@@ -243,7 +246,6 @@ class Dashboard:
         if error is not None:
             raise DashboardError(f"the dashboard cannot listen on {host}:{port} ({error}); that port is taken or "
                                  "not this machine's: choose another with --dashboard-port PORT") from None
-        self.host = host
         self.subscribe()
         log.info("dashboard on http://%s:%d/", host, self.port)  # the log has no token: the URL is said on stderr
         return self
@@ -297,9 +299,9 @@ class Dashboard:
 
         hosts = request.headers.get_all("Host")
         if len(hosts) != 1 or not host_allowed(hosts[0], self.host, self.port):
-            return reply(421, f"this dashboard answers to 127.0.0.1:{self.port} or localhost:{self.port}, not to "
-                              f"Host {', '.join(hosts) or '(none)'}: open the URL that `embagents supervise` "
-                              "printed".encode())
+            names = " or ".join(f"{h}:{self.port}" for h in dict.fromkeys((self.host, "127.0.0.1", "localhost")))
+            return reply(421, f"this dashboard answers to {names}, not to Host {', '.join(hosts) or '(none)'}: "
+                              "open the URL that `embagents supervise` printed".encode())
         url = urlsplit(request.path)
         why = self._allowed(request)
         if url.path == "/ws":
