@@ -42,6 +42,7 @@ from typing import Any, ClassVar
 
 from embagents.config import BaseComponentConfig, ConfigError, apply_config
 from embagents.events import Event, Fallback
+from embagents.extras import install_hint
 from embagents.msgs import Health, HealthStatus
 from embagents.topic import Topic
 
@@ -183,6 +184,7 @@ class Component:
         self._fresh: set[str] = set()
         self._health = Health(component=str(name))
         self._health_set_in_step = False
+        self._missing_module: str | None = None  # set when a step found a module missing
         self.problems: list[ComponentProblem] = self.validate()
         self._required_inputs: list[Topic] = (
             self._match(self.allowed_inputs, self.inputs, "input")[1] if self.allowed_inputs is not None else []
@@ -406,14 +408,28 @@ class Component:
 
         An exception in the step is logged and reported as ALGORITHM_FAILURE
         (the process keeps running); a step that does not set a status itself
-        leaves the component HEALTHY.
+        leaves the component HEALTHY. A module missing (ModuleNotFoundError) is
+        a COMPONENT_FAILURE naming the extra that installs it, logged once: the
+        component steps no more (no traceback a second for a module that will
+        not appear).
         """
+        if self._missing_module is not None:
+            return False  # it failed for good: nothing to retry until the process restarts
         inputs = self.current_inputs(now)
         if self.missing_inputs(inputs=inputs):
             return False
         self._health_set_in_step = False
         try:
             self._execution_step(**inputs)
+        except ModuleNotFoundError as exc:
+            # Every later step would fail the same way: one failure naming the extra, no traceback a second.
+            self._missing_module = exc.name or str(exc)
+            text = (f"{self._label()}: its step needs the module {exc.name!r}, which is not installed: "
+                    f"{install_hint(exc.name)}" if exc.name else f"{self._label()}: its step failed: {exc}")
+            text += f"; it stops stepping (after installing: embagents restart {self.name})"
+            self.logger.error("%s", text)
+            self.set_component_failure(text)
+            return False
         except Exception as exc:
             self.logger.exception("%s: step failed", self._label())
             self.set_algorithm_failure(f"{type(exc).__name__}: {exc}")
