@@ -134,9 +134,8 @@ class UnknownMessage(ActorError, ValueError):
     """A message the actor does not understand: an ask gets this error back; a tell is dead-lettered and
     logged (a restart would not make it understood), never a crash. The message is quoted briefly.
 
-    >>> raise UnknownMessage("component 'llm'", {"cmd": "x" * 500}, "send a Call or a HealthQuery")
-    Traceback (most recent call last):
-    actors.errors.UnknownMessage: component 'llm': unknown request {'cmd': 'xxx...xxx'}; send a Call or a HealthQuery
+    >>> str(UnknownMessage("component 'llm'", {"cmd": "x" * 500}, "send a Call"))
+    "component 'llm': unknown request {'cmd': 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx...xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx'}; send a Call"
     """
 
     def __init__(self, who: str, message: Any, expected: str) -> None:
