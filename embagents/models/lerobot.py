@@ -36,6 +36,8 @@ Example::
 from __future__ import annotations
 
 import functools
+import ipaddress
+import logging
 import time
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -45,6 +47,8 @@ import numpy as np
 
 from embagents.models.policy import STATE_KEY, PolicyLate
 from embagents.models.protocol import BadRequest, ModelError, ModelUnavailable
+
+log = logging.getLogger("embagents.models.lerobot")
 
 __all__ = [
     "CHUNK_BYTES",
@@ -186,6 +190,23 @@ def decode_payload(data: bytes) -> dict[str, Any]:
 # -- the client --------------------------------------------------------------------------------------------------
 
 
+def is_loopback(address: str) -> bool:
+    """Whether ``host:port`` (or ``unix:PATH``) stays on this machine.
+
+    >>> is_loopback("127.0.0.1:8080"), is_loopback("[::1]:8080"), is_loopback("localhost:1"), is_loopback("gpu:8080")
+    (True, True, True, False)
+    """
+    if address.startswith(("unix:", "unix-abstract:")):
+        return True
+    host = address.rpartition(":")[0].strip("[]") or address
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name: assume it is another machine
+
+
 class LeRobotPolicyClient:
     """A :class:`~embagents.models.policy.PolicyClient` for a LeRobot async-inference policy server.
 
@@ -211,6 +232,11 @@ class LeRobotPolicyClient:
         self._channel: Any = None
         self._ready = False
         self._timestep = 0
+        if not is_loopback(address):
+            log.warning("%s: the LeRobot gRPC channel to %s is plaintext and unauthenticated (LeRobot's protocol has "
+                        "no keys): anyone on that network can read the observations and send the robot actions; "
+                        "keep the policy server on this machine or reach it through a tunnel you trust (ssh -L, "
+                        "WireGuard)", name, address)
 
     def __repr__(self) -> str:
         return f"LeRobotPolicyClient({self.address!r})"

@@ -214,3 +214,13 @@ class _Evil:
 
     def __reduce__(self) -> tuple:
         return (open, (self.path, "w"))
+
+
+def test_a_channel_that_leaves_the_machine_is_named_plaintext_in_a_warning(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level("WARNING", "embagents.models.lerobot")
+    for address in ("127.0.0.1:8080", "localhost:8080", "[::1]:8080"):
+        LeRobotPolicyClient(address, actions_per_chunk=CHUNK)
+    assert not caplog.records  # loopback stays on the machine: nothing to warn of
+    LeRobotPolicyClient("10.1.2.3:8080", actions_per_chunk=CHUNK, name="arm")
+    [record] = caplog.records
+    assert "arm: the LeRobot gRPC channel to 10.1.2.3:8080 is plaintext and unauthenticated" in record.getMessage()
