@@ -31,7 +31,8 @@ import socket
 import stat
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import zmq
 import zmq.auth
@@ -244,7 +245,7 @@ class CurveAllowList:
             if s is not None:
                 s.close(0)
 
-    def _on_event(self, event: dict) -> None:
+    def _on_event(self, event: Mapping[str, Any]) -> None:
         """Log a peer that failed the handshake before ZAP was asked, with its address."""
         kind, value = event["event"], event["value"]
         if kind == zmq.EVENT_ACCEPTED:  # value: the connection's fd, still open here (or reused: best effort)
@@ -309,6 +310,6 @@ def _protocol_error(kind: int, value: int) -> str:
     if kind == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
         return zmq.strerror(value) if value else "no detail"
     try:
-        return zmq.Event(value).name.lower().replace("_", " ")
+        return (zmq.Event(value).name or hex(value)).lower().replace("_", " ")
     except ValueError:
         return f"protocol error {value:#x}"
