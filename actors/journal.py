@@ -27,11 +27,11 @@ __all__ = ["Journal"]
 
 _SIZE = 4096
 _HB = struct.Struct("<d")  # 0: heartbeat, CLOCK_MONOTONIC (system-wide on Linux)
-_ID = struct.Struct("<QB64s")  # seq, ident length, ident
+# seq, ident length, ident, and 0 while the message's frame is still being decoded, 1 once it is
+# decoded (a frame that kills its decoder is dead-lettered without being decoded again)
+_ID = struct.Struct("<QB64sB")
 _INFLIGHT = 8
-# 0 while the in-flight message is still being decoded, 1 once it is decoded: a frame that kills
-# its decoder is dead-lettered without being decoded again.
-_DECODED_AT = 96
+_DECODED_AT = _INFLIGHT + _ID.size - 1
 _STATE_AT = 200  # lifecycle state, one byte
 _INCARNATION = struct.Struct("<I")
 _INCARNATION_AT = 204
@@ -66,18 +66,17 @@ class Journal:
     # -- in-flight message --------------------------------------------------
     def begin(self, ident: bytes, seq: int, *, decoded: bool = True) -> None:
         """Message ``seq`` of ``ident`` is in flight (``decoded=False``: its frame is not decoded yet)."""
-        _ID.pack_into(self.mm, _INFLIGHT, seq, len(ident), ident[:64])
-        self.mm[_DECODED_AT] = decoded
+        _ID.pack_into(self.mm, _INFLIGHT, seq, len(ident), ident[:64], decoded)
 
     def decoded(self) -> None:
         """The in-flight message's frame decoded: a crash from now on is its handler's."""
         self.mm[_DECODED_AT] = 1
 
     def end(self) -> None:
-        _ID.pack_into(self.mm, _INFLIGHT, 0, 0, b"")
+        _ID.pack_into(self.mm, _INFLIGHT, 0, 0, b"", 1)
 
     def inflight(self) -> tuple[bytes, int] | None:
-        seq, n, ident = _ID.unpack_from(self.mm, _INFLIGHT)
+        seq, n, ident, _ = _ID.unpack_from(self.mm, _INFLIGHT)
         return (ident[:n], seq) if seq else None
 
     def crashes(self) -> dict[tuple[bytes, int], int]:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import struct
 import time
 import traceback
 from collections import deque
@@ -297,18 +298,21 @@ class Mailbox:
 _MAX_SEQ = (1 << 63) - 1
 #: How long an error text sent back to an asker may be (a handler's message can quote a huge request).
 _MAX_ERROR_CHARS = 8192
-_UINT_BYTES = {0xCC: 1, 0xCD: 2, 0xCE: 4, 0xCF: 8}
+_HEAD = struct.Struct(">BBB")  # a fixarray's tag, a fixint kind, the seq's first byte
+_UINT = {0xCC: struct.Struct(">B"), 0xCD: struct.Struct(">H"), 0xCE: struct.Struct(">I"), 0xCF: struct.Struct(">Q")}
 
 
 def _peek_seq(buf: memoryview) -> int:
     """The seq of a ``[TELL|ASK|CTRL, seq, body]`` frame as msgpack writes it, read without decoding; else 0."""
-    if len(buf) < 4 or buf[0] != 0x93 or buf[1] not in _KINDS:  # a fixarray of 3, a kind (a fixint)
+    if len(buf) < 12:  # enough for the longest seq; a shorter frame is decoded first, then journaled
         return 0
-    b = buf[2]
+    array, kind, b = _HEAD.unpack_from(buf)
+    if array != 0x93 or kind not in _KINDS:  # a fixarray of 3 items, a kind of a message
+        return 0
     if b < 0x80:  # a positive fixint
         return b
-    n = _UINT_BYTES.get(b, 0)
-    return int.from_bytes(buf[3:3 + n], "big") if n and len(buf) > 3 + n else 0
+    u = _UINT.get(b)
+    return u.unpack_from(buf, 3)[0] if u is not None else 0  # type: ignore[no-any-return]
 
 
 def _bounded(text: str) -> str:
