@@ -27,7 +27,7 @@ import attrs
 import msgpack
 import numpy as np
 
-from actors.errors import CodecError, CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
+from actors.errors import CodecError, CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType, quote
 
 __all__ = [
     "Codec",
@@ -104,7 +104,7 @@ def message_class(name: str) -> type:
         return _by_name[name]
     except KeyError:
         raise UnregisteredType(
-            f"unknown message type {name!r}: no class is registered under that name in this "
+            f"unknown message type {quote(name, 100)}: no class is registered under that name in this "
             "process; import the module that defines it (and decorate it with @actors.message)"
         ) from None
 
@@ -330,7 +330,7 @@ class Codec:
         except (CorruptFrame, UnregisteredType, StaleFrame):
             raise
         except Exception as exc:  # msgpack raises many types for garbage input
-            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc
+            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {str(exc)[:200]})") from exc
         finally:
             dec.mapped = None
 
@@ -343,7 +343,7 @@ class Codec:
         except (CorruptFrame, UnregisteredType):
             raise
         except Exception as exc:
-            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc
+            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {str(exc)[:200]})") from exc
 
 
 class _NoShm:

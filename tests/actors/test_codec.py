@@ -93,6 +93,14 @@ def test_ten_thousand_nested_arrays_are_a_corrupt_frame() -> None:
         Codec().decode(b"\x91" * 10_000 + b"\xc0")
 
 
+def test_a_corrupt_frame_quotes_what_it_got_briefly() -> None:
+    c = Codec()
+    for body in (["n" * 1_000_000, {}], ["test/Point", {"k" * 1_000_000: 1}]):  # a huge name, a huge field
+        with pytest.raises(CodecError) as err:
+            c.decode(msgpack.packb(msgpack.ExtType(EXT_MESSAGE, msgpack.packb(body))))
+        assert len(str(err.value)) < 500
+
+
 def test_object_arrays_are_refused() -> None:
     with pytest.raises(UnregisteredType, match="dtype object"):
         Codec().encode(np.array([object()], dtype=object))
