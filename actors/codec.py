@@ -27,7 +27,14 @@ import attrs
 import msgpack
 import numpy as np
 
-from actors.errors import CodecError, CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType, quote
+from actors.errors import (
+    CodecError,
+    CorruptFrame,
+    MessageTooLarge,
+    StaleFrame,
+    UnregisteredType,
+    quote,
+)
 
 __all__ = [
     "Codec",

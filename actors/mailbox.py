@@ -145,7 +145,7 @@ class Mailbox:
         # decoder counts towards the poison limit like a message that kills the handler.
         early = _peek_seq(buf) if jr is not None else 0
         if early:
-            if self.crashed and (ident, early) in self.undecodable and self._undecodable(ident, early, len(buf)):
+            if self.crashed and (ident, early) in self.undecodable and self._undecodable(ident, early, buf):
                 return
             jr.begin(ident, early, decoded=False)  # type: ignore[union-attr]
         try:
@@ -216,12 +216,12 @@ class Mailbox:
         self.dropped += 1
         log.warning("[%s] dropped %s frame from %r: %s", self.name, what, ident, why)
 
-    def _undecodable(self, ident: bytes, seq: int, size: int) -> bool:
+    def _undecodable(self, ident: bytes, seq: int, buf: memoryview) -> bool:
         """Dead-letter, without decoding it, a frame whose decoding crashed the actor ``poison_limit`` times."""
         if seq <= self.last_seq.get(ident, 0) or self.crashed.get((ident, seq), 0) < self.poison_limit:
             return False
         self.last_seq[ident] = seq
-        self._dead_letter(ident, seq, 0, f"<a frame of {size} bytes, not decoded: decoding it crashed the actor>")
+        self._dead_letter(ident, seq, buf[1], f"<a frame of {len(buf)} bytes, not decoded: decoding it crashed the actor>")
         return True
 
     def _reply(self, ident: bytes, seq: int, ok: bool, result: Any) -> None:
@@ -250,7 +250,7 @@ class Mailbox:
             "actor": self.name,
             "sender": ident.decode(errors="replace"),
             "seq": seq,
-            "kind": {wire.TELL: "tell", wire.ASK: "ask", wire.CTRL: "ctrl"}.get(kind, "unknown"),
+            "kind": {wire.TELL: "tell", wire.ASK: "ask", wire.CTRL: "ctrl"}.get(kind, str(kind)),
             "reason": reason,
             "message": text,
             "time": time.time(),

@@ -98,6 +98,7 @@ def test_a_frame_that_kills_its_decoder_counts_towards_the_poison_limit(system: 
     assert "after" in read_lines(path)
     [dead] = dead_letters(system)
     assert dead["reason"] == "it crashed actor 'rec' 3 times" and "not decoded: decoding it crashed" in dead["message"]
+    assert dead["kind"] == "tell"
     assert len(events.of("crashed", "rec")) == 3
 
 
