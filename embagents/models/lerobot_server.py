@@ -194,7 +194,7 @@ def _token_check(token: str) -> Any:
     """A server interceptor that lets through only calls carrying ``token``."""
     import grpc
 
-    class TokenCheck(grpc.ServerInterceptor):  # type: ignore[misc]
+    class TokenCheck(grpc.ServerInterceptor):
         """Refuses calls that do not carry the token (compared in constant time)."""
 
         def __init__(self) -> None:
