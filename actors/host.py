@@ -114,6 +114,8 @@ class ActorHost:
             return fn(*args)
         try:
             return self.actor.on_receive(body)
+        except UnknownMessage:
+            raise  # dead-lettered by the mailbox: the actor goes on, nothing failed
         except Exception:
             if kind == wire.TELL:
                 self.actor.on_failure(*sys.exc_info())

@@ -171,6 +171,8 @@ class Mailbox:
             return
         self.last_seq[ident] = seq
         if self.crashed and self.crashed.get((ident, seq), 0) >= self.poison_limit:
+            if early:
+                jr.end()  # type: ignore[union-attr]
             self._dead_letter(ident, seq, kind, quote(body))
             return
         if jr is not None:
