@@ -24,6 +24,7 @@ Example::
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import re
@@ -252,10 +253,7 @@ class CurveAllowList:
             self._peers[value] = _peer_address(value)
         elif kind & _FAILED:
             # libzmq reports the failure, then at once the disconnect of its connection (by fd).
-            self._failed = ("it does not speak CURVE (a NULL or PLAIN client)" if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH
-                            else f"its handshake failed ({_protocol_error(kind, value)}: a wrong server key, a client "
-                                 "that is not ZeroMQ, or one that did not finish within "
-                                 f"{HANDSHAKE_IVL_MS / 1000:g} s)")
+            self._failed = _failure_text(kind, value)
         elif kind == zmq.EVENT_DISCONNECTED:
             address = self._peers.pop(value, "an unknown address")
             if self._failed is not None:
@@ -306,10 +304,18 @@ def _peer_address(fd: int) -> str:
     return f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
 
 
-def _protocol_error(kind: int, value: int) -> str:
-    if kind == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
-        return zmq.strerror(value) if value else "no detail"
-    try:
-        return (zmq.Event(value).name or hex(value)).lower().replace("_", " ")
-    except ValueError:
-        return f"protocol error {value:#x}"
+def _failure_text(kind: int, value: int) -> str:
+    """Why a peer's handshake failed, in words, from its monitor event."""
+    if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
+        if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH:
+            return "it does not speak CURVE (a NULL or PLAIN client)"
+        try:
+            name = (zmq.Event(value).name or hex(value)).lower().replace("_", " ")
+        except ValueError:
+            name = f"protocol error {value:#x}"
+        return f"its handshake failed ({name}): a wrong server key, or not a ZeroMQ client"
+    if value == errno.EAGAIN:  # the handshake timer
+        return f"it did not finish its handshake within {HANDSHAKE_IVL_MS / 1000:g} s"
+    if value in (errno.EPIPE, errno.ECONNRESET):  # it gave up first, on our greeting
+        return "it hung up during the handshake (a NULL or PLAIN client, or one pinning another server key)"
+    return f"its handshake failed ({zmq.strerror(value) if value else 'no detail'})"

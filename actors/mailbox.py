@@ -314,7 +314,7 @@ def _peek_seq(buf: memoryview) -> int:
     if b < 0x80:  # a positive fixint
         return b
     u = _UINT.get(b)
-    return u.unpack_from(buf, 3)[0] if u is not None else 0  # type: ignore[no-any-return]
+    return u.unpack_from(buf, 3)[0] if u is not None else 0
 
 
 def _bounded(text: str) -> str:
