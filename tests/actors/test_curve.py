@@ -84,7 +84,7 @@ def test_the_allow_list_lets_in_only_its_keys_and_counts_and_logs_the_others(cap
         assert frames[1].bytes == b"hello" and frames[1].get("User-Id") == good_pub.decode()
         assert not router.poll(500)  # neither the stranger nor the NULL client got a frame in
         # The stranger, refused by ZAP, and the NULL client, which fails before ZAP is asked: both logged.
-        wait_until(lambda: auth.refused == 2 and "speak CURVE" in caplog.text, 5, "both refusals")
+        wait_until(lambda: auth.refused == 2, 5, "both refusals")  # the NULL one: a mismatch, or a hang-up (a race)
         assert f"public key {bad_pub.decode()} is not on the allow list" in caplog.text
         # A NULL client over a real network: its greeting comes a round trip after the connection, so
         # its address is still there to be logged (on loopback libzmq may close it before it is looked up).
