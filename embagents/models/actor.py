@@ -28,7 +28,7 @@ from typing import Any
 import zmq
 
 from actors import Actor
-from actors.errors import StaleFrame
+from actors.errors import StaleFrame, UnknownMessage
 from actors.runtime import current
 from embagents.models.protocol import (
     BadRequest,
@@ -271,7 +271,7 @@ class ModelActor(Actor):
     def on_receive(self, message: Any) -> Any:
         if message == "stats":
             return {**self.stats, "model": self.path, "kind": self.kind}
-        raise ValueError(f"unknown message {message!r}: send 'stats'")
+        raise UnknownMessage(f"model actor {self.name!r}", message, "send 'stats' (inference goes to its .inf socket)")
 
     def on_stop(self) -> None:
         self.sock.close(0)

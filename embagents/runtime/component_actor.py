@@ -15,6 +15,7 @@ import time
 from typing import Any
 
 from actors import Actor
+from actors.errors import UnknownMessage
 from embagents.rate import next_deadline
 from embagents.runtime.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
 
@@ -133,7 +134,11 @@ class ComponentActor(Actor):
                 comp.logger.warning("%s: call of %s not run: its deadline passed %.2f s before its turn",
                                     comp._label(), message.method, late)
                 raise TimeoutError(f"{message.method} not run: its deadline passed {late:.2f} s before its turn")
-            return getattr(comp, message.method)(*message.args, **message.kwargs)
+            method = getattr(comp, message.method, None) if isinstance(message.method, str) else None
+            if not callable(method):
+                raise UnknownMessage(f"component {self.component_name!r}", message,
+                                     f"{type(comp).__name__} has no method {message.method!r}")
+            return method(*message.args, **message.kwargs)
         if isinstance(message, HealthQuery):
             return {"status": int(comp.health_status), "text": comp.health.text}
         if isinstance(message, Reconfigure):
@@ -141,10 +146,8 @@ class ComponentActor(Actor):
             return None
         if isinstance(message, ChangeModelClient):
             return comp.change_model_client(message.client)
-        raise ValueError(
-            f"component {self.component_name!r}: unknown request {message!r}; send one of "
-            "embagents.runtime.requests: Call, HealthQuery, Reconfigure, ChangeModelClient"
-        )
+        raise UnknownMessage(f"component {self.component_name!r}", message, "send one of embagents.runtime.requests: "
+                             "Call, HealthQuery, Reconfigure, ChangeModelClient")
 
     def snapshot(self) -> Any:
         return self.component.snapshot()

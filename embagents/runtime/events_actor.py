@@ -25,6 +25,7 @@ from collections import defaultdict
 from typing import Any
 
 from actors import Actor, ActorNotFound
+from actors.errors import UnknownMessage
 from embagents.runtime.component_actor import loaded_system
 from embagents.runtime.requests import (
     SUPERVISOR_REQUESTS,
@@ -135,4 +136,4 @@ class EventsActor(Actor):
             return self.route_fired(message)
         if message == "fired":
             return list(self.fired)
-        raise ValueError(f"unknown request {message!r}: the events actor answers 'fired'")
+        raise UnknownMessage("the events actor", message, "it answers 'fired'")

@@ -8,7 +8,9 @@ import signal
 import time
 from typing import Any
 
-from actors import Actor
+import attrs
+
+from actors import Actor, message
 
 
 def _append(path: str, line: str) -> None:
@@ -100,6 +102,20 @@ class SlowStop(Actor):
 
     def on_receive(self, message: Any) -> Any:
         return os.getpid() if message == "pid" else message
+
+
+def _die_if_decoded_elsewhere(pid: int) -> int:
+    if pid != os.getpid():
+        os.kill(os.getpid(), signal.SIGKILL)  # as a decoder that crashes on a frame would
+    return pid
+
+
+@message("tests/DiesWhenDecoded")
+@attrs.define
+class DiesWhenDecoded:
+    """Kills any process but its sender ``pid`` that decodes it (its class is built while the frame decodes)."""
+
+    pid: int = attrs.field(converter=_die_if_decoded_elsewhere)
 
 
 class Recorder(Actor):

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import msgpack
 import pytest
 
 from actors import ActorSystem
@@ -185,3 +186,23 @@ def test_a_step_missing_a_module_is_one_component_failure_naming_the_extra_and_s
                                   "pip install 'embagents[vision]'"), got["text"]
     assert got["text"].endswith("it stops stepping (after installing: embagents restart eyes)"), got["text"]
     assert out.stderr.count("needs the module 'cv2'") == 1 and "Traceback" not in out.stderr, out.stderr[-3000:]
+
+
+def test_a_request_it_cannot_interpret_is_quoted_briefly_and_a_told_one_is_dead_lettered(running: ActorSystem) -> None:
+    from actors import RemoteError
+
+    upper = running.ref("upper")
+    pid = running.ctrl("upper", "stats")["pid"]
+    with pytest.raises(RemoteError) as err:  # a 10 MB request used to come back whole in its error
+        upper.ask("x" * 10_000_000, timeout=10).get()
+    assert "component 'upper': unknown request 'xxx" in str(err.value) and len(str(err.value)) < 1000
+    with pytest.raises(RemoteError, match="Upper has no method 'dance'"):
+        upper.ask(Call("dance"), timeout=5).get()
+    upper.tell({"what": "y" * 10_000_000})  # used to crash the actor (a told message that raises)
+    upper.tell(Call("dance"))
+    assert upper.flush(10)
+    assert running.ctrl("upper", "stats")["pid"] == pid and upper.ask(HealthQuery(), timeout=5).get()["status"] == 0
+    with open(os.path.join(running.run_dir, "deadletters.log"), "rb") as f:
+        dead = list(msgpack.Unpacker(f))
+    assert [d["kind"] for d in dead] == ["tell", "tell"] and all(len(d["message"]) < 300 for d in dead)
+    assert "unknown request {'what': 'yyy" in dead[0]["reason"] and "no method 'dance'" in dead[1]["reason"]
