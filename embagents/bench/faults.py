@@ -31,7 +31,7 @@ from supervisor.spec import ChildSpec, SupervisorSpec
 from supervisor.supervisor import start_supervisor
 from supervisor.tree import Tree
 
-__all__ = ["Light", "measure_crash_detect", "measure_hang_detect", "measure_restart_ready"]
+__all__ = ["Light", "measure_crash_detect", "measure_hang_detect", "measure_restart_ready", "measure_standby_takeover"]
 
 
 class Light(Actor):
@@ -134,3 +134,95 @@ def measure_hang_detect(deadline: float = 0.5, n: int = 5) -> list[float]:
         sup.stop()
         tree.close()
     return out
+
+
+def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0,
+                             rate_hz: float = 200.0) -> dict[str, Any]:
+    """SIGKILL the :mod:`embagents.bench.standby_system` component ``kills`` times while numbers flow.
+
+    Returns ``samples`` (seconds from each SIGKILL until a ``Call("pid")`` ask
+    is answered by another process), ``sent`` and ``lost`` (numbers told at
+    ``rate_hz`` and never recorded: the keep-all input). With ``standby``,
+    each kill waits until the next standby is ready (``standby_ready``).
+    """
+    import glob
+    import tempfile
+
+    from embagents.runtime.component_actor import remember_system
+    from embagents.runtime.requests import Call
+    from embagents.supervision import build_spec
+    from embagents.system import load_system
+
+    out = tempfile.mkdtemp(prefix="standby-bench-")
+    env = {"EMBAGENTS_BENCH_OUT": out, "EMBAGENTS_BENCH_CONFIGURE_S": str(configure_s),
+           "EMBAGENTS_BENCH_STANDBY": "1" if standby else "0"}
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)  # the spawned processes read them; forked ones inherit them
+    path = os.path.join(os.path.dirname(__file__), "standby_system.py")
+    try:
+        system_decl = load_system(path)
+        remember_system(path, system_decl)
+        spec = build_spec(system_decl, path)
+        spec.intensity, spec.period = 1_000_000, 1.0
+        samples: list[float] = []
+        with ActorSystem() as system:
+            tree = Tree.of(system)
+            ready = threading.Event()
+            tree.events.listeners.append(lambda ev: ready.set() if ev["event"] == "standby_ready" else None)
+            sup = start_supervisor(system, spec, "bench")
+            stop = threading.Event()
+            sent = [0]
+
+            def send() -> None:
+                ref = system.ref("slow")
+                n = 0
+                while not stop.wait(1.0 / rate_hz):
+                    ref.tell(Call("record", [n]))
+                    n += 1
+                sent[0] = n
+                ref.ask(Call("pid"), timeout=60).get()  # in order: every tell before it was handled
+
+            ref = system.ref("slow")
+            pid = ref.ask(Call("pid"), timeout=60).get()
+            sender = threading.Thread(target=send, name="standby-bench-sender")
+            sender.start()
+            try:
+                for _ in range(kills):
+                    if standby and not ready.wait(configure_s + 60):
+                        raise TimeoutError("no standby got ready")
+                    ready.clear()
+                    time.sleep(0.05)  # the senders' links settle on the serving incarnation
+                    t0 = time.perf_counter()
+                    os.kill(pid, signal.SIGKILL)
+                    deadline = t0 + configure_s + 60
+                    while True:
+                        try:
+                            now_pid = ref.ask(Call("pid"), timeout=1.0).get()
+                        except (ActorCrashed, Timeout):
+                            now_pid = pid
+                        if now_pid != pid:
+                            samples.append(time.perf_counter() - t0)
+                            pid = now_pid
+                            break
+                        if time.perf_counter() > deadline:
+                            raise TimeoutError("the component did not come back")
+            finally:
+                stop.set()
+                sender.join(120)
+            sup.stop()
+            tree.close()
+        seen: set[int] = set()
+        for f in glob.glob(os.path.join(out, "rec-*.log")):
+            with open(f) as fh:
+                seen.update(int(x) for x in fh.read().split())
+        lost = sum(1 for n in range(sent[0]) if n not in seen)
+        return {"samples": samples, "sent": sent[0], "lost": lost}
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        import shutil
+
+        shutil.rmtree(out, ignore_errors=True)
