@@ -42,9 +42,12 @@ def main() -> None:
     os.dup2(devnull, 0)
     os.close(devnull)
     if spec.get("standby"):
-        # Blocked before any thread exists (ZeroMQ's IO threads inherit the mask): only the
+        # Blocked since birth (the root spawns a standby with them blocked; the mask survives exec)
+        # and still before any thread exists (ZeroMQ's IO threads inherit the mask): only the
         # standby's sigwait receives them, and a take-over signal sent early waits for it.
         signal.pthread_sigmask(signal.SIG_BLOCK, {TAKE_OVER, signal.SIGTERM})
+    else:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {TAKE_OVER, signal.SIGTERM})
     from actors.pdeathsig import die_with_parent
 
     die_with_parent(int(spec["root_pid"]))

@@ -44,10 +44,14 @@ from actors.private import check_folder, private_dir
 from actors.ref import ActorRef
 from actors.runtime import Runtime, current, set_current, shm_prefix
 from actors.shm import sweep
+from actors.spawn import TAKE_OVER
 
 __all__ = ["ActorSystem", "ProcessInfo"]
 
 log = logging.getLogger("actors.system")
+
+#: Blocked in a standby from its birth until it takes over or stops (see actors.spawn).
+_STANDBY_SIGNALS = {TAKE_OVER, signal.SIGTERM}
 
 
 class ProcessInfo:
@@ -238,14 +242,22 @@ class ActorSystem:
         env = dict(os.environ)
         # The child imports the actor's class itself: give it the root's import path.
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        # A standby is born with the take-over signal blocked (the mask survives exec): one sent
+        # while its interpreter still starts waits for it instead of killing it.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STANDBY_SIGNALS) if spec["standby"] else None
         try:
             proc = subprocess.Popen([sys.executable, "-m", "actors.spawn"], stdin=subprocess.PIPE, env=env)
-            assert proc.stdin is not None
-            proc.stdin.write(msgpack.packb(spec))
-            proc.stdin.close()
         except OSError as exc:
             self._exited(info, None, f"cannot spawn {sys.executable} -m actors.spawn: {exc}")
             return
+        finally:
+            if mask is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        assert proc.stdin is not None
+        with contextlib.suppress(BrokenPipeError):  # it died at once: its exit says so below
+            proc.stdin.write(msgpack.packb(spec))
+        with contextlib.suppress(BrokenPipeError):
+            proc.stdin.close()
         info.pid = proc.pid
         pidfd = os.pidfd_open(proc.pid)  # readable once it exits: no polling
         self._spawned[proc.pid] = (proc, info, pidfd)
@@ -265,8 +277,6 @@ class ActorSystem:
         It binds the actor's mailbox, so senders re-send to it what its
         predecessor had not acknowledged, and reports ready as any start does.
         """
-        from actors.spawn import TAKE_OVER
-
         if not info.standby or info.pid is None or info.exited.is_set():
             raise ActorError(f"{info.name!r}: that process is not a waiting standby")
         info.standby = False
