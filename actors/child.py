@@ -21,7 +21,10 @@ from actors.host import ActorHost, load_class
 from actors.loop import Loop
 from actors.runtime import Runtime, set_current
 
-__all__ = ["LOG_BACKUPS", "LOG_MAX_BYTES", "add_log_file", "child_main", "configure_logging", "log_path"]
+__all__ = ["LOG_BACKUPS", "LOG_MAX_BYTES", "TAKE_OVER", "add_log_file", "child_main", "configure_logging", "log_path"]
+
+#: The signal that makes a waiting standby (see :mod:`actors.spawn`) take over.
+TAKE_OVER = signal.SIGUSR1
 
 #: Each actor's log file rotates at this size, keeping this many old files (``NAME.log.1`` ...).
 LOG_MAX_BYTES = 5 * 1024 * 1024
@@ -83,8 +86,6 @@ def _stand_by(rt: Runtime, name: str, actor: Any) -> bool:
     The take-over signal and SIGTERM were blocked before any thread started, so one sent
     while ``on_standby`` still runs waits for the ``sigwait`` below.
     """
-    from actors.spawn import TAKE_OVER
-
     actor.on_standby()
     _notify(rt, ["standby", name, os.getpid()])
     sig = signal.sigwait({TAKE_OVER, signal.SIGTERM})

@@ -28,10 +28,7 @@ import sys
 
 import msgpack
 
-__all__ = ["TAKE_OVER", "main"]
-
-#: The signal that makes a waiting standby take over.
-TAKE_OVER = signal.SIGUSR1
+__all__ = ["main"]
 
 
 def main() -> None:
@@ -41,6 +38,8 @@ def main() -> None:
     devnull = os.open(os.devnull, os.O_RDONLY)
     os.dup2(devnull, 0)
     os.close(devnull)
+    from actors.child import TAKE_OVER
+
     if spec.get("standby"):
         # Blocked since birth (the root spawns a standby with them blocked; the mask survives exec)
         # and still before any thread exists (ZeroMQ's IO threads inherit the mask): only the

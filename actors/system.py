@@ -35,7 +35,7 @@ import zmq
 from actors import wire
 from actors.actor import Actor
 from actors.app import env
-from actors.child import child_main
+from actors.child import TAKE_OVER, child_main
 from actors.errors import ActorError
 from actors.forkserver import ForkServer, cleanup_pid
 from actors.host import ActorHost
@@ -44,7 +44,6 @@ from actors.private import check_folder, private_dir
 from actors.ref import ActorRef
 from actors.runtime import Runtime, current, set_current, shm_prefix
 from actors.shm import sweep
-from actors.spawn import TAKE_OVER
 
 __all__ = ["ActorSystem", "ProcessInfo"]
 
@@ -456,10 +455,12 @@ class ActorSystem:
 
     def _reap_spawned(self, timeout: float) -> None:
         """No spawned process (a standby nobody stopped) outlives the run: SIGTERM, then SIGKILL."""
-        procs = self.rt.on_client(lambda: [proc for proc, _, _ in self._spawned.values()])
-        for proc in procs:
+        entries = self.rt.on_client(lambda: [(proc, info.standby) for proc, info, _ in self._spawned.values()])
+        procs = [proc for proc, _ in entries]
+        for proc, standby in entries:
             with contextlib.suppress(ProcessLookupError):
-                proc.send_signal(signal.SIGTERM)
+                # A standby holds nothing yet (and may be busy in on_standby with SIGTERM blocked).
+                proc.send_signal(signal.SIGKILL if standby else signal.SIGTERM)
         deadline = time.monotonic() + timeout
         for proc in procs:
             try:
@@ -468,7 +469,11 @@ class ActorSystem:
                 proc.kill()
                 proc.wait()
         # Reaped here; their exits (pidfd closed, files removed, listeners told) on the IO thread.
-        self.rt.on_client(lambda: [self._on_spawned_exit(pid) for pid in list(self._spawned)])
+        def reaped() -> None:
+            for pid in list(self._spawned):
+                self._on_spawned_exit(pid)
+
+        self.rt.on_client(reaped)
 
     def __enter__(self) -> ActorSystem:
         return self
