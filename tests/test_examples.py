@@ -22,7 +22,8 @@ EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
 @pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py", "voice.py",
-                                  "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py"])
+                                  "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py",
+                                  "gpu_pipeline.py"])
 def test_example_systems_check_clean(name: str) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120)

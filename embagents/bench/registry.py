@@ -46,6 +46,7 @@ __all__ = [
     "TRANSPORTS",
     "BenchOptions",
     "Case",
+    "Skipped",
     "case",
     "interleaved",
     "iterations",
@@ -272,11 +273,16 @@ def select(only: list[str] | None) -> list[Case]:
     return sorted(out, key=lambda c: TRANSPORTS.index(c.transport))
 
 
+class Skipped(Exception):
+    """Raised by a case that cannot run here (no GPU, say); its message is the row's note."""
+
+
 def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
     """Run one case and return its row.
 
-    ``row["status"]`` is ``"ok"``, ``"skipped"`` (``needs`` is not installed;
-    ``note`` says so) or ``"error"`` (``error`` holds the exception).
+    ``row["status"]`` is ``"ok"``, ``"skipped"`` (``needs`` is not installed,
+    or the case raised :class:`Skipped`; ``note`` says why) or ``"error"``
+    (``error`` holds the exception).
     """
     row: dict[str, Any] = {
         "name": c.name,
@@ -290,6 +296,9 @@ def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
     t0 = time.monotonic()
     try:
         res = c.fn(opts)
+    except Skipped as exc:
+        row.update(status="skipped", note=f"skipped: {exc}")
+        return row
     except Exception as exc:
         row.update(status="error", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc())
         return row
