@@ -92,3 +92,41 @@ def test_standby_and_start_method_are_checked_in_the_spec() -> None:
     with pytest.raises(ValueError, match="start_method must be one of fork, spawn"):
         ChildSpec("m", SlowConfigure, start_method="forkserver")
     assert ChildSpec("m", SlowConfigure, standby=True).start_method == "spawn"
+
+
+ROOT_SCRIPT = """
+import sys, threading, time
+from actors import ActorSystem
+from supervisor import ChildSpec, SupervisorSpec, start_supervisor
+from supervisor.rootio import on_root
+from supervisor.tree import Tree
+from tests.supervisor.workers import SlowConfigure
+
+system = ActorSystem()
+ready = []
+got = threading.Event()
+on_root(system, lambda: Tree.of(system).events.listeners.append(
+    lambda ev: (ready.append(ev["pid"]), got.set()) if ev["event"] == "standby_ready" else None))
+sup = start_supervisor(system, SupervisorSpec(children=[
+    ChildSpec("m", (SlowConfigure, (sys.argv[1], 0.2)), lifecycle="active", standby=True)]), timeout=60)
+got.wait(60)
+print(sup.which_children()[0].pid, ready[0], flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_root_killed_by_sigkill_takes_its_spawned_active_and_standby_along(tmp_path: object, logfile: str) -> None:
+    import subprocess
+    import sys
+
+    root = subprocess.Popen([sys.executable, "-c", ROOT_SCRIPT, logfile], stdout=subprocess.PIPE, text=True,
+                            cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    try:
+        assert root.stdout is not None
+        active, standby = (int(x) for x in root.stdout.readline().split())
+        assert psutil.Process(standby).ppid() == root.pid
+    finally:
+        root.kill()
+        root.wait()
+    for pid in (active, standby):
+        wait_until(lambda pid=pid: gone(pid), 5, f"exit of {pid} with its root")
