@@ -20,13 +20,16 @@ Example::
 
 from __future__ import annotations
 
+import glob
 import os
 import signal
+import tempfile
 import threading
 import time
 from typing import Any
 
 from actors import Actor, ActorCrashed, ActorSystem, Timeout
+from embagents.bench.registry import scoped_environ
 from supervisor.spec import ChildSpec, SupervisorSpec
 from supervisor.supervisor import start_supervisor
 from supervisor.tree import Tree
@@ -145,84 +148,78 @@ def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0
     ``rate_hz`` and never recorded: the keep-all input). With ``standby``,
     each kill waits until the next standby is ready (``standby_ready``).
     """
-    import glob
-    import tempfile
+    with tempfile.TemporaryDirectory(prefix="standby-bench-") as out, scoped_environ({
+        "EMBAGENTS_BENCH_OUT": out, "EMBAGENTS_BENCH_CONFIGURE_S": str(configure_s),
+        "EMBAGENTS_BENCH_STANDBY": "1" if standby else "0",  # read by the system file, in every process
+    }):
+        samples, sent = _kill_and_time(kills, standby, configure_s, rate_hz)
+        seen: set[int] = set()
+        for f in glob.glob(os.path.join(out, "rec-*.log")):
+            with open(f) as fh:
+                seen.update(int(x) for x in fh.read().split())
+    return {"samples": samples, "sent": sent, "lost": sum(1 for n in range(sent) if n not in seen)}
 
+
+def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float) -> tuple[list[float], int]:
     from embagents.runtime.component_actor import remember_system
     from embagents.runtime.requests import Call
     from embagents.supervision import build_spec
     from embagents.system import load_system
 
-    out = tempfile.mkdtemp(prefix="standby-bench-")
-    env = {"EMBAGENTS_BENCH_OUT": out, "EMBAGENTS_BENCH_CONFIGURE_S": str(configure_s),
-           "EMBAGENTS_BENCH_STANDBY": "1" if standby else "0"}
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)  # the spawned processes read them; forked ones inherit them
     path = os.path.join(os.path.dirname(__file__), "standby_system.py")
-    try:
-        system_decl = load_system(path)
-        remember_system(path, system_decl)
-        spec = build_spec(system_decl, path)
-        spec.intensity, spec.period = 1_000_000, 1.0
-        samples: list[float] = []
-        with ActorSystem() as system:
-            tree = Tree.of(system)
-            ready = threading.Event()
-            tree.events.listeners.append(lambda ev: ready.set() if ev["event"] == "standby_ready" else None)
-            sup = start_supervisor(system, spec, "bench")
-            stop = threading.Event()
-            sent = [0]
+    system_decl = load_system(path)
+    remember_system(path, system_decl)
+    spec = build_spec(system_decl, path)
+    spec.intensity, spec.period = 1_000_000, 1.0
+    samples: list[float] = []
+    sent = [0]
+    with ActorSystem() as system:
+        tree = Tree.of(system)
+        ready = threading.Event()
+        tree.events.listeners.append(lambda ev: ready.set() if ev["event"] == "standby_ready" else None)
+        sup = start_supervisor(system, spec, "bench")
+        stop = threading.Event()
 
-            def send() -> None:
-                ref = system.ref("slow")
-                n = 0
-                while not stop.wait(1.0 / rate_hz):
-                    ref.tell(Call("record", [n]))
-                    n += 1
-                sent[0] = n
-                ref.ask(Call("pid"), timeout=60).get()  # in order: every tell before it was handled
-
+        def send() -> None:
             ref = system.ref("slow")
-            pid = ref.ask(Call("pid"), timeout=60).get()
-            sender = threading.Thread(target=send, name="standby-bench-sender")
-            sender.start()
-            try:
-                for _ in range(kills):
-                    if standby and not ready.wait(configure_s + 60):
-                        raise TimeoutError("no standby got ready")
-                    ready.clear()
-                    time.sleep(0.05)  # the senders' links settle on the serving incarnation
-                    t0 = time.perf_counter()
-                    os.kill(pid, signal.SIGKILL)
-                    deadline = t0 + configure_s + 60
-                    while True:
-                        try:
-                            now_pid = ref.ask(Call("pid"), timeout=1.0).get()
-                        except (ActorCrashed, Timeout):
-                            now_pid = pid
-                        if now_pid != pid:
-                            samples.append(time.perf_counter() - t0)
-                            pid = now_pid
-                            break
-                        if time.perf_counter() > deadline:
-                            raise TimeoutError("the component did not come back")
-            finally:
-                stop.set()
-                sender.join(120)
-            sup.stop()
-            tree.close()
-        seen: set[int] = set()
-        for f in glob.glob(os.path.join(out, "rec-*.log")):
-            with open(f) as fh:
-                seen.update(int(x) for x in fh.read().split())
-        lost = sum(1 for n in range(sent[0]) if n not in seen)
-        return {"samples": samples, "sent": sent[0], "lost": lost}
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-        import shutil
+            n = 0
+            while not stop.wait(1.0 / rate_hz):
+                ref.tell(Call("record", [n]))
+                n += 1
+            sent[0] = n
+            ref.ask(Call("pid"), timeout=60).get()  # in order: every tell before it was handled
 
-        shutil.rmtree(out, ignore_errors=True)
+        ref = system.ref("slow")
+        pid = ref.ask(Call("pid"), timeout=60).get()
+        sender = threading.Thread(target=send, name="standby-bench-sender")
+        sender.start()
+        try:
+            for _ in range(kills):
+                if standby and not ready.wait(configure_s + 60):
+                    raise TimeoutError("no standby got ready")
+                ready.clear()
+                time.sleep(0.05)  # the senders' links settle on the serving incarnation
+                t0 = time.perf_counter()
+                os.kill(pid, signal.SIGKILL)
+                pid = _other_pid(ref, pid, t0 + configure_s + 60)
+                samples.append(time.perf_counter() - t0)
+        finally:
+            stop.set()
+            sender.join(120)
+        sup.stop()
+        tree.close()
+    return samples, sent[0]
+
+
+def _other_pid(ref: Any, old: int, deadline: float) -> int:
+    """Ask ``Call("pid")`` until a process other than ``old`` answers."""
+    from embagents.runtime.requests import Call
+
+    while time.perf_counter() < deadline:
+        try:
+            pid = ref.ask(Call("pid"), timeout=1.0).get()
+        except (ActorCrashed, Timeout):
+            continue
+        if pid != old:
+            return int(pid)
+    raise TimeoutError("the component did not come back")

@@ -31,7 +31,7 @@ import subprocess
 import sys
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,6 +55,7 @@ __all__ = [
     "percentiles",
     "run_case",
     "run_rounds",
+    "scoped_environ",
     "select",
     "shm_entries",
     "shm_leftovers",
@@ -271,6 +272,21 @@ def select(only: list[str] | None) -> list[Case]:
     if not out:
         raise ValueError(f"no benchmark case matches {only}; cases: {', '.join(CASES)}")
     return sorted(out, key=lambda c: TRANSPORTS.index(c.transport))
+
+
+@contextlib.contextmanager
+def scoped_environ(values: dict[str, str]) -> Iterator[None]:
+    """Set environment variables for the block (the actor processes it starts inherit them), then restore them."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 class Skipped(Exception):
