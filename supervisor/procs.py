@@ -8,8 +8,8 @@ polite request: SIGTERM, on which an actor runs ``on_stop``) and ``kill()``
 (SIGKILL). This module has the base class and the actor process; see
 :mod:`supervisor.command` for external commands.
 
-Exits come from the fork server's SIGCHLD path through
-``system.exit_listeners`` (no polling); "ready" comes from the actor's own
+Exits come from the fork server's SIGCHLD path (a spawned process's: its
+pidfd) through ``system.exit_listeners`` (no polling); "ready" comes from the actor's own
 note to the root once ``on_start`` (and the lifecycle replay) is done; a
 failed start, or a told message that raised, ends the process with status 1
 after its "failed" note (:func:`actors.child.child_main` sends both).
@@ -133,7 +133,8 @@ def process_spec(tree: Tree, s: ChildSpec) -> dict[str, Any]:
 
 
 class ActorProcess(Incarnation):
-    """An actor in its own process, forked by the run's fork server."""
+    """An actor in its own process: forked by the run's fork server, spawned (``start_method="spawn"``),
+    or a warm standby that takes over (:mod:`supervisor.standby`)."""
 
     kind = "actor"
 
