@@ -64,5 +64,6 @@ def standby_takeover(opts: BenchOptions) -> dict[str, Any]:
                                 "told at 200/s; standby=True vs none (no_standby_p50_ms); bars p50 <= 100 ms, lost == 0")
     row.update(p50_ms=round(row["p50_us"] / 1000, 1), p99_ms=round(row["p99_us"] / 1000, 1),
                no_standby_p50_ms=round(float(np.percentile(cold["samples"], 50)) * 1000, 1),
-               lost=warm["lost"] + cold["lost"], sent=warm["sent"] + cold["sent"])
+               lost=warm["lost"] + cold["lost"], sent=warm["sent"] + cold["sent"],
+               topic_lost=warm["topic_lost"], topic_lost_no_standby=cold["topic_lost"])
     return row

@@ -145,22 +145,31 @@ def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0
 
     Returns ``samples`` (seconds from each SIGKILL until a ``Call("pid")`` ask
     is answered by another process), ``sent`` and ``lost`` (numbers told at
-    ``rate_hz`` and never recorded: the keep-all input). With ``standby``,
-    each kill waits until the next standby is ready (``standby_ready``).
+    ``rate_hz`` and never recorded: the mailbox, at-least-once) and
+    ``topic_lost`` (the same numbers published on a ``keep="all"`` topic and
+    not recorded, from the first one heard on: a subscription does not outlive
+    its process, so what is published while none serves is not delivered).
+    With ``standby``, each kill waits until the next standby is ready.
     """
     with tempfile.TemporaryDirectory(prefix="standby-bench-") as out, scoped_environ({
         "EMBAGENTS_BENCH_OUT": out, "EMBAGENTS_BENCH_CONFIGURE_S": str(configure_s),
         "EMBAGENTS_BENCH_STANDBY": "1" if standby else "0",  # read by the system file, in every process
     }):
         samples, sent = _kill_and_time(kills, standby, configure_s, rate_hz)
-        seen: set[int] = set()
+        seen: dict[str, set[int]] = {"T": set(), "S": set()}
         for f in glob.glob(os.path.join(out, "rec-*.log")):
             with open(f) as fh:
-                seen.update(int(x) for x in fh.read().split())
-    return {"samples": samples, "sent": sent, "lost": sum(1 for n in range(sent) if n not in seen)}
+                for how, n in (line.split() for line in fh):
+                    seen[how].add(int(n))
+    first = min(seen["S"], default=sent)
+    return {"samples": samples, "sent": sent, "lost": sum(1 for n in range(sent) if n not in seen["T"]),
+            "topic_lost": sum(1 for n in range(first, sent) if n not in seen["S"])}
 
 
 def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float) -> tuple[list[float], int]:
+    from actors.topics import Publisher
+    from embagents.bench.standby_system import NUMBERS
+    from embagents.msgs import String
     from embagents.runtime.component_actor import remember_system
     from embagents.runtime.requests import Call
     from embagents.supervision import build_spec
@@ -180,11 +189,14 @@ def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float
         sup = start_supervisor(system, spec, "bench")
         stop = threading.Event()
 
+        numbers = system.rt.on_client(lambda: Publisher(system.rt, NUMBERS.name))
+
         def send() -> None:
             ref = system.ref("slow")
             n = 0
             while not stop.wait(1.0 / rate_hz):
                 ref.tell(Call("record", [n]))
+                system.rt.on_client(lambda n=n: numbers.publish(String(data=str(n))))
                 n += 1
             sent[0] = n
             ref.ask(Call("pid"), timeout=60).get()  # in order: every tell before it was handled
@@ -207,6 +219,7 @@ def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float
             stop.set()
             sender.join(120)
         sup.stop()
+        system.rt.on_client(numbers.close)
         tree.close()
     return samples, sent[0]
 
