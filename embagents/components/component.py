@@ -122,7 +122,10 @@ class Component:
     """Base class of all components (see the module docstring).
 
     Keyword arguments beyond the named ones are config overrides, e.g.
-    ``MyComponent(name="x", loop_rate_hz=5)``. Subclasses that take their own
+    ``MyComponent(name="x", loop_rate_hz=5)``. ``start_method="spawn"`` starts
+    its process as a fresh interpreter (for CUDA, which does not survive
+    ``fork``); ``standby=True`` keeps a warm standby that ran ``on_configure``
+    and takes over at once when this one dies (see :mod:`supervisor.standby`). Subclasses that take their own
     arguments set them before calling ``super().__init__`` and extend
     :meth:`validate` (which the constructor runs last).
 
