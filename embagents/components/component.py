@@ -123,7 +123,10 @@ class Component:
     """Base class of all components (see the module docstring).
 
     Keyword arguments beyond the named ones are config overrides, e.g.
-    ``MyComponent(name="x", loop_rate_hz=5)``. Subclasses that take their own
+    ``MyComponent(name="x", loop_rate_hz=5)``. ``start_method="spawn"`` starts
+    its process as a fresh interpreter (for CUDA, which does not survive
+    ``fork``); ``standby=True`` keeps a warm standby that ran ``on_configure``
+    and takes over at once when this one dies (see :mod:`supervisor.standby`). Subclasses that take their own
     arguments set them before calling ``super().__init__`` and extend
     :meth:`validate` (which the constructor runs last).
 
@@ -163,10 +166,17 @@ class Component:
         trigger: float | Topic | Sequence[Topic] | Event | None = UNSET,
         config: Any = None,
         fallback: Fallback | None = None,
+        standby: bool = False,
+        start_method: str = "fork",
         **config_overrides: Any,
     ) -> None:
         self._init_problems: list[ComponentProblem] = []
         self.name = name
+        #: Keep a warm standby (spawned, configured, inactive) that takes over when this one dies:
+        #: for a component whose on_configure takes seconds (a CUDA model); twice the memory.
+        self.standby = standby
+        #: "fork" (from the pre-imported fork server) or "spawn" (a fresh interpreter: for CUDA).
+        self.start_method = start_method
         self.inputs = self._topics(inputs, "inputs")
         self.outputs = self._topics(outputs, "outputs")
         self.config = self._make_config(config, config_overrides)
@@ -326,6 +336,11 @@ class Component:
                 inputs = ", ".join(by_name) or "none"
                 problems.append(("trigger-not-input", f"{self._label()}: trigger topic {t.name!r} is not one of "
                                                       f"its inputs ({inputs}); add it to inputs"))
+        if not isinstance(self.standby, bool):
+            problems.append(("bad-standby", f"{self._label()}: standby must be True or False, got {self.standby!r}"))
+        if self.start_method not in ("fork", "spawn"):
+            problems.append(("bad-start-method", f"{self._label()}: start_method must be 'fork' or 'spawn' "
+                                                 f"(spawn for a component that uses CUDA), got {self.start_method!r}"))
         if self.fallback is not None and not isinstance(self.fallback, Fallback):
             problems.append(("bad-fallback", f"{self._label()}: fallback must be a Fallback, got {self.fallback!r}"))
         elif self.fallback is not None:

@@ -72,8 +72,17 @@ class ComponentActor(Actor):
             self.on_configure()
             self.on_activate()
 
+    def on_standby(self) -> None:
+        # A warm standby (supervisor.standby): configure now, while the active incarnation serves; the
+        # component has no publisher yet (publishing belongs in on_activate or a step).
+        loaded_system(self.system_path).component(self.component_name).on_configure()
+        self._configured_ahead = True
+
     # -- lifecycle (ROS 2 managed-node transitions, driven by the supervisor) --
     def on_configure(self) -> None:
+        if getattr(self, "_configured_ahead", False):  # done by on_standby before the takeover
+            self._configured_ahead = False
+            return
         self.component.on_configure()
 
     def on_activate(self) -> None:

@@ -206,3 +206,25 @@ class BurstSender(Actor):
             if (i + 1) % batch == 0:
                 time.sleep(pause)  # still inside the handler: the sender's loop does not run
         return n
+
+
+class SlowConfigure(Managed):
+    """A Managed actor whose ``on_configure`` takes ``configure_s`` (a CUDA model's start, say).
+
+    A warm standby does that work in ``on_standby``; the configure of its takeover then finds it done.
+    """
+
+    def __init__(self, log: str, configure_s: float = 5.0) -> None:
+        super().__init__(log)
+        self.configure_s = configure_s
+        self.ready_ahead = False
+
+    def on_standby(self) -> None:
+        time.sleep(self.configure_s)
+        self.ready_ahead = True
+        _append(self.log, f"on_standby {os.getpid()}")
+
+    def on_configure(self) -> None:
+        if not self.ready_ahead:
+            time.sleep(self.configure_s)
+        _append(self.log, f"on_configure {os.getpid()} ahead={self.ready_ahead}")
