@@ -98,3 +98,20 @@ def test_sigkill_of_the_recorder_leaves_a_readable_file_and_it_goes_on(live_run:
     finally:
         out = live_run.cli("record", "--stop", path)
     assert out.returncode == 0 and "killed.1.mcap" in out.stdout  # the restarted recorder's own file
+
+
+def test_recordings_are_owner_only_and_a_symlink_at_the_path_is_refused(live_run: Run, tmp_path: Path) -> None:
+    path = tmp_path / "private.mcap"
+    out = live_run.cli("record", "chatter", "-o", str(path), "--max-duration", "0.4", "--duration", "1.2")
+    assert out.returncode == 0, out.stderr
+    files = sorted(tmp_path.iterdir())
+    assert len(files) >= 2 and all(f.stat().st_mode & 0o777 == 0o600 for f in files)  # rotations too
+    target = tmp_path / "elsewhere" / "planted.mcap"  # where another user's dangling link points
+    target.parent.mkdir()
+    link = tmp_path / "link.mcap"
+    link.symlink_to(target)
+    for extra in ([], ["--overwrite"]):
+        out = live_run.cli("record", "chatter", "-o", str(link), "--duration", "0.5", *extra)
+        assert out.returncode == 1 and "is a symbolic link" in out.stderr, out.stderr
+        assert not target.exists() and link.is_symlink()
+    assert live_run.cli("record", "-o", str(tmp_path / "after.mcap"), "--duration", "0.3").returncode == 0
