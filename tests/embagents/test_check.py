@@ -317,3 +317,20 @@ def test_a_handshake_on_a_topic_no_node_subscribes_to_is_an_error() -> None:
         "manager 'boss': handshake rule 'first_message_on_camera_image_raw' waits for a message on 'camera/image_raw', "
         "which none of its nodes subscribes to (it would never hold); add the topic to a Node(subscribe=[...]) of "
         "the manager")
+
+
+def test_a_model_whose_backend_is_not_installed_names_the_package_and_the_extra(tmp_path):
+    # examples/chat.py, in a Python where llama_cpp cannot be imported (the llm extra left out): here a
+    # None in sys.modules makes it unimportable for the check's process only; nothing is uninstalled.
+    hide = ("import sys; sys.modules['llama_cpp'] = None; from embagents.cli import main; "
+            "sys.exit(main(['check', sys.argv[1]]))")
+    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    example = os.path.join(ROOT, "examples", "chat.py")
+    proc = subprocess.run([sys.executable, "-c", hide, example], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 1, proc.stdout
+    assert ("error: [missing-backend] model 'smollm2' (LlamaModel) needs llama-cpp-python (module llama_cpp), "
+            "which is not installed") in proc.stdout
+    assert "pip install 'embagents[llm]'" in proc.stdout
+    ok = subprocess.run([sys.executable, "-m", "embagents.cli", "check", example], capture_output=True, text=True,
+                        env=env, timeout=120)
+    assert ok.returncode == 0 and "missing-backend" not in ok.stdout, ok.stdout  # installed here: no problem
