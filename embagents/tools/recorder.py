@@ -32,7 +32,7 @@ from actors import Actor
 from actors.codec import message_class
 from embagents.tools.mcap_codec import kind_of
 
-__all__ = ["RecorderActor", "RecordingLocked", "RecordingRefused", "lock_file", "rotation_path", "rotation_files"]
+__all__ = ["RecorderActor", "RecordingLocked", "RecordingRefused", "lock_file", "refusal", "rotation_path", "rotation_files"]
 
 log = logging.getLogger("embagents.record")
 #: Default chunk size: a SIGKILL loses the open chunk (at most this much), never a finished one.
@@ -90,7 +90,7 @@ def lock_file(path: str) -> int:
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
     except FileExistsError:
-        raise _refusal(path) from None
+        raise refusal(path) from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:  # made by us an instant ago: only a recorder racing us for it holds it
@@ -100,8 +100,8 @@ def lock_file(path: str) -> int:
     return fd
 
 
-def _refusal(path: str) -> RuntimeError:
-    """Why an existing ``path`` is not recorded to."""
+def refusal(path: str) -> RuntimeError:
+    """Why an existing ``path`` (a link, a file being recorded, a file) is not recorded to."""
     if os.path.islink(path):
         return RecordingRefused(f"{path} is a symbolic link (to {os.readlink(path)!r}); a recording is never "
                                 "written through a link: remove it or record to another file (-o)")

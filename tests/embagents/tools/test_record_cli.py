@@ -6,10 +6,12 @@ import os
 import signal
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from embagents.tools.mcap_codec import decode
 from embagents.tools.play import read_messages
+from supervisor.client import ControlError, pick_run, request
 from tests.embagents.tools.conftest import Run
 from tests.helpers import wait_until
 
@@ -114,4 +116,9 @@ def test_recordings_are_owner_only_and_a_symlink_at_the_path_is_refused(live_run
         out = live_run.cli("record", "chatter", "-o", str(link), "--duration", "0.5", *extra)
         assert out.returncode == 1 and "is a symbolic link" in out.stderr, out.stderr
         assert not target.exists() and link.is_symlink()
+    # The recorder itself (O_EXCL | O_NOFOLLOW), asked by another client than the CLI, or a link made after its check:
+    run_dir = pick_run(live_run.id)["run_dir"]
+    with pytest.raises(ControlError, match="is a symbolic link"):
+        request(run_dir, {"cmd": "record_start", "path": str(link), "topics": ["chatter"]}, 20)
+    assert not target.exists()
     assert live_run.cli("record", "-o", str(tmp_path / "after.mcap"), "--duration", "0.3").returncode == 0
