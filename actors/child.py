@@ -42,12 +42,17 @@ class _ActorFilter(logging.Filter):
         return True
 
 
-def configure_logging(actor: str, level: int = logging.INFO) -> None:
-    """Every log line of this process says which actor said it."""
+def configure_logging(actor: str, level: int = logging.INFO, stderr_level: int = logging.NOTSET) -> None:
+    """Every log line of this process says which actor said it.
+
+    ``stderr_level``: the least level shown on stderr (``supervise --quiet``:
+    warnings); the log file (:func:`add_log_file`) still gets ``level``.
+    """
     root = logging.getLogger()
     for h in list(root.handlers):
         root.removeHandler(h)
     h = logging.StreamHandler(sys.stderr)
+    h.setLevel(stderr_level)
     h.addFilter(_ActorFilter(actor))
     h.setFormatter(logging.Formatter(_FORMAT))
     root.addHandler(h)
@@ -59,7 +64,7 @@ def log_path(run_dir: str, actor: str) -> str:
     return os.path.join(run_dir, "logs", f"{actor}.log")
 
 
-def add_log_file(run_dir: str, actor: str) -> None:
+def add_log_file(run_dir: str, actor: str) -> logging.Handler:
     """Also write this process's log lines to :func:`log_path` (rotated; ``embagents logs NAME`` reads it)."""
     from logging.handlers import RotatingFileHandler
 
@@ -69,6 +74,7 @@ def add_log_file(run_dir: str, actor: str) -> None:
     h.addFilter(_ActorFilter(actor))
     h.setFormatter(logging.Formatter(_FORMAT))
     logging.getLogger().addHandler(h)
+    return h
 
 
 def _notify(rt: Runtime, msg: list[Any]) -> None:
@@ -101,7 +107,7 @@ def child_main(spec: dict[str, Any]) -> None:
         # Its fd is the root's copy of stderr, closed by the fork server: the next file this process
         # opens (its log) would get that number, and a crash would write there. Point it at our stderr.
         faulthandler.enable(sys.stderr, all_threads=True)
-    configure_logging(name, spec.get("log_level", logging.INFO))
+    configure_logging(name, spec.get("log_level", logging.INFO), spec.get("stderr_level", logging.NOTSET))
     with contextlib.suppress(OSError):  # a log file is a help, not a condition to run
         add_log_file(spec["run_dir"], name)
     with contextlib.suppress(Exception):

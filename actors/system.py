@@ -90,7 +90,7 @@ class ActorSystem:
     them in reverse order and removes everything the run left behind.
     """
 
-    def __init__(self, *, log_level: int = logging.INFO) -> None:
+    def __init__(self, *, log_level: int = logging.INFO, stderr_level: int = logging.NOTSET) -> None:
         with contextlib.suppress(RuntimeError):
             if not current().closed:
                 raise ActorError("an ActorSystem is already running in this process; shut it down first")
@@ -98,6 +98,7 @@ class ActorSystem:
         self.run_dir = os.path.join(_run_base(), f"run-{self.run_id}")
         os.mkdir(self.run_dir, 0o700)  # fails if it exists: never adopt a folder someone else made
         self.log_level = log_level
+        self.stderr_level = stderr_level  # the least level each actor shows on stderr (its log file gets log_level)
         # Fork the server first: before this process opens sockets of its own.
         self.forkserver = ForkServer(self.run_dir, shm_prefix(self.run_id), child_main)
         self.rt = Runtime(self.run_dir, self.run_id)
@@ -297,6 +298,7 @@ class ActorSystem:
             "run_dir": self.run_dir,
             "run_id": self.run_id,
             "log_level": self.log_level,
+            "stderr_level": self.stderr_level,
             "heartbeat": opts.get("heartbeat", 1.0),
             "poison_limit": opts.get("poison_limit", 3),
             "nice": opts.get("nice"),

@@ -71,6 +71,8 @@ log = logging.getLogger("actors.topics")
 KEEP_ALL_SUFFIX = "-all"
 _NOBLOCK = int(zmq.NOBLOCK)
 _EVENTS, _POLLIN = int(zmq.EVENTS), int(zmq.POLLIN)
+#: Frames below this size are copied into ZeroMQ (pyzmq copies them even when told not to).
+_COPY_THRESHOLD = zmq.COPY_THRESHOLD
 #: A topic frame's header: the publisher's id and its sequence number.
 _HEADER = struct.Struct("<QQ")
 #: Publisher ids a subscription remembers sequence numbers for (restarted publishers get new ids).
@@ -243,7 +245,9 @@ class Publisher:
         self.sent += 1
         body, _ = self.rt.codec.encode(msg, sink=self._sink)
         frame = _HEADER.pack(self.id, self.sent) + body
-        copy = len(frame) > 4096
+        # Below pyzmq's copy threshold copy=False copies all the same, through a Frame object made per
+        # send, per subscriber (measured: 1.2 us a send copied, 1.6-2.5 us not); above it, no copy.
+        copy = len(frame) < _COPY_THRESHOLD
         if self._latest:
             self.sock.send(frame, _NOBLOCK, copy=copy)  # XPUB drops at its HWM (counted as gaps)
         for rel in self._reliable.values():

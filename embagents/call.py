@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["call", "call_command", "parse_args"]
+__all__ = ["BASE_ACTIONS", "actions", "call", "call_command", "parse_args"]
 
 
 def parse_args(values: Sequence[str]) -> list[Any]:
@@ -42,8 +42,22 @@ def parse_args(values: Sequence[str]) -> list[Any]:
     return out
 
 
-def _public_methods(component: Any) -> list[str]:
-    return sorted(n for n in dir(type(component)) if not n.startswith("_") and callable(getattr(component, n, None)))
+#: Methods of the base classes that are actions too (the rest of theirs is the runtime's: hooks, health, wiring).
+BASE_ACTIONS = ("change_model_client", "reconfigure")
+
+
+def actions(component: Any) -> list[str]:
+    """The actions of ``component``: public methods its own classes add, and :data:`BASE_ACTIONS`.
+
+    Hooks (``on_activate``), health setters (``set_system_failure``) and the
+    rest of :class:`~embagents.components.Component`'s machinery are not listed.
+    """
+    from embagents.components.component import Component
+    from embagents.components.model_component import ModelComponent
+
+    base = set(dir(ModelComponent)) | set(dir(Component))
+    return sorted(n for n in dir(type(component)) if not n.startswith("_") and (n not in base or n in BASE_ACTIONS)
+                  and callable(getattr(component, n, None)))
 
 
 def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
@@ -61,7 +75,7 @@ def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str,
                     f"its components: {', '.join(sorted(by_name)) or 'none'}"}
         if not isinstance(method, str) or method.startswith("_") or not callable(getattr(comp, method, None)):
             return {"ok": False, "error": f"component {name!r} ({type(comp).__name__}) has no action {method!r}; "
-                    f"its methods: {', '.join(_public_methods(comp))}"}
+                    f"its actions: {', '.join(actions(comp)) or 'none'}"}
         args, kwargs = req.get("args") or [], req.get("kwargs") or {}
         timeout = float(req.get("timeout") or 60.0)
         if req.get("deadline") is not None:  # the caller stops waiting then: so does the ask

@@ -10,6 +10,7 @@ component it is about. Levels:
   action naming a component that is not in the system (or a method, client
   or config key it does not have), ROS bridge wiring the bridge refuses, a
   model whose local file is not there (or that the system does not declare),
+  a model whose backend library is not installed (named with its extra),
   a supervision policy the supervision tree refuses (checked by building it),
   CUDA initialised in this (the root) process by the system file's import
   (``cuda-in-root``: CUDA does not survive ``fork``, and every actor process
@@ -248,13 +249,49 @@ def _event_problems(system: System) -> list[Problem]:
     return out
 
 
+#: Per model ``kind``, the modules its backend imports in the model actor: (module, pip package, extra).
+BACKEND_MODULES: dict[str, tuple[tuple[str, str, str], ...]] = {
+    "llama": (("llama_cpp", "llama-cpp-python", "llm"),),
+    "vlm": (("llama_cpp", "llama-cpp-python", "llm"),),
+    "detector": (("onnxruntime", "onnxruntime", "vision"), ("cv2", "opencv-python-headless", "vision")),
+    "embedding": (("onnxruntime", "onnxruntime", "memory"), ("tokenizers", "tokenizers", "memory")),
+    "stt": (("sherpa_onnx", "sherpa-onnx", "speech"),),
+    "tts": (("sherpa_onnx", "sherpa-onnx", "speech"),),
+    "policy": (("onnxruntime", "onnxruntime", "vla"),),
+}
+
+
+def _missing_module(module: str) -> bool:
+    """Whether ``module`` cannot be imported here; found without importing it (llama_cpp takes a second)."""
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(module) is None
+    except (ImportError, ValueError):  # a broken parent package, or a module set to None in sys.modules
+        return True
+
+
+def _backend_problems(models: list[Any]) -> list[Problem]:
+    """A model whose backend's library is not installed: the model actor would fail at start with a traceback."""
+    out = []
+    for m in models:
+        for module, package, extra in BACKEND_MODULES.get(m.kind, ()):
+            if _missing_module(module):
+                out.append(Problem(None, "missing-backend",
+                                   f"model {m.name!r} ({type(m).__name__}) needs {package} (module {module}), which "
+                                   f"is not installed in this Python ({sys.executable}): pip install "
+                                   f"'embagents[{extra}]' (or pip install {package})"))
+                break  # one line per model: the extra brings the rest
+    return out
+
+
 def _model_problems(system: System) -> list[Problem]:
     try:
         models = models_of(system)
     except ValueError as exc:
         return [Problem(None, "undeclared-model", str(exc))]
     return [Problem(None, "model-file", f"model {m.name!r}: {why}")
-            for m in models if (why := m.file_problem()) is not None]
+            for m in models if (why := m.file_problem()) is not None] + _backend_problems(models)
 
 
 def _supervision_problems(system: System) -> list[Problem]:

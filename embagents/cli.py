@@ -135,7 +135,10 @@ def _lazy(module: str, what: str) -> Callable[..., Any]:
 
 def _supervise_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("system", help="path of the system.py file")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    loud = parser.add_mutually_exclusive_group()
+    loud.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    loud.add_argument("-q", "--quiet", action="store_true",
+                      help="only warnings and errors on stderr (the answers are on stdout; `embagents logs` has the rest)")
     parser.add_argument("--dashboard", action="store_true", help="serve the dashboard page and its JSON/WebSocket API")
     parser.add_argument("--dashboard-host", default="127.0.0.1", help="the dashboard's address (default: this machine only)")
     parser.add_argument("--dashboard-port", type=int, default=8420, help="the dashboard's port (default 8420)")

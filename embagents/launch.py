@@ -14,10 +14,12 @@ Example::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
 import threading
+from collections import deque
 from typing import Any
 
 from actors.child import add_log_file, configure_logging
@@ -30,32 +32,86 @@ from embagents.runtime.requests import SUPERVISOR_REQUESTS, SupervisorRequest
 from embagents.supervision import build_spec
 from embagents.tools.root import install as install_tools
 
-__all__ = ["SYSTEM_STOP", "run", "run_system"]
+__all__ = ["SYSTEM_STOP", "Interrupted", "run", "run_system"]
 
 log = logging.getLogger("embagents.supervise")
 
 #: Publish anything on this topic to stop the whole system cleanly.
 SYSTEM_STOP = "system_stop"
-def run_system(path: str, dashboard: tuple[str, int] | None = None) -> int:
+#: An import of system.py still running after this many seconds is said on stderr (it may never return).
+IMPORT_NOTICE_S = 1.5
+
+
+class Interrupted(Exception):
+    """Ctrl-C before the system started: said in one line, not a traceback."""
+
+
+class _EarlyLines(logging.Handler):
+    """Holds the root's log records until the run's folder (and so ``logs/root.log``) exists."""
+
+    def __init__(self, limit: int = 10_000) -> None:
+        super().__init__()
+        self.records: deque[logging.LogRecord] = deque(maxlen=limit)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+    def take(self) -> list[logging.LogRecord]:
+        """Stop holding; the records held so far (before the file handler is added: none is written twice)."""
+        logging.getLogger().removeHandler(self)
+        records = list(self.records)
+        self.records.clear()
+        return records
+
+
+def _load(path: str, quiet: bool) -> Any:
+    """``load_system(path, lenient=True)``, saying on stderr when the import takes long."""
+    from embagents.system import load_system
+
+    name = os.path.basename(path)
+    notice = threading.Timer(IMPORT_NOTICE_S, lambda: print(
+        f"embagents: still importing {name}... (a top-level call that does not return? Ctrl-C stops)",
+        file=sys.stderr, flush=True))
+    notice.daemon = True
+    if not quiet:
+        notice.start()
+    try:
+        return load_system(path, lenient=True)  # every component's problems, as `embagents check` lists them
+    finally:
+        notice.cancel()
+
+
+def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bool = False,
+               early: _EarlyLines | None = None) -> int:
     """Run the system in ``path`` under supervision until a stop; return the exit code.
 
     ``dashboard``: ``(host, port)`` to serve the dashboard on (:mod:`embagents.tools.dashboard`).
+    ``quiet``: only warnings and errors on stderr (the actors' log files keep every line).
+    ``early``: the root's log lines so far, written into ``logs/root.log`` once the run has its folder.
     """
+    from actors import ActorSystem
     from embagents.check import check_system, errors
-    from embagents.system import counted, load_system
+    from embagents.system import counted
     from supervisor.run import serve
 
-    system = load_system(path, lenient=True)  # every component's problems, as `embagents check` lists them
+    try:
+        system = _load(path, quiet)
+    except KeyboardInterrupt:
+        raise Interrupted(f"stopped (Ctrl-C) while importing {path}; nothing was started") from None
     path = os.path.abspath(path)
-    problems = check_system(system)
-    for p in problems:
-        print(p, file=sys.stderr)
-    if errors(problems):
-        print(f"{path}: {counted(len(errors(problems)), 'error')}; not starting", file=sys.stderr)
-        return 1
-    remember_system(path, system)  # forked actor processes find it in memory
-    resolved = {m.name: m.resolve() for m in models_of(system)}  # downloads (with progress) happen here, once
-    spec = build_spec(system, path, resolved)
+    try:
+        problems = check_system(system)
+        for p in problems:
+            print(p, file=sys.stderr)
+        if errors(problems):
+            print(f"{path}: {counted(len(errors(problems)), 'error')}; not starting", file=sys.stderr)
+            return 1
+        remember_system(path, system)  # forked actor processes find it in memory
+        resolved = {m.name: m.resolve() for m in models_of(system)}  # downloads (with progress) happen here, once
+        spec = build_spec(system, path, resolved)
+    except KeyboardInterrupt:
+        raise Interrupted("stopped (Ctrl-C) while checking the system and preparing its models; "
+                          "nothing was started") from None
 
     def on_ready(sup: Any, control: Any) -> None:
         asys = sup.system
@@ -76,18 +132,26 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None) -> int:
         topics = install_tools(sup, control, system)  # `embagents topic list`, `embagents record`
         if dashboard is not None:
             dashboards.append(_start_dashboard(sup, control, system, topics, dashboard))
-        add_log_file(asys.run_dir, "root")  # `embagents logs root`
-        print(f"embagents: system {system.name!r} running ({counted(len(system.components), 'component')}, "
-              f"{managers}{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it", file=sys.stderr,
-              flush=True)
+        running = (f"system {system.name!r} running ({counted(len(system.components), 'component')}, "
+                   f"{managers}{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it")
+        held = early.take() if early is not None else []  # the start-up lines, logged before the folder existed
+        with contextlib.suppress(OSError):  # a log file is a help, not a condition to run
+            handler = add_log_file(asys.run_dir, "root")  # `embagents logs root`
+            for record in held:
+                handler.handle(record)
+            handler.handle(log.makeRecord(log.name, logging.INFO, __file__, 0, running, (), None))  # the file only
+        if not quiet:
+            print(f"embagents: {running}", file=sys.stderr, flush=True)
 
     dashboards: list[Any] = []
+    actors = ActorSystem(stderr_level=logging.WARNING if quiet else logging.NOTSET)
     try:
-        return serve(spec, system_name=system.name, on_ready=on_ready)
+        return serve(spec, system_name=system.name, on_ready=on_ready, system=actors)
     finally:
         for d in dashboards:
             if d is not None:
                 d.stop()
+        actors.shutdown()
 
 
 def _start_dashboard(sup: Any, control: Any, system: Any, topics: Any, where: tuple[str, int]) -> Any:
@@ -133,10 +197,17 @@ class _SupervisorRequests:
 
 
 def run(args: argparse.Namespace) -> int:
-    configure_logging("supervise", logging.DEBUG if args.verbose else logging.INFO)
+    quiet = getattr(args, "quiet", False)
+    configure_logging("supervise", logging.DEBUG if args.verbose else logging.INFO,
+                      logging.WARNING if quiet else logging.NOTSET)
+    early = _EarlyLines()
+    logging.getLogger().addHandler(early)
     try:
         dashboard = (args.dashboard_host, args.dashboard_port) if getattr(args, "dashboard", False) else None
-        return run_system(args.system, dashboard)
+        return run_system(args.system, dashboard, quiet=quiet, early=early)
+    except Interrupted as exc:
+        print(f"embagents supervise: {exc}", file=sys.stderr)
+        return 130
     except Exception as exc:  # a clear one-line error, not a traceback, for bad input
         from actors import UnsafeFolder
         from embagents.system import SystemFileError
@@ -147,3 +218,5 @@ def run(args: argparse.Namespace) -> int:
             print(f"embagents supervise: {exc}", file=sys.stderr)
             return 1
         raise
+    finally:
+        logging.getLogger().removeHandler(early)

@@ -37,12 +37,12 @@ def logs_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
 
 
-def _known(folder: str) -> str:
+def _logs(folder: str) -> list[str]:
+    """The actors with a log file in ``folder`` (the run's ``logs``)."""
     try:
-        names = sorted(f[:-4] for f in os.listdir(folder) if f.endswith(".log"))
+        return sorted(f[:-4] for f in os.listdir(folder) if f.endswith(".log"))
     except FileNotFoundError:
-        names = []
-    return ", ".join(names) or "none yet"
+        return []
 
 
 def _follow(path: str, pos: int, pid: int) -> None:
@@ -70,10 +70,12 @@ def run(args: argparse.Namespace) -> int:
     """Print (and with ``-f`` follow) the log of actor ``args.name``; 1 with an error naming the known ones."""
     try:
         found = pick_run(args.run)
-        path = log_path(found["run_dir"], args.name)
-        if not os.path.exists(path):
+        folder = os.path.dirname(log_path(found["run_dir"], "root"))
+        known = _logs(folder)
+        if args.name not in known:  # only a file listed there: a name is never a path out of it
             raise ControlError(f"no log for {args.name!r} in run {found['run_id']}; "
-                               f"logs: {_known(os.path.dirname(path))}")
+                               f"logs: {', '.join(known) or 'none yet'}")
+        path = log_path(found["run_dir"], args.name)
         old = [f"{path}.{i}" for i in range(LOG_BACKUPS, 0, -1) if os.path.exists(f"{path}.{i}")]
         lines: deque[str] = deque(maxlen=args.lines if args.lines else None)
         for p in [*old, path]:

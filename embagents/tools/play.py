@@ -5,13 +5,18 @@ Messages go out on their recorded topics at the recorded timing
 one per Enter). A file that is cut short (a killed recorder, a copy that
 broke off) or corrupt plays up to its last readable message, and the
 command says at which byte and after which message it stopped (exit 1).
-Topics starting with ``_`` (supervisor events, health) are skipped unless
-named with ``--topics``.
+Only topics no component of the run publishes are played by default (a
+recording of a chat run holds its questions and its answers: playing both
+into a live run would double and garble the answers); the command names the
+topics it skipped, and ``--all`` plays them too. Topics starting with ``_``
+(supervisor events, health), ``system_stop`` (it would stop the run) and
+topics the run does not declare are skipped unless named with ``--topics``.
 
 Example::
 
     $ embagents play /tmp/run.mcap --rate 2
-    played 312 messages on 4 topics from /tmp/run.mcap
+    skipped text_out (12 messages: published by llm; --all plays it too)
+    played 12 messages on 1 topics from /tmp/run.mcap
 """
 
 from __future__ import annotations
@@ -26,7 +31,12 @@ from typing import Any, NamedTuple
 from actors import UnsafeFolder
 from supervisor.client import ControlError
 
-__all__ = ["Stopped", "play_arguments", "read_messages", "run"]
+__all__ = ["MCAP_MAGIC", "Stopped", "play_arguments", "read_messages", "run"]
+
+#: The first bytes of every MCAP file.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: Publishing anything here stops the run (:data:`embagents.launch.SYSTEM_STOP`): played only when named.
+SYSTEM_STOP = "system_stop"
 
 
 def play_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +45,10 @@ def play_arguments(parser: argparse.ArgumentParser) -> None:
     pace.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: recorded timing)")
     pace.add_argument("--fast", action="store_true", help="as fast as possible")
     pace.add_argument("--step", action="store_true", help="one message per Enter")
-    parser.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics")
+    parser.add_argument("--topics", nargs="+", metavar="TOPIC",
+                        help="play only these topics (any topic named here is played, even system_stop)")
+    parser.add_argument("--all", action="store_true",
+                        help="also play topics that components of the run publish (default: skipped, and named)")
     parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
     parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
 
@@ -62,6 +75,13 @@ def read_messages(path: str, stopped: list[Stopped]) -> Iterator[tuple[str, int,
 
     size = os.path.getsize(path)
     with open(path, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+        if not head or not MCAP_MAGIC.startswith(head):  # a file of another kind, not a cut MCAP
+            what = f"it starts with {head!r}, an MCAP file with {MCAP_MAGIC!r}" if head else "it is empty"
+            stopped.append(Stopped(path, 0, size, f"not an MCAP file ({what}); "
+                                   "`embagents record -o FILE.mcap` makes one"))
+            return
+        f.seek(0)
         reader = NonSeekingReader(f, record_size_limit=1 << 30)
         try:
             for schema, channel, message in reader.iter_messages(log_time_order=False):
@@ -71,6 +91,51 @@ def read_messages(path: str, stopped: list[Stopped]) -> Iterator[tuple[str, int,
             if f.tell() >= size:  # EndOfFile, or a header cut in two
                 reason = "the file ends inside a record: cut short, by a killed recorder or an incomplete copy"
             stopped.append(Stopped(path, f.tell(), size, reason))
+
+
+class _Skips:
+    """Which recorded topics are not played, and why (see the module doc); counts what each skip left out."""
+
+    def __init__(self, rows: list[dict[str, Any]], named: list[str], everything: bool) -> None:
+        self.known = {r["name"]: r for r in rows}
+        self.named, self.everything = set(named), everything
+        self.skipped: dict[str, list[Any]] = {}  # topic -> [why, messages]
+        self.played: set[str] = set()
+
+    def why(self, topic: str) -> str | None:
+        """Why ``topic`` is not played (None: it is)."""
+        if self.named:
+            return None if topic in self.named else "not named in --topics"
+        if topic.startswith("_"):
+            return "the runtime's own; name it with --topics to play it"
+        if topic == SYSTEM_STOP:
+            return "it would stop the run; name it with --topics to play it"
+        row = self.known.get(topic)
+        if row is None:
+            return "not a topic of this run; name it with --topics to play it"
+        components = [p for p in row["publishers"] if not p.startswith("(")]
+        if components and not self.everything:
+            return f"published by {', '.join(components)}; --all plays it too"
+        return None
+
+    def __call__(self, topic: str) -> bool:
+        """Whether to skip this message of ``topic`` (decided once per topic)."""
+        if topic in self.played:
+            return False
+        entry = self.skipped.get(topic)
+        if entry is None:
+            why = self.why(topic)
+            if why is None:
+                self.played.add(topic)
+                return False
+            entry = self.skipped[topic] = [why, 0]
+        entry[1] += 1
+        return True
+
+    def report(self) -> list[str]:
+        """``skipped TOPIC (N messages: why)`` per topic, but for what ``--topics`` left out on purpose."""
+        return [f"skipped {topic} ({n} messages: {why})" for topic, (why, n) in self.skipped.items()
+                if why != "not named in --topics"]
 
 
 def _pace(args: argparse.Namespace, log_time: int, start: list[float]) -> None:
@@ -94,17 +159,17 @@ def run(args: argparse.Namespace) -> int:
         if args.rate <= 0:
             raise ValueError(f"--rate must be above 0, got {args.rate}")
         found, rows = run_topics(args.run, args.timeout)
-        known = {r["name"] for r in rows}
+        skip = _Skips(rows, [t.removeprefix("/") for t in args.topics or []], getattr(args, "all", False))
         stopped: list[Stopped] = []
         publishers: dict[str, Publisher] = {}
         count, start, last = 0, [], None
         with Attached(found) as seat:
             for path in args.files:
                 for topic, log_time, msg in read_messages(path, stopped):
-                    if (args.topics and topic not in args.topics) or (not args.topics and topic.startswith("_")):
+                    if skip(topic):
                         continue
                     if topic not in publishers:
-                        if topic not in known:
+                        if topic not in skip.known:
                             print(f"warning: topic {topic!r} is not declared in this run; published anyway",
                                   file=sys.stderr)
                         publishers[topic] = Publisher(seat.rt, topic)
@@ -116,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.3)  # the last frames leave the sockets before they close
             for p in publishers.values():
                 p.close()
+        for line in skip.report():
+            print(line, file=sys.stderr)
         print(f"played {count} messages on {len(publishers)} topics from {', '.join(args.files)}")
         if stopped:
             s = stopped[0]

@@ -88,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
         if not args.output:
             raise ValueError("say where to record: -o FILE.mcap")
         path = os.path.abspath(args.output)
+        if os.path.islink(path):  # the recorder refuses it too (O_NOFOLLOW); said here, before it starts
+            from embagents.tools.recorder import refusal
+
+            raise ValueError(str(refusal(path)))
         req: dict[str, Any] = {
             "cmd": "record_start", "path": path, "topics": [t.removeprefix("/") for t in args.topics],
             "max_bytes": int(args.max_size * 1e6) if args.max_size else None, "max_seconds": args.max_duration,

@@ -9,8 +9,9 @@ leaves a file readable up to its last chunk. A file is rotated when it
 passes ``max_bytes`` or ``max_seconds``: ``out.mcap``, ``out.1.mcap``,
 ``out.2.mcap``... (``max_files`` keeps only the newest). A restarted
 recorder never writes over its killed file: it goes on in the next one.
-Each file is locked (``flock``) while written: a second recorder on the
-same file is refused.
+Each file is created afresh, owner-only (0600: a recording holds what the
+robot saw and heard), never through a symbolic link, and locked (``flock``)
+while written: a second recorder on the same file is refused.
 
 Example (what the root starts)::
 
@@ -31,7 +32,7 @@ from actors import Actor
 from actors.codec import message_class
 from embagents.tools.mcap_codec import kind_of
 
-__all__ = ["RecorderActor", "RecordingLocked", "lock_file", "rotation_path", "rotation_files"]
+__all__ = ["RecorderActor", "RecordingLocked", "RecordingRefused", "lock_file", "refusal", "rotation_path", "rotation_files"]
 
 log = logging.getLogger("embagents.record")
 #: Default chunk size: a SIGKILL loses the open chunk (at most this much), never a finished one.
@@ -40,6 +41,10 @@ CHUNK_BYTES = 256 * 1024
 
 class RecordingLocked(RuntimeError):
     """Another recorder writes this file."""
+
+
+class RecordingRefused(RuntimeError):
+    """Something is already at the recording's path (a file, a symbolic link): it is not written through."""
 
 
 def rotation_path(base: str, index: int) -> str:
@@ -74,16 +79,45 @@ def _rotations(base: str) -> list[tuple[int, str]]:
 
 
 def lock_file(path: str) -> int:
-    """Open ``path`` for writing (created, truncated) and lock it; RecordingLocked if it is locked."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o644)
+    """Create ``path`` (owner-only, 0600) for writing and lock it.
+
+    ``O_EXCL | O_NOFOLLOW``: a file or link already there is never written
+    through (a link another user left in ``/tmp`` would make us write where it
+    points); ``--overwrite`` unlinks the old files before the recorder starts.
+    RecordingLocked if another recorder holds it, RecordingRefused for anything
+    else already at the path.
+    """
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    except FileExistsError:
+        raise refusal(path) from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
+    except BlockingIOError:  # made by us an instant ago: only a recorder racing us for it holds it
         os.close(fd)
         raise RecordingLocked(f"{path} is being recorded by another `embagents record`; "
                               "stop that one or record to another file (-o)") from None
-    os.ftruncate(fd, 0)
     return fd
+
+
+def refusal(path: str) -> RuntimeError:
+    """Why an existing ``path`` (a link, a file being recorded, a file) is not recorded to."""
+    if os.path.islink(path):
+        return RecordingRefused(f"{path} is a symbolic link (to {os.readlink(path)!r}); a recording is never "
+                                "written through a link: remove it or record to another file (-o)")
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)  # a FIFO does not block us
+    except OSError:
+        fd = -1
+    if fd >= 0:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return RecordingLocked(f"{path} is being recorded by another `embagents record`; "
+                                   "stop that one or record to another file (-o)")
+        finally:
+            os.close(fd)
+    return RecordingRefused(f"{path} exists; pass --overwrite to replace it or choose another -o")
 
 
 class _Through:

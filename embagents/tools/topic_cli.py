@@ -5,8 +5,9 @@
   object a line); arrays as shape and dtype unless ``--full-arrays``.
 - ``hz NAME``: every second, the average rate and the min / max / std dev of
   the period over the last ``--window`` messages (as ``ros2 topic hz``).
-- ``pub NAME TYPE DATA``: DATA is YAML or JSON (``'{data: hi}'``), published
-  once or at ``--rate`` Hz through the root.
+- ``pub NAME TYPE DATA``: DATA is YAML or JSON (``'{data: hi}'``), or for a
+  type whose ``data`` is text (String) the text itself (``'What is it?'``),
+  published once or at ``--rate`` Hz through the root.
 
 ``echo`` and ``hz`` subscribe keep-latest: a terminal that stops reading
 drops messages and never slows a publisher.
@@ -57,7 +58,8 @@ def topic_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--duration", type=float, help="exit after this many seconds")
     pub = parsers["pub"]
     pub.add_argument("type", help="the message type, e.g. String (must be the topic's)")
-    pub.add_argument("data", nargs="?", default="{}", help="fields as YAML or JSON, e.g. '{data: hello}'")
+    pub.add_argument("data", nargs="?", default="{}",
+                     help="fields as YAML or JSON, e.g. '{data: hello}'; for String, the text alone: 'hello?'")
     pub.add_argument("-r", "--rate", type=float, help="publish repeatedly at this rate in Hz (Ctrl-C stops)")
     pub.add_argument("-t", "--times", type=int, help="with --rate: stop after this many messages")
 
@@ -127,9 +129,42 @@ def _hz(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pub(args: argparse.Namespace) -> int:
+def _text_type(row: dict[str, Any]) -> bool:
+    """Whether the topic's type has a ``data`` field of text (String, StreamingString)."""
+    import embagents  # noqa: F401 - registers the message types
+    from actors.codec import message_class
+    from embagents.tools.plain import field_types
+
+    try:
+        cls = message_class(row["wire"]) if row.get("wire") else None
+    except Exception:  # a wire name this process does not know: take DATA as fields
+        return False
+    return cls is not None and field_types(cls).get("data") is str
+
+
+def _fields(data: str, row: dict[str, Any]) -> dict[str, Any]:
+    """The fields DATA gives: a YAML/JSON mapping, or for a text type, DATA itself as ``data``."""
     import yaml
 
+    text = _text_type(row)
+    if text and not data.lstrip().startswith("{"):
+        return {"data": data}  # 'What is the capital of Japan?': no YAML to get wrong
+    said = data.strip().removeprefix("{").removesuffix("}").partition(":")[2].strip() or "your text"
+    quote = (f"; put the text in double quotes, '{{data: \"{said}\"}}', or give it alone: "
+             f"embagents topic pub {row['name']} {row['type']} '{said}'" if text else
+             "; e.g. '{data: hello}', with text in double quotes inside: '{data: \"a: b?\"}'")
+    try:
+        fields = yaml.safe_load(data)
+    except yaml.YAMLError as exc:
+        problem = str(exc).splitlines()[0]
+        raise ValueError(f"DATA {data!r} is neither YAML nor JSON ({problem}){quote}") from None
+    fields = {} if fields is None else fields
+    if not isinstance(fields, dict):
+        raise ValueError(f"DATA must be a mapping of fields such as '{{data: hello}}', got {fields!r}{quote}")
+    return fields
+
+
+def _pub(args: argparse.Namespace) -> int:
     from embagents.tools.attach import find_topic, run_topics
 
     found, rows = run_topics(args.run, args.timeout)
@@ -137,13 +172,7 @@ def _pub(args: argparse.Namespace) -> int:
     if args.type not in (row["type"], row["wire"]):
         raise ControlError(f"topic {row['name']!r} carries {row['type']}, not {args.type}: "
                            f"`embagents topic pub {row['name']} {row['type']} ...`")
-    try:
-        fields = yaml.safe_load(args.data)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"DATA is neither YAML nor JSON ({exc}); e.g. '{{data: hello}}'") from None
-    fields = {} if fields is None else fields
-    if not isinstance(fields, dict):
-        raise ValueError(f"DATA must be a mapping of fields such as '{{data: hello}}', got {fields!r}")
+    fields = _fields(args.data, row)
     msg = {"cmd": "publish", "topic": row["name"], "fields": fields}
     if args.rate is None:
         request(found["run_dir"], msg, args.timeout)

@@ -57,7 +57,7 @@ def test_describe_from_the_cli_answers_about_the_camera_of_the_running_vlm_examp
         assert bad.returncode == 1
         assert "vlm.describe failed" in bad.stderr and "describe needs one of its image inputs (camera)" in bad.stderr
         bad = _cli("call", "vlm", "fly", env=env)
-        assert bad.returncode == 1 and "component 'vlm' (VLM) has no action 'fly'; its methods:" in bad.stderr
+        assert bad.returncode == 1 and "component 'vlm' (VLM) has no action 'fly'; its actions:" in bad.stderr
         assert "describe" in bad.stderr
         bad = _cli("call", "nobody", "describe", env=env)
         assert bad.returncode == 1 and "has no component 'nobody'; its components: asker, camera, printer, vlm" in bad.stderr

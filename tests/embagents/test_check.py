@@ -386,3 +386,20 @@ def test_a_bad_start_method_is_a_component_problem(tmp_path):
                  .replace('start_method="spawn"', 'start_method="forkserver"'))
     _, problems = check_file(path)
     assert [p.code for p in problems] == ["bad-start-method"]
+
+
+def test_a_model_whose_backend_is_not_installed_names_the_package_and_the_extra(tmp_path):
+    # examples/chat.py, in a Python where llama_cpp cannot be imported (the llm extra left out): here a
+    # None in sys.modules makes it unimportable for the check's process only; nothing is uninstalled.
+    hide = ("import sys; sys.modules['llama_cpp'] = None; from embagents.cli import main; "
+            "sys.exit(main(['check', sys.argv[1]]))")
+    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    example = os.path.join(ROOT, "examples", "chat.py")
+    proc = subprocess.run([sys.executable, "-c", hide, example], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 1, proc.stdout
+    assert ("error: [missing-backend] model 'smollm2' (LlamaModel) needs llama-cpp-python (module llama_cpp), "
+            "which is not installed") in proc.stdout
+    assert "pip install 'embagents[llm]'" in proc.stdout
+    ok = subprocess.run([sys.executable, "-m", "embagents.cli", "check", example], capture_output=True, text=True,
+                        env=env, timeout=120)
+    assert ok.returncode == 0 and "missing-backend" not in ok.stdout, ok.stdout  # installed here: no problem

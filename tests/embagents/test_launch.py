@@ -177,3 +177,63 @@ def test_an_unreachable_model_hub_is_one_line(tmp_path: Path) -> None:
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("embagents supervise: Cannot reach the Hugging Face hub to fetch 'Qwen/Qwen3-0.6B-GGUF")
     assert "Traceback" not in proc.stderr and "Retrying" not in proc.stderr
+
+
+QUIET = '''
+import logging
+from embagents.components import Component
+from embagents.launch import SYSTEM_STOP
+from embagents.msgs import String
+from embagents.system import System
+from embagents.topic import Topic
+
+stop = Topic(SYSTEM_STOP, String)
+log = logging.getLogger("answerer")
+
+
+class Answerer(Component):
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **_):
+        if not getattr(self, "said", False):
+            self.said = True
+            log.info("an info line of the answerer")
+            log.warning("a warning of the answerer")
+            print("ANSWER 42", flush=True)
+        self.publish(stop, String(data="done"))  # again until the root hears it
+
+
+system = System([Answerer(name="answerer", outputs=[stop], trigger=5.0)])
+'''
+
+
+def test_quiet_leaves_the_answer_on_stdout_and_only_warnings_on_stderr(tmp_path: Path) -> None:
+    path = tmp_path / "quiet.py"
+    path.write_text(QUIET)
+    loud = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                          capture_output=True, text=True, timeout=60)
+    assert loud.returncode == 0 and "an info line of the answerer" in loud.stderr and " INFO " in loud.stderr
+    quiet = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", "--quiet", str(path)],
+                           capture_output=True, text=True, timeout=60)
+    assert quiet.returncode == 0, quiet.stderr
+    assert quiet.stdout == "ANSWER 42\n"
+    assert "a warning of the answerer" in quiet.stderr  # warnings still show, from the actors too
+    assert " INFO " not in quiet.stderr and "running" not in quiet.stderr, quiet.stderr
+
+
+def test_an_import_that_never_returns_is_said_and_ctrl_c_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "hangs.py"
+    path.write_text("import time\ntime.sleep(600)  # a driver that never answers\n")
+    proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()  # blocks until the notice (the import itself never returns)
+        assert line.startswith("embagents: still importing hangs.py...") and "Ctrl-C stops" in line
+        proc.send_signal(signal.SIGINT)
+        rest = proc.stderr.read()
+        assert proc.wait(timeout=30) == 130
+    finally:
+        proc.kill()
+        proc.wait()
+    assert rest.strip() == f"embagents supervise: stopped (Ctrl-C) while importing {path}; nothing was started"

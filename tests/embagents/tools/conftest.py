@@ -52,6 +52,11 @@ class Shout(Component):
             log.info("heard %s", text)
         self.publish("loud", String(data=text.upper()))
 
+    def say(self, text: str) -> str:
+        """An action (`embagents call shout say hi`): publishes it on loud, upper-cased."""
+        self.publish("loud", String(data=text.upper()))
+        return text.upper()
+
 
 system = System([Talker(name="talker", outputs=[chatter, image, dets], trigger=20.0),
                  Shout(name="shout", inputs=[chatter], outputs=[loud], trigger=chatter)], name="tools_test")

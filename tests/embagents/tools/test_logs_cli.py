@@ -41,3 +41,21 @@ def test_logs_of_an_unknown_actor_name_the_known_ones(live_run: Run) -> None:
     out = live_run.cli("logs", "shuot")
     assert out.returncode == 1 and "no log for 'shuot'" in out.stderr
     assert "shout" in out.stderr and "talker" in out.stderr and "root" in out.stderr
+
+
+def test_a_name_that_is_not_an_actors_log_is_refused(live_run: Run, tmp_path) -> None:
+    from supervisor.client import pick_run
+
+    logs = os.path.join(pick_run(live_run.id)["run_dir"], "logs")
+    secret = tmp_path / "secret.log"
+    secret.write_text("not the run's\n")
+    for name in (os.path.relpath(tmp_path / "secret", logs), "../logs/shout", "shout/../talker"):
+        out = live_run.cli("logs", name)
+        assert out.returncode == 1 and f"no log for {name!r}" in out.stderr and "not the run's" not in out.stdout
+        assert "shout" in out.stderr  # the known ones
+
+
+def test_root_log_holds_the_start_up_lines(live_run: Run) -> None:
+    out = live_run.cli("logs", "root")
+    assert out.returncode == 0
+    assert "supervising tools_test" in out.stdout and "system 'tools_test' running" in out.stdout

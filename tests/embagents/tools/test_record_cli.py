@@ -6,10 +6,12 @@ import os
 import signal
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from embagents.tools.mcap_codec import decode
 from embagents.tools.play import read_messages
+from supervisor.client import ControlError, pick_run, request
 from tests.embagents.tools.conftest import Run
 from tests.helpers import wait_until
 
@@ -98,3 +100,25 @@ def test_sigkill_of_the_recorder_leaves_a_readable_file_and_it_goes_on(live_run:
     finally:
         out = live_run.cli("record", "--stop", path)
     assert out.returncode == 0 and "killed.1.mcap" in out.stdout  # the restarted recorder's own file
+
+
+def test_recordings_are_owner_only_and_a_symlink_at_the_path_is_refused(live_run: Run, tmp_path: Path) -> None:
+    path = tmp_path / "private.mcap"
+    out = live_run.cli("record", "chatter", "-o", str(path), "--max-duration", "0.4", "--duration", "1.2")
+    assert out.returncode == 0, out.stderr
+    files = sorted(tmp_path.iterdir())
+    assert len(files) >= 2 and all(f.stat().st_mode & 0o777 == 0o600 for f in files)  # rotations too
+    target = tmp_path / "elsewhere" / "planted.mcap"  # where another user's dangling link points
+    target.parent.mkdir()
+    link = tmp_path / "link.mcap"
+    link.symlink_to(target)
+    for extra in ([], ["--overwrite"]):
+        out = live_run.cli("record", "chatter", "-o", str(link), "--duration", "0.5", *extra)
+        assert out.returncode == 1 and "is a symbolic link" in out.stderr, out.stderr
+        assert not target.exists() and link.is_symlink()
+    # The recorder itself (O_EXCL | O_NOFOLLOW), asked by another client than the CLI, or a link made after its check:
+    run_dir = pick_run(live_run.id)["run_dir"]
+    with pytest.raises(ControlError, match="is a symbolic link"):
+        request(run_dir, {"cmd": "record_start", "path": str(link), "topics": ["chatter"]}, 20)
+    assert not target.exists()
+    assert live_run.cli("record", "-o", str(tmp_path / "after.mcap"), "--duration", "0.3").returncode == 0

@@ -70,8 +70,34 @@ def test_pub_data_that_does_not_fit_names_the_field(live_run: Run) -> None:
     assert out.returncode == 1 and "String has no field 'colour'" in out.stderr and "data (str)" in out.stderr
     out = live_run.cli("topic", "pub", "chatter", "Image", "{}")
     assert out.returncode == 1 and "carries String, not Image" in out.stderr
-    out = live_run.cli("topic", "pub", "chatter", "String", "[1, 2")
+    out = live_run.cli("topic", "pub", "chatter", "String", "{data: [1, 2")
     assert out.returncode == 1 and "neither YAML nor JSON" in out.stderr
+
+
+def test_pub_takes_plain_text_for_a_string_and_says_how_to_quote_yaml(live_run: Run) -> None:
+    echo = live_run.popen("topic", "echo", "loud", "--json", "--duration", "30")
+    try:
+        assert echo.stdout is not None
+        echo.stdout.readline()
+        out = live_run.cli("topic", "pub", "chatter", "String", "What is the capital of Japan?")
+        assert out.returncode == 0, out.stderr
+        wait_until(lambda: json.loads(echo.stdout.readline())["data"] == "WHAT IS THE CAPITAL OF JAPAN?", 20,
+                   "the plain text, shouted")
+    finally:
+        echo.terminate()
+        echo.wait(10)
+    out = live_run.cli("topic", "pub", "chatter", "String", "{data: What is the capital of Japan?}")
+    assert out.returncode == 1 and "neither YAML nor JSON" in out.stderr
+    assert """'{data: "What is the capital of Japan?"}'""" in out.stderr
+    assert "embagents topic pub chatter String 'What is the capital of Japan?'" in out.stderr
+
+
+def test_call_lists_a_components_actions_not_its_internals(live_run: Run) -> None:
+    out = live_run.cli("call", "shout", "nosuch")
+    assert out.returncode == 1 and "has no action 'nosuch'; its actions: reconfigure, say" in out.stderr
+    assert "set_system_failure" not in out.stderr and "on_activate" not in out.stderr
+    said = live_run.cli("call", "shout", "say", "hi")
+    assert said.returncode == 0 and said.stdout.strip() == "shout.say -> 'HI'", said.stderr
 
 
 def test_a_paused_echo_drops_and_never_holds_publishers_back(live_run: Run) -> None:
