@@ -26,8 +26,8 @@ and a router's route actions (:class:`~embagents.runtime.requests.RouteFired`).
 
 from __future__ import annotations
 
-import logging
 import copy
+import logging
 from collections import defaultdict
 from typing import Any
 
