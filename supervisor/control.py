@@ -16,6 +16,11 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
   now (``Supervisor.bounce``); ``{"ok", "pid"}``.
 - ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
   reverse order).
+- ``{"cmd": "wait_ready"}`` -> ``{"ok", "ready": true}``, answered once the run
+  is ready (at once if it is): a blocking request, no polling. The run is
+  ready when the layer above says so (:meth:`ControlServer.mark_ready`), or,
+  unless it :meth:`~ControlServer.hold_ready`, once the tree has started.
+  ``status`` answers ``ready`` too.
 - any command the layer above adds with :meth:`ControlServer.add_command`
   (``embagents supervise`` adds ``publish``: a message on a topic of the system).
 
@@ -23,8 +28,8 @@ While the endpoint is up, ``<private>/runs/<run_id>.json`` (``<private>`` is
 :func:`actors.private_dir`: ``$XDG_RUNTIME_DIR/embagents`` or
 ``/tmp/embagents-<uid>``, checked at every use; ``$EMBAGENTS_RUNS_DIR`` (``$<APP>_RUNS_DIR``, :mod:`actors.app`)
 overrides the folder, checked the same way) holds ``run_id``,
-``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint`` and
-``started``; it is removed on close.
+``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint``,
+``started`` and ``ready`` (rewritten when the run becomes ready); it is removed on close.
 
 Example::
 
@@ -96,6 +101,10 @@ class ControlServer:
         self._prev: dict[str, tuple[int, int, float]] = {}  # name -> (incarnation, handled, when)
         self._closed = threading.Event()
         self._commands: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {}
+        self.ready = False
+        self.ready_held = False
+        self._waiting: list[bytes] = []  # idents of wait_ready requests not answered yet (control thread only)
+        self._wake_r, self._wake_w = os.pipe()  # mark_ready wakes the control thread to answer them
         self.endpoint = control_endpoint(system.run_dir)
         self.sock = system.rt.ctx.socket(zmq.ROUTER)
         self.sock.setsockopt(zmq.LINGER, 200)
@@ -113,18 +122,47 @@ class ControlServer:
             "system": self.name,
             "endpoint": self.endpoint,
             "started": self.started,
+            "ready": self.ready,
         }
         fd, tmp = tempfile.mkstemp(prefix=".announce-", dir=runs_dir())  # a reader never sees half a file
         with os.fdopen(fd, "w") as f:
             json.dump(info, f)
         os.replace(tmp, self.discovery)
 
+    def hold_ready(self) -> None:
+        """The layer above says when the run is ready (:meth:`mark_ready`); call it before :func:`~supervisor.run.serve` would."""
+        self.ready_held = True
+
+    def mark_ready(self) -> None:
+        """The run is ready: answer the ``wait_ready`` requests and say so in the announcement (any thread)."""
+        if self.ready:
+            return
+        self.ready = True
+        with contextlib.suppress(OSError):
+            self._announce()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"r")
+
     # -- serving (its own thread: a status request may wait on actors) -------
+    def _answer_waiting(self) -> None:
+        with contextlib.suppress(OSError):
+            os.read(self._wake_r, 64)
+        if not self.ready:
+            return
+        waiting, self._waiting = self._waiting, []
+        for ident in waiting:
+            with contextlib.suppress(zmq.ZMQError):
+                self.sock.send_multipart([ident, b"", msgpack.packb({"ok": True, "ready": True})])
+
     def _serve(self) -> None:
         poller = zmq.Poller()
         poller.register(self.sock, zmq.POLLIN)
+        poller.register(self._wake_r, zmq.POLLIN)
         while not self._closed.is_set():
-            if not poller.poll(100):
+            events = dict(poller.poll(100))
+            if self._wake_r in events:
+                self._answer_waiting()
+            if self.sock not in events:
                 continue
             try:
                 frames = self.sock.recv_multipart(zmq.NOBLOCK)
@@ -138,6 +176,9 @@ class ControlServer:
                 msg = msgpack.unpackb(body)
                 if not isinstance(msg, dict):
                     raise ValueError("a request is a msgpack map with a 'cmd' key")
+                if msg.get("cmd") == "wait_ready" and not self.ready:
+                    self._waiting.append(ident)  # answered by _answer_waiting once ready
+                    continue
                 reply = self.handle(msg)
             except Exception as exc:
                 reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
@@ -152,7 +193,7 @@ class ControlServer:
 
         An exception in ``handler`` is answered as ``{"ok": False, "error": ...}``.
         """
-        if cmd in ("status", "restart", "stop") or cmd in self._commands:
+        if cmd in ("status", "restart", "stop", "wait_ready") or cmd in self._commands:
             raise ValueError(f"control command {cmd!r} is already served")
         self._commands[cmd] = handler
 
@@ -165,8 +206,11 @@ class ControlServer:
                 "run_id": self.system.run_id,
                 "pid": os.getpid(),
                 "uptime": round(time.monotonic() - self._t0, 1),
+                "ready": self.ready,
                 "rows": self.rows(),
             }
+        if cmd == "wait_ready":
+            return {"ok": True, "ready": self.ready}
         if cmd == "restart":
             name = msg.get("name")
             if not isinstance(name, str):
@@ -180,7 +224,7 @@ class ControlServer:
             return {"ok": True, "stopping": True}
         if isinstance(cmd, str) and cmd in self._commands:
             return self._commands[cmd](msg)
-        known = ", ".join(["status", "restart", "stop", *self._commands])
+        known = ", ".join(["status", "restart", "stop", "wait_ready", *self._commands])
         return {"ok": False, "error": f"unknown command {cmd!r}; one of: {known}"}
 
     def _locate(self, name: str) -> Any:
@@ -237,4 +281,7 @@ class ControlServer:
         self._closed.set()
         if self._thread is not threading.current_thread():
             self._thread.join(2)
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
 

@@ -68,7 +68,7 @@ def test_a_command_added_by_the_layer_above_is_served_and_listed(system: ActorSy
     try:
         control.add_command("echo", lambda msg: {"ok": True, "said": msg["text"]})
         assert request(system.run_dir, {"cmd": "echo", "text": "hi"})["said"] == "hi"
-        assert "one of: status, restart, stop, echo" in request_error(system, {"cmd": "dance"})
+        assert "one of: status, restart, stop, wait_ready, echo" in request_error(system, {"cmd": "dance"})
         assert "KeyError" in request_error(system, {"cmd": "echo"})  # a failing handler is an answer
         with pytest.raises(ValueError, match="already served"):
             control.add_command("status", lambda msg: {"ok": True})
@@ -126,4 +126,27 @@ def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: 
         assert request(system.run_dir, {"cmd": "status"})["ok"]
     finally:
         sock.close()
+        control.close()
+
+
+def test_wait_ready_is_answered_when_the_run_is_ready_and_status_keeps_being_served(system: ActorSystem) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    try:
+        control.hold_ready()
+        answers: list[dict] = []
+        waiter = threading.Thread(target=lambda: answers.append(request(system.run_dir, {"cmd": "wait_ready"}, 30)))
+        waiter.start()
+        # The held request blocks neither the endpoint nor the other requests.
+        assert request(system.run_dir, {"cmd": "status"})["ready"] is False
+        with open(control.discovery) as f:
+            assert json.load(f)["ready"] is False
+        assert answers == []
+        control.mark_ready()
+        waiter.join(10)
+        assert answers == [{"ok": True, "ready": True}]
+        with open(control.discovery) as f:
+            assert json.load(f)["ready"] is True
+        assert request(system.run_dir, {"cmd": "wait_ready"}) == {"ok": True, "ready": True}  # at once now
+    finally:
         control.close()
