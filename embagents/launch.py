@@ -79,7 +79,8 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, ready_fil
         return 1
     remember_system(path, system)  # forked actor processes find it in memory
     resolved = {m.name: m.resolve() for m in models_of(system)}  # downloads (with progress) happen here, once
-    spec = build_spec(system, path, resolved)
+    waits = wiring(system)  # these start inactive: Activation activates them once their subscribers are up
+    spec = build_spec(system, path, resolved, activate_later=waits)
     if ready_file:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(ready_file)  # a script waiting on it must not see an earlier run's
@@ -115,7 +116,7 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, ready_fil
                   f"{managers}{counted(len(resolved), 'model')}), ready; Ctrl-C or `embagents stop` stops it",
                   file=sys.stderr, flush=True)
 
-        activations.append(Activation(sup, system, wiring(system), wait_subscribers, ready).start())
+        activations.append(Activation(sup, system, waits, wait_subscribers, ready).start())
 
     dashboards: list[Any] = []
     try:

@@ -15,6 +15,7 @@ Example::
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import Any
 
 from embagents.models import models_of
@@ -81,10 +82,13 @@ def wiring(system: Any) -> dict[str, dict[str, tuple[str, ...]]]:
     return out
 
 
-def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -> Any:
+def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None, *,
+               activate_later: Collection[str] = ()) -> Any:
     """The supervision tree of a System: model actors, the ROS bridge, components, events.
 
     ``resolved`` maps each model's name to its local file (``Model.resolve()``).
+    ``activate_later``: components that start inactive, for the caller to activate
+    (``embagents supervise`` passes :func:`wiring`'s; the others start active).
     Without it (``embagents check``) each model's name stands in for its file:
     the tree is built, so every rule of ``supervisor.spec`` is applied, and
     nothing is downloaded. Raises ``ValueError`` / ``TypeError`` naming the rule.
@@ -101,12 +105,11 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
 
         children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
-    waiting = wiring(system)  # these start inactive: embagents supervise activates them once their subscribers are up
     for c in system.components:
         # config.step_timeout_s is the component's hang deadline: a longer step gets it killed and restarted.
         heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S
         children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=heartbeat,
-                                  lifecycle="inactive" if str(c.name) in waiting else "active",
+                                  lifecycle="inactive" if str(c.name) in activate_later else "active",
                                   snapshot_interval=0.5, start_timeout=120))
     for mgr in getattr(system, "managers", ()):
         from embagents.runtime.agent_actor import AgentActor

@@ -152,7 +152,7 @@ def test_only_components_with_declared_subscribers_wait_and_a_source_may_start_a
     path = _write(tmp_path)
     system = load_system(path)
     assert wiring(system) == {"source": {"seq": ("sink",)}}
-    targets = {c.id: c.lifecycle for c in build_spec(system, str(path)).children}
+    targets = {c.id: c.lifecycle for c in build_spec(system, str(path), activate_later=wiring(system)).children}
     assert targets == {"source": "inactive", "slow": "active", "sink": "active"}
     monkeypatch.setenv("AT_ONCE", "1")
     assert wiring(load_system(path)) == {}
