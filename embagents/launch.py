@@ -250,6 +250,8 @@ class Activation:
                     self.pending.remove(name)
                     states[name] = ACTIVE
                     progress = True
+                    log.info("activated %s: %s", name, "; ".join(
+                        f"{', '.join(who)} subscribed to {topic}" for topic, who in self.waits[name].items()))
                 if self.pending and not progress:
                     self.changed.wait(max(0.01, min(0.5, deadline - time.monotonic())))
         except Exception:
