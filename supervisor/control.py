@@ -186,6 +186,9 @@ class ControlServer:
                 self.sock.send_multipart([ident, b"", msgpack.packb(reply, default=str)])
             if reply.get("stopping"):  # answered first: the CLI learns the stop began
                 self._stop_run()
+        for ident in self._waiting:  # the run ends before it was ready: say so rather than fall silent
+            with contextlib.suppress(zmq.ZMQError):
+                self.sock.send_multipart([ident, b"", msgpack.packb({"ok": False, "error": "the run stopped before it was ready"})])
         self.sock.close()
 
     def add_command(self, cmd: str, handler: Callable[[dict[str, Any]], dict[str, Any]]) -> None:

@@ -150,3 +150,25 @@ def test_wait_ready_is_answered_when_the_run_is_ready_and_status_keeps_being_ser
         assert request(system.run_dir, {"cmd": "wait_ready"}) == {"ok": True, "ready": True}  # at once now
     finally:
         control.close()
+
+
+def test_wait_ready_is_told_when_the_run_ends_before_it_was_ready(system: ActorSystem) -> None:
+    from supervisor.client import ControlError
+
+    tree(system)
+    control = ControlServer(system, "demo")
+    control.hold_ready()
+    errors: list[str] = []
+
+    def wait() -> None:
+        try:
+            request(system.run_dir, {"cmd": "wait_ready"}, 30)
+        except ControlError as exc:
+            errors.append(str(exc))
+
+    waiter = threading.Thread(target=wait)
+    waiter.start()
+    wait_until(lambda: control._waiting, 10, "the wait_ready request held")
+    control.close()
+    waiter.join(10)
+    assert errors == ["the run stopped before it was ready"]
