@@ -57,7 +57,7 @@ class Sink(Component):
         self.got = []
         if os.environ.get("SINK_CRASHES") and not os.path.exists(OUT + ".crashed"):
             open(OUT + ".crashed", "w").close()
-            self.call_later(0.0, lambda: os._exit(3))
+            self.call_later(0.3, lambda: os._exit(3))  # once started (a crash before is a failed start)
 
     def _execution_step(self, **inputs):
         self.got.append(int(inputs["seq"].data))
@@ -131,18 +131,19 @@ def test_status_wait_ready_gives_up_after_its_timeout(tmp_path: Path) -> None:
 
 
 def test_a_subscriber_that_is_not_there_is_named_and_the_source_activated_anyway(tmp_path: Path) -> None:
-    # The sink (listed first) crashes as it starts; its replacement takes 8 s to configure.
+    # The sink (listed first) crashes 0.3 s after its start, while `slow` starts; its replacement takes 8 s
+    # to configure.
     env = _env(tmp_path, SINK_FIRST="1", SINK_CRASHES="1", SINK_RESTART_S="8", LOSS_N="1000000000")
     proc = _supervise(_write(tmp_path), env, "--wait-subscribers", "1")
     try:
         status = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--wait-ready", "60"],
                                 capture_output=True, text=True, timeout=90, env=env)
-        assert status.returncode == 0, status.stdout + status.stderr
-        rows = {r["name"]: r for r in json.loads(status.stdout)["rows"]}
-        assert rows["source"]["lifecycle"] == "active" and rows["sink"]["status"] in ("starting", "restarting")
     finally:
         subprocess.run([sys.executable, "-m", "embagents.cli", "stop"], capture_output=True, timeout=60, env=env)
         out, _ = proc.communicate(timeout=60)
+    assert status.returncode == 0, status.stdout + status.stderr + out[-3000:]
+    rows = {r["name"]: r for r in json.loads(status.stdout)["rows"]}
+    assert rows["source"]["lifecycle"] == "active" and rows["sink"]["status"] in ("starting", "restarting"), out
     assert "component 'source': activated without waiting longer than 1 s for 'sink' (not running)" in out, out[-3000:]
 
 
