@@ -125,6 +125,15 @@ class Actor:
     def on_stop(self) -> None:
         """Called on a requested stop, after the last message."""
 
+    def on_standby(self) -> None:
+        """Called in a warm standby (a spawned process waiting to take over), before it waits.
+
+        Do the slow part of getting ready here (import a framework, load a
+        model onto a GPU): the standby has no mailbox, topics or journal yet,
+        and ``context`` is not set. On takeover ``on_start`` runs as usual and
+        should skip what this already did. Not called in an ordinary start.
+        """
+
     def on_failure(
         self,
         exc_type: type[BaseException] | None,

@@ -21,7 +21,10 @@ from actors.host import ActorHost, load_class
 from actors.loop import Loop
 from actors.runtime import Runtime, set_current
 
-__all__ = ["LOG_BACKUPS", "LOG_MAX_BYTES", "add_log_file", "child_main", "configure_logging", "log_path"]
+__all__ = ["LOG_BACKUPS", "LOG_MAX_BYTES", "TAKE_OVER", "add_log_file", "child_main", "configure_logging", "log_path"]
+
+#: The signal that makes a waiting standby (see :mod:`actors.spawn`) take over.
+TAKE_OVER = signal.SIGUSR1
 
 #: Each actor's log file rotates at this size, keeping this many old files (``NAME.log.1`` ...).
 LOG_MAX_BYTES = 5 * 1024 * 1024
@@ -77,6 +80,19 @@ def _notify(rt: Runtime, msg: list[Any]) -> None:
     s.close()
 
 
+def _stand_by(rt: Runtime, name: str, actor: Any) -> bool:
+    """A warm standby (see :mod:`actors.spawn`): get ready, say so, wait. True: take over; False: stop.
+
+    The take-over signal and SIGTERM were blocked before any thread started, so one sent
+    while ``on_standby`` still runs waits for the ``sigwait`` below.
+    """
+    actor.on_standby()
+    _notify(rt, ["standby", name, os.getpid()])
+    sig = signal.sigwait({TAKE_OVER, signal.SIGTERM})
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {TAKE_OVER, signal.SIGTERM})
+    return sig == TAKE_OVER
+
+
 def child_main(spec: dict[str, Any]) -> None:
     """Build the actor described by ``spec``, serve it, and exit with a status that says how it ended."""
     name = spec["name"]
@@ -104,6 +120,9 @@ def child_main(spec: dict[str, Any]) -> None:
     try:
         cls = load_class(spec["cls"])
         actor = cls(*spec.get("args", ()), **spec.get("kwargs", {}))
+        if spec.get("standby") and not _stand_by(rt, name, actor):
+            rt.close()
+            os._exit(0)
         extensions = [(load_extension(path), dict(config)) for path, config in spec.get("extensions", ())]
         host = ActorHost(
             rt, loop, name, actor, heartbeat=spec.get("heartbeat"), poison_limit=spec.get("poison_limit", 3),

@@ -27,10 +27,18 @@ import attrs
 import msgpack
 import numpy as np
 
-from actors.errors import CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
+from actors.errors import (
+    CodecError,
+    CorruptFrame,
+    MessageTooLarge,
+    StaleFrame,
+    UnregisteredType,
+    quote,
+)
 
 __all__ = [
     "Codec",
+    "MAX_EXT_DEPTH",
     "SHM_THRESHOLD",
     "ShmSink",
     "ShmSource",
@@ -50,6 +58,10 @@ SHM_THRESHOLD = 64 * 1024
 _KEEP_PACKER_BYTES = 1 << 20
 #: Default cap on one encoded frame (shared-memory payloads not counted).
 MAX_FRAME_BYTES = 64 * 1024 * 1024
+#: How deep extensions (a message inside a message, an array inside a message) may nest. Each
+#: level is one more msgpack unpacker on the C stack (tens of KB each): 200 levels crashed a
+#: receiver with SIGSEGV, so a deeper frame is corrupt, and the encoder refuses to write one.
+MAX_EXT_DEPTH = 32
 
 _by_class: dict[type, tuple[str, tuple[str, ...]]] = {}
 _by_name: dict[str, type] = {}
@@ -99,7 +111,7 @@ def message_class(name: str) -> type:
         return _by_name[name]
     except KeyError:
         raise UnregisteredType(
-            f"unknown message type {name!r}: no class is registered under that name in this "
+            f"unknown message type {quote(name, 100)}: no class is registered under that name in this "
             "process; import the module that defines it (and decorate it with @actors.message)"
         ) from None
 
@@ -150,6 +162,11 @@ class _Enc:
     def pack_nested(self, obj: Any) -> bytes:
         """``obj`` packed as an extension's payload (a message inside a message is one level deeper)."""
         depth = self.depth
+        if depth >= MAX_EXT_DEPTH:
+            raise CodecError(
+                f"messages and arrays nest more than {MAX_EXT_DEPTH} deep (a message inside a message ...); "
+                "no receiver decodes that: flatten the message"
+            )
         if depth == len(self.nested):
             self.nested.append(msgpack.Packer(default=self.default))
         self.depth = depth + 1
@@ -196,21 +213,33 @@ class _Enc:
 
 
 class _Dec:
-    """Per-thread decoding state: one ext hook, told where releases go before each frame."""
+    """Per-thread decoding state: one ext hook, told where releases go before each frame.
 
-    __slots__ = ("source", "on_release", "mapped")
+    ``depth`` counts the extension payloads being unpacked inside each other: past
+    :data:`MAX_EXT_DEPTH` the frame is corrupt (see there), before another unpacker starts.
+    """
+
+    __slots__ = ("source", "on_release", "mapped", "depth")
 
     def __init__(self, source: ShmSource | None) -> None:
         self.source = source
         self.on_release: Callable[[str, int], None] | None = None
         self.mapped: list[list[Any]] | None = None  # the handles of this frame's shared-memory arrays
+        self.depth = 0
 
     def ext_hook(self, code: int, payload: bytes) -> Any:
         if code == EXT_NDARRAY:
             dtype, shape, raw = msgpack.unpackb(payload)
             return np.frombuffer(raw, dtype=np.dtype(dtype)).reshape(shape)
         if code == EXT_MESSAGE:
-            wire, fields = msgpack.unpackb(payload, ext_hook=self.ext_hook, strict_map_key=False)
+            depth = self.depth
+            if depth >= MAX_EXT_DEPTH:
+                raise CorruptFrame(f"messages nested more than {MAX_EXT_DEPTH} deep (a frame built to exhaust the stack?)")
+            self.depth = depth + 1
+            try:
+                wire, fields = msgpack.unpackb(payload, ext_hook=self.ext_hook, strict_map_key=False)
+            finally:
+                self.depth = depth
             return message_class(wire)(**fields)
         if code == EXT_SHM:
             if self.source is None:
@@ -302,12 +331,13 @@ class Codec:
         dec = self._state()[1]
         dec.on_release = on_release
         dec.mapped = mapped
+        dec.depth = 0
         try:
             return msgpack.unpackb(data, ext_hook=dec.ext_hook, strict_map_key=False)
         except (CorruptFrame, UnregisteredType, StaleFrame):
             raise
         except Exception as exc:  # msgpack raises many types for garbage input
-            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc
+            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {str(exc)[:200]})") from exc
         finally:
             dec.mapped = None
 
@@ -320,7 +350,7 @@ class Codec:
         except (CorruptFrame, UnregisteredType):
             raise
         except Exception as exc:
-            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {exc})") from exc
+            raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {str(exc)[:200]})") from exc
 
 
 class _NoShm:

@@ -23,17 +23,22 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import logging
 import os
 import re
+import socket
 import stat
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import zmq
 import zmq.auth
 from zmq.utils import z85
+from zmq.utils.monitor import parse_monitor_message
 
 from actors.errors import ActorError
 
@@ -43,6 +48,7 @@ __all__ = [
     "curve_client",
     "curve_server",
     "is_public_key",
+    "raise_fd_limit",
     "load_public_key",
     "load_secret_key",
     "write_keypair",
@@ -52,6 +58,10 @@ log = logging.getLogger("actors.curve")
 
 #: The in-process endpoint libzmq asks for ZAP decisions (one handler per context).
 ZAP_ENDPOINT = "inproc://zeromq.zap.01"
+#: How long a TCP peer has to finish its handshake: connections that never do hold a file
+#: descriptor each, and enough of them kept every allowed client out (libzmq's default is 30 s).
+HANDSHAKE_IVL_MS = 5000
+_FAILED = zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL
 
 
 class KeyFileError(ActorError, ValueError):
@@ -118,12 +128,25 @@ def load_secret_key(path: str) -> tuple[bytes, bytes]:
     except FileNotFoundError:
         raise KeyFileError(f"no secret key file {path}: make one with `embagents keys`") from None
     if st.st_uid != os.getuid() or st.st_mode & 0o077:
+        _refuse_public(path)  # a public key file (NAME.key) is readable by all, and is the likelier mistake
         raise KeyFileError(f"refusing the secret key file {path}: mode {oct(stat.S_IMODE(st.st_mode))[2:]}, owner uid "
                         f"{st.st_uid}; it must be yours and private. Fix: `chmod 600 {path}` (and make it yours)")
     public, secret = _load(path)
     if secret is None:
+        _refuse_public(path)
         raise KeyFileError(f"{path} holds a public key only; pass the NAME.key_secret file `embagents keys` wrote")
     return public, secret
+
+
+def _refuse_public(path: str) -> None:
+    """Raise, naming the secret file to pass instead, if ``path`` holds a public key only."""
+    try:
+        secret = zmq.auth.load_certificate(path)[1]
+    except (ValueError, OSError):
+        return
+    if secret is None:
+        hint = f"pass {path}_secret" if os.path.isfile(f"{path}_secret") else "pass the NAME.key_secret file `embagents keys` wrote"
+        raise KeyFileError(f"{path} is a public key (it holds no secret key): {hint}")
 
 
 def _load(path: str) -> tuple[bytes, bytes | None]:
@@ -137,10 +160,27 @@ def _load(path: str) -> tuple[bytes, bytes | None]:
 
 
 def curve_server(sock: zmq.Socket, secret_key: bytes, domain: str = "embagents") -> None:
-    """Make the binds ``sock`` makes from now on CURVE servers (earlier ipc binds stay as they are)."""
+    """Make the binds ``sock`` makes from now on CURVE servers (earlier ipc binds stay as they are).
+
+    Their peers get :data:`HANDSHAKE_IVL_MS` to finish the handshake.
+    """
     sock.curve_server = True
     sock.curve_secretkey = secret_key
     sock.zap_domain = domain.encode()
+    sock.handshake_ivl = HANDSHAKE_IVL_MS
+
+
+def raise_fd_limit() -> int:
+    """Raise this process's soft limit on open files to its hard limit (a server's TCP peers each
+    hold one); returns the limit now in force."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != hard:
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+    return soft
 
 
 def curve_client(sock: zmq.Socket, server_key: bytes, public: bytes, secret: bytes) -> None:
@@ -157,9 +197,14 @@ class CurveAllowList:
     answers every other mechanism with a refusal, logs each refused key and
     address, and counts them in ``refused``. The user id of an accepted peer
     is its public key (``frame.get("User-Id")`` on what it sends).
+
+    ``watch``: the CURVE server socket; libzmq refuses a peer that speaks
+    another mechanism (NULL, PLAIN) or fails the handshake before it asks
+    ZAP, so the socket's monitor events tell of those: each is logged with
+    the peer's address and counted too.
     """
 
-    def __init__(self, ctx: zmq.Context, allowed: Iterable[bytes]) -> None:
+    def __init__(self, ctx: zmq.Context, allowed: Iterable[bytes], watch: zmq.Socket | None = None) -> None:
         self.allowed = frozenset(allowed)
         if not self.allowed:
             raise KeyFileError("no client key is allowed, so no client could connect: pass --allow PUBKEY (or a .key file)")
@@ -171,6 +216,12 @@ class CurveAllowList:
         self._wake_rx.bind(f"inproc://curve-allow-stop-{id(self)}")
         self._wake_tx = ctx.socket(zmq.PAIR)
         self._wake_tx.connect(f"inproc://curve-allow-stop-{id(self)}")
+        self._monitor: zmq.Socket | None = None
+        if watch is not None:
+            events = zmq.EVENT_ACCEPTED | zmq.EVENT_DISCONNECTED | _FAILED
+            self._monitor = watch.get_monitor_socket(events, f"inproc://curve-allow-monitor-{id(self)}")
+        self._peers: dict[int, str] = {}  # fd of an accepted TCP connection -> the peer's address
+        self._failed: str | None = None  # why the handshake of the connection about to disconnect failed
         self._thread = threading.Thread(target=self._serve, name="curve-allow-list", daemon=True)
         self._thread.start()
 
@@ -178,13 +229,37 @@ class CurveAllowList:
         poller = zmq.Poller()
         poller.register(self._sock, zmq.POLLIN)
         poller.register(self._wake_rx, zmq.POLLIN)
+        if self._monitor is not None:
+            poller.register(self._monitor, zmq.POLLIN)
         try:
-            while self._wake_rx not in dict(poller.poll()):
-                self._sock.send_multipart(self.decide(self._sock.recv_multipart()))
+            while True:
+                ready = dict(poller.poll())
+                if self._wake_rx in ready:
+                    break
+                if self._sock in ready:
+                    self._sock.send_multipart(self.decide(self._sock.recv_multipart()))
+                if self._monitor is not None and self._monitor in ready:
+                    self._on_event(parse_monitor_message(self._monitor.recv_multipart()))
         except zmq.ContextTerminated:
             pass  # the process is ending without close(): nothing more to decide
-        for s in (self._sock, self._wake_rx):
-            s.close(0)
+        for s in (self._sock, self._wake_rx, self._monitor):
+            if s is not None:
+                s.close(0)
+
+    def _on_event(self, event: Mapping[str, Any]) -> None:
+        """Log a peer that failed the handshake before ZAP was asked, with its address."""
+        kind, value = event["event"], event["value"]
+        if kind == zmq.EVENT_ACCEPTED:  # value: the connection's fd, still open here (or reused: best effort)
+            self._peers[value] = _peer_address(value)
+        elif kind & _FAILED:
+            # libzmq reports the failure, then at once the disconnect of its connection (by fd).
+            self._failed = _failure_text(kind, value)
+        elif kind == zmq.EVENT_DISCONNECTED:
+            address = self._peers.pop(value, "an unknown address")
+            if self._failed is not None:
+                self.refused += 1
+                log.warning("refused a client from %s: %s", address, self._failed)
+            self._failed = None
 
     def decide(self, request: list[bytes]) -> list[bytes]:
         """The ZAP reply frames to one ZAP request's frames."""
@@ -202,8 +277,45 @@ class CurveAllowList:
         return [b"1.0", rid, b"400", b"key not allowed", b"", b""]
 
     def close(self) -> None:
-        """Stop the handler thread (call before the context goes)."""
+        """Stop the handler thread (call before the watched socket and the context go)."""
         if self._thread.is_alive():
             self._wake_tx.send(b"")
             self._thread.join(5)
         self._wake_tx.close(0)
+
+
+def _peer_address(fd: int) -> str:
+    """``host:port`` of the TCP peer on ``fd`` (a duplicate is asked, so libzmq's own fd stays as it is)."""
+    unknown = "an address not known (its connection closed before it could be looked up)"
+    try:
+        dup = os.dup(fd)
+    except OSError:
+        return unknown
+    try:
+        s = socket.socket(fileno=dup)
+    except OSError:  # not a socket (any more): the fd was closed and reused
+        os.close(dup)
+        return unknown
+    try:
+        with s:
+            peer = s.getpeername()
+    except OSError:
+        return unknown
+    return f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+
+
+def _failure_text(kind: int, value: int) -> str:
+    """Why a peer's handshake failed, in words, from its monitor event."""
+    if kind == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
+        if value == zmq.PROTOCOL_ERROR_ZMTP_MECHANISM_MISMATCH:
+            return "it does not speak CURVE (a NULL or PLAIN client)"
+        try:
+            name = (zmq.Event(value).name or hex(value)).lower().replace("_", " ")
+        except ValueError:
+            name = f"protocol error {value:#x}"
+        return f"its handshake failed ({name}): a wrong server key, or not a ZeroMQ client"
+    if value == errno.EAGAIN:  # the handshake timer
+        return f"it did not finish its handshake within {HANDSHAKE_IVL_MS / 1000:g} s"
+    if value in (errno.EPIPE, errno.ECONNRESET):  # it gave up first, on our greeting
+        return "it hung up during the handshake (a NULL or PLAIN client, or one pinning another server key)"
+    return f"its handshake failed ({zmq.strerror(value) if value else 'no detail'})"

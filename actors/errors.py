@@ -9,7 +9,10 @@ Every error names the problem and, where there is one, the fix::
 
 from __future__ import annotations
 
+import builtins
+import reprlib
 from collections.abc import Iterable
+from typing import Any
 
 from pykka import Timeout
 
@@ -23,8 +26,44 @@ __all__ = [
     "RemoteError",
     "StaleFrame",
     "Timeout",
+    "UnknownMessage",
     "UnregisteredType",
+    "quote",
 ]
+
+
+class _Quoter(reprlib.Repr):
+    """reprlib's bounded repr, also for bytes and for objects whose repr would be built whole first."""
+
+    def repr_bytes(self, x: bytes, level: int) -> str:
+        return builtins.repr(x[: self.maxstring]) + ("..." if len(x) > self.maxstring else "")
+
+    repr_bytearray = repr_bytes
+
+    def repr_instance(self, x: Any, level: int) -> str:
+        fields = getattr(type(x), "__attrs_attrs__", None)  # a message: its fields, each bounded
+        if fields is None or level <= 0:
+            return super().repr_instance(x, level)
+        inner = ", ".join(f"{f.name}={self.repr1(getattr(x, f.name, None), level - 1)}" for f in fields[:8])
+        return f"{type(x).__name__}({inner}{', ...' if len(fields) > 8 else ''})"
+
+
+_quoter = _Quoter()
+_quoter.maxstring = _quoter.maxother = 80
+_quoter.maxlist = _quoter.maxdict = _quoter.maxtuple = _quoter.maxset = 8
+
+
+def quote(value: Any, limit: int = 200) -> str:
+    """``repr(value)`` in at most about ``limit`` characters, for error messages that quote a request.
+
+    A 10 MB request quoted whole in its error went back to its sender whole (and doubled
+    the receiver's memory while it did).
+
+    >>> quote("x" * 10_000_000)[:12], len(quote("x" * 10_000_000)) <= 204
+    ("'xxxxxxxxxxx", True)
+    """
+    text = _quoter.repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}..."
 
 
 class ActorError(Exception):
@@ -89,6 +128,18 @@ class MessageTooLarge(CodecError):
         )
         self.size = size
         self.limit = limit
+
+
+class UnknownMessage(ActorError, ValueError):
+    """A message the actor does not understand: an ask gets this error back; a tell is dead-lettered and
+    logged (a restart would not make it understood), never a crash. The message is quoted briefly.
+
+    >>> str(UnknownMessage("component 'llm'", {"cmd": "x" * 500}, "send a Call"))
+    "component 'llm': unknown request {'cmd': 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx...xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx'}; send a Call"
+    """
+
+    def __init__(self, who: str, message: Any, expected: str) -> None:
+        super().__init__(f"{who}: unknown request {quote(message)}; {expected}")
 
 
 class StaleFrame(ActorError):

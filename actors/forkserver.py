@@ -35,7 +35,7 @@ import msgpack
 from actors.pdeathsig import die_with_parent
 from actors.shm import sweep
 
-__all__ = ["ForkServer"]
+__all__ = ["ForkServer", "cleanup_pid"]
 
 _MAX = 1 << 20
 
@@ -43,7 +43,8 @@ _MAX = 1 << 20
 _COMMANDS = {"spawn": 3, "kill": 3, "exit": 1}
 
 
-def _cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
+def cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
+    """Remove what dead process ``pid`` of the run left: shared memory, subscription and socket files."""
     sweep(f"{prefix}{pid}_")
     for path in glob.glob(os.path.join(run_dir, "topics", "*", f"{pid}-*")):
         with contextlib.suppress(FileNotFoundError):
@@ -100,7 +101,7 @@ def _serve(sock: socket.socket, run_dir: str, shm_run_prefix: str, child_main: C
                 return
             code = os.waitstatus_to_exitcode(status)
             name = children.pop(pid, "?")
-            _cleanup_pid(run_dir, shm_run_prefix, pid)
+            cleanup_pid(run_dir, shm_run_prefix, pid)
             send(["exit", pid, code, name])
 
     while True:

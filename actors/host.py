@@ -26,6 +26,7 @@ import msgpack
 
 from actors import wire
 from actors.actor import Actor, ActorContext
+from actors.errors import UnknownMessage
 from actors.extension import HostExtension, observes_messages, resolve
 from actors.journal import Journal
 from actors.loop import Loop
@@ -109,10 +110,12 @@ class ActorHost:
             cmd, args = body[0], body[1] if len(body) > 1 else []
             fn = self.ctrl_handlers.get(cmd)
             if fn is None:
-                raise ValueError(f"unknown control command {cmd!r}")
+                raise UnknownMessage(f"actor {self.name!r}", cmd, f"control commands: {', '.join(sorted(self.ctrl_handlers))}")
             return fn(*args)
         try:
             return self.actor.on_receive(body)
+        except UnknownMessage:
+            raise  # dead-lettered by the mailbox: the actor goes on, nothing failed
         except Exception:
             if kind == wire.TELL:
                 self.actor.on_failure(*sys.exc_info())

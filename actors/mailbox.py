@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import logging
 import os
+import struct
 import time
 import traceback
 from collections import deque
@@ -30,7 +31,7 @@ import msgpack
 import zmq
 
 from actors import wire
-from actors.errors import CodecError, StaleFrame
+from actors.errors import CodecError, StaleFrame, UnknownMessage, quote
 from actors.runtime import shm_prefix
 from actors.wire import ASK, CTRL, RELEASE, TELL
 
@@ -86,6 +87,7 @@ class Mailbox:
         self.to_ack: dict[bytes, int] = {}
         self.releases: dict[bytes, list[str]] = {}
         self.crashed = journal.crashes() if journal is not None else {}
+        self.undecodable = journal.undecodable() if journal is not None else set()
         self.received = 0
         self.handled = 0
         self.dropped = 0
@@ -137,16 +139,23 @@ class Mailbox:
         release = self._releasers.get(ident)
         if release is None:
             release = self._releasers[ident] = functools.partial(self._release_view, ident)
+        jr = self.journal
+        buf = frame.buffer
+        # The journal takes the message before its frame is decoded: a frame that kills the
+        # decoder counts towards the poison limit like a message that kills the handler.
+        early = _peek_seq(buf) if jr is not None else 0
+        if early:
+            if self.crashed and (ident, early) in self.undecodable and self._undecodable(ident, early, buf):
+                return
+            jr.begin(ident, early, decoded=False)  # type: ignore[union-attr]
         try:
-            msg = self.rt.codec.decode(frame.buffer, release)
+            msg = self.rt.codec.decode(buf, release)
         except (CodecError, StaleFrame) as exc:
-            self.dropped += 1
-            log.warning("[%s] dropped a corrupt frame from %r: %s", self.name, ident, exc)
+            self._drop(early, "a corrupt", ident, exc)
             return
         problem = _check_inbound(msg)
         if problem:
-            self.dropped += 1
-            log.warning("[%s] dropped a foreign frame from %r: %s", self.name, ident, problem)
+            self._drop(early, "a foreign", ident, problem)
             return
         kind, seq = msg[0], msg[1]
         if kind == RELEASE:
@@ -157,25 +166,41 @@ class Mailbox:
         last = self.last_seq.get(ident, 0)
         if seq <= last:
             self.to_ack[ident] = last  # a duplicate after a resend
+            if early:
+                jr.end()  # type: ignore[union-attr]
             return
         self.last_seq[ident] = seq
         if self.crashed and self.crashed.get((ident, seq), 0) >= self.poison_limit:
-            self._dead_letter(ident, seq, kind, body)
+            if early:
+                jr.end()  # type: ignore[union-attr]
+            self._dead_letter(ident, seq, kind, quote(body))
             return
-        jr = self.journal
         if jr is not None:
-            jr.begin(ident, seq)
+            if early:
+                jr.decoded()
+            else:
+                jr.begin(ident, seq)
         self.busy_since = time.monotonic()
         try:
             result = self.handler(kind, body)
             ok = True
+        except UnknownMessage as exc:
+            if kind == TELL:  # nothing to tell the sender, and a restart would not help: dead-letter it
+                self.busy_since = 0.0
+                if jr is not None:
+                    jr.end()
+                self.handled += 1
+                self._dead_letter(ident, seq, kind, quote(body), str(exc))
+                return
+            ok = False
+            result = [type(exc).__name__, _bounded(str(exc)), ""]
         except Exception as exc:
             if kind == TELL:
                 # The actor crashes; the journal keeps this message's id, so the
                 # next incarnation counts it towards the poison limit.
                 raise
             ok = False
-            result = [type(exc).__name__, str(exc), traceback.format_exc()]
+            result = [type(exc).__name__, _bounded(str(exc)), _bounded(traceback.format_exc())]
         self.busy_since = 0.0
         if jr is not None:
             jr.end()
@@ -185,6 +210,21 @@ class Mailbox:
         else:
             self.to_ack.pop(ident, None)
             self._reply(ident, seq, ok, result)
+
+    def _drop(self, early: int, what: str, ident: bytes, why: object) -> None:
+        """Drop a frame that is not a message of ours (logged, counted)."""
+        if early:
+            self.journal.end()  # type: ignore[union-attr]
+        self.dropped += 1
+        log.warning("[%s] dropped %s frame from %r: %s", self.name, what, ident, why)
+
+    def _undecodable(self, ident: bytes, seq: int, buf: memoryview) -> bool:
+        """Dead-letter, without decoding it, a frame whose decoding crashed the actor ``poison_limit`` times."""
+        if seq <= self.last_seq.get(ident, 0) or self.crashed.get((ident, seq), 0) < self.poison_limit:
+            return False
+        self.last_seq[ident] = seq
+        self._dead_letter(ident, seq, buf[1], f"<a frame of {len(buf)} bytes, not decoded: decoding it crashed the actor>")
+        return True
 
     def _reply(self, ident: bytes, seq: int, ok: bool, result: Any) -> None:
         owner = self._owners.get(ident)
@@ -204,16 +244,17 @@ class Mailbox:
             self.rt.pool.sent(segs, ident)
             self.rt.pool.acked(segs)  # replies are not re-sent: only the view holds them
 
-    def _dead_letter(self, ident: bytes, seq: int, kind: int, body: Any) -> None:
+    def _dead_letter(self, ident: bytes, seq: int, kind: int, text: str, reason: str = "") -> None:
+        """Give up on a message (``text``: what it was, quoted); ``reason``: why, if it did not crash the actor."""
         self.dead_lettered += 1
-        reason = f"it crashed actor {self.name!r} {self.crashed.get((ident, seq), '?')} times"
+        reason = reason or f"it crashed actor {self.name!r} {self.crashed.get((ident, seq), '?')} times"
         record = {
             "actor": self.name,
             "sender": ident.decode(errors="replace"),
             "seq": seq,
             "kind": {wire.TELL: "tell", wire.ASK: "ask", wire.CTRL: "ctrl"}.get(kind, str(kind)),
             "reason": reason,
-            "message": repr(body)[:500],
+            "message": text,
             "time": time.time(),
         }
         log.error("[%s] dead-lettered message %s from %s: %s", self.name, seq, record["sender"], reason)
@@ -257,6 +298,30 @@ class Mailbox:
 
 #: The largest sequence number a frame may carry (msgpack's and our counters' range).
 _MAX_SEQ = (1 << 63) - 1
+#: How long an error text sent back to an asker may be (a handler's message can quote a huge request).
+_MAX_ERROR_CHARS = 8192
+_HEAD = struct.Struct(">BBB")  # a fixarray's tag, a fixint kind, the seq's first byte
+_UINT = {0xCC: struct.Struct(">B"), 0xCD: struct.Struct(">H"), 0xCE: struct.Struct(">I"), 0xCF: struct.Struct(">Q")}
+
+
+def _peek_seq(buf: memoryview) -> int:
+    """The seq of a ``[TELL|ASK|CTRL, seq, body]`` frame as msgpack writes it, read without decoding; else 0."""
+    if len(buf) < 12:  # enough for the longest seq; a shorter frame is decoded first, then journaled
+        return 0
+    array, kind, b = _HEAD.unpack_from(buf)
+    if array != 0x93 or kind not in _KINDS:  # a fixarray of 3 items, a kind of a message
+        return 0
+    if b < 0x80:  # a positive fixint
+        return b
+    u = _UINT.get(b)
+    return u.unpack_from(buf, 3)[0] if u is not None else 0
+
+
+def _bounded(text: str) -> str:
+    """``text``, cut to :data:`_MAX_ERROR_CHARS` (saying so)."""
+    if len(text) <= _MAX_ERROR_CHARS:
+        return text
+    return f"{text[:_MAX_ERROR_CHARS]}... ({len(text) - _MAX_ERROR_CHARS} more characters cut)"
 
 
 def _check_inbound(msg: Any) -> str | None:

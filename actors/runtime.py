@@ -51,7 +51,7 @@ class Runtime:
         self.pid = os.getpid()
         self.ctx = zmq.Context()
         self.pool = ShmPool(shm_prefix(run_id, self.pid))
-        self.reader = ShmReader(pool=self.pool)
+        self.reader = ShmReader(pool=self.pool, prefix=shm_prefix(run_id))
         self.codec = Codec(self.pool, self.reader)
         self._loops: dict[int, Loop] = {}
         self._links: dict[tuple[int, str], Link] = {}

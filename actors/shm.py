@@ -20,9 +20,15 @@ Lifetime is explicit:
   rule still holds, so whoever uses a forwarded frame checks it afterwards
   with :meth:`ShmReader.unchanged`: a frame its publisher reused meanwhile
   may be torn, and what was computed from it is dropped.
-* segment names carry the run and the owner pid (``ea<run>_<pid>_<n>``), so
-  whoever reaps a dead process removes its segments with :func:`sweep`, and
-  the run's end removes all of them.
+* segment names carry the run and the owner pid (``ea<run>_<pid>_<n>r<random>``),
+  so whoever reaps a dead process removes its segments with :func:`sweep`, and
+  the run's end removes all of them. The random part keeps another local user,
+  who can list ``/dev/shm``, from taking the next name first (a name that is
+  taken anyway is retried with a new one).
+* a reader maps only segments of its own run (``ShmReader(prefix=...)``),
+  owned by its own user and not writable by group or others (checked once,
+  when it first maps a segment); anything else is a corrupt frame: logged
+  and dropped by whoever decodes it.
 
 Example::
 
@@ -39,6 +45,7 @@ import math
 import mmap
 import os
 import re
+import secrets
 import stat
 import struct
 import time
@@ -61,15 +68,21 @@ _HEADER = 64  # magic + generation; data starts cache-line aligned
 _MAGIC = 0x45415348  # "EASH"
 _HDR = struct.Struct("<IIQ")
 _PAGE = mmap.PAGESIZE
+#: New names tried when a segment's name is taken (by someone else: ours are never reused).
+_NAME_TRIES = 16
+
+
+def _token() -> str:
+    """The unpredictable part of a segment name."""
+    return secrets.token_hex(5)
 
 
 class _Segment:
     __slots__ = ("name", "size", "mm", "gen", "msg_refs", "views", "stamp")
 
-    def __init__(self, name: str, size: int) -> None:
+    def __init__(self, fd: int, name: str, size: int) -> None:
         self.name = name
         self.size = size
-        fd = os.open(os.path.join(SHM_DIR, name), os.O_CREAT | os.O_EXCL | os.O_RDWR, 0o600)
         try:
             os.ftruncate(fd, size)
             self.mm = mmap.mmap(fd, size, flags=mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0))
@@ -119,11 +132,19 @@ class ShmPool:
         self._local_released: deque[str] = deque()  # appended from any thread (GC)
 
     def _new(self, nbytes: int) -> _Segment:
-        self._seq += 1
         size = _HEADER + -(-nbytes // _PAGE) * _PAGE
-        seg = _Segment(f"{self.prefix}{self._seq}", size)
-        self._segs[seg.name] = seg
-        return seg
+        for _ in range(_NAME_TRIES):
+            self._seq += 1
+            name = f"{self.prefix}{self._seq}r{_token()}"
+            try:
+                fd = os.open(os.path.join(SHM_DIR, name), os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_NOFOLLOW, 0o600)
+            except FileExistsError:
+                continue  # someone made it first: never use (or unlink) a segment that is not ours
+            seg = _Segment(fd, name, size)
+            self._segs[seg.name] = seg
+            return seg
+        raise FileExistsError(f"{_NAME_TRIES} new shared-memory names under {SHM_DIR}/{self.prefix}* were all taken; "
+                              f"another process is creating segments with this run's names: look at `ls -l {SHM_DIR}`")
 
     def local_release(self, name: str) -> None:
         """A local view of our own segment died (any thread): applied at the next put."""
@@ -236,9 +257,13 @@ class ShmReader:
     With ``pool`` (this process's own), a frame that comes back to its owner
     (an actor returned the array it was sent) is a view of the owner's own
     segment, counted as a local view so the pool does not reuse it under it.
+    ``prefix``: the run's segment prefix; a segment named otherwise, owned by
+    another user or writable by group or others is refused (:class:`CorruptFrame`).
     """
 
-    def __init__(self, max_cached: int = 128, pool: ShmPool | None = None) -> None:
+    def __init__(self, max_cached: int = 128, pool: ShmPool | None = None, prefix: str = "ea") -> None:
+        self.prefix = prefix
+        self._uid = os.getuid()
         self._maps: OrderedDict[str, mmap.mmap] = OrderedDict()
         self.max_cached = max_cached
         self.pool = pool
@@ -252,14 +277,21 @@ class ShmReader:
             return mm
         if not isinstance(name, str) or not _NAME_RE.match(name):
             raise CorruptFrame(f"not a shared-memory frame name: {name!r}")
+        if not name.startswith(self.prefix):
+            raise CorruptFrame(f"shared-memory frame {name} is not of this run (its names start with {self.prefix})")
         try:
             # O_NONBLOCK: a FIFO planted under a valid-looking name must not block us.
             fd = os.open(os.path.join(SHM_DIR, name), os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
         except FileNotFoundError:
             raise StaleFrame(f"shared-memory frame {name} is gone (its writer released or died)") from None
         try:
-            if not stat.S_ISREG(os.fstat(fd).st_mode):
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
                 raise CorruptFrame(f"shared-memory frame {name} is not a regular file")
+            if st.st_uid != self._uid or st.st_mode & 0o022:
+                # Another user's segment under a name of ours: its owner could change it under us.
+                raise CorruptFrame(f"refused shared-memory frame {name}: owned by uid {st.st_uid} with mode "
+                                   f"{oct(stat.S_IMODE(st.st_mode))[2:]}; a run maps only its own user's 0600 segments")
             mm = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
         finally:
             os.close(fd)
@@ -350,6 +382,6 @@ def sweep(prefix: str) -> int:
             try:
                 os.unlink(os.path.join(SHM_DIR, f))
                 n += 1
-            except FileNotFoundError:
-                pass
+            except (FileNotFoundError, PermissionError):
+                pass  # gone already, or another user's (planted under our names: not ours to remove)
     return n

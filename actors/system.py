@@ -21,6 +21,8 @@ import os
 import secrets
 import shutil
 import signal
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -33,9 +35,9 @@ import zmq
 from actors import wire
 from actors.actor import Actor
 from actors.app import env
-from actors.child import child_main
+from actors.child import TAKE_OVER, child_main
 from actors.errors import ActorError
-from actors.forkserver import ForkServer
+from actors.forkserver import ForkServer, cleanup_pid
 from actors.host import ActorHost
 from actors.loop import Loop
 from actors.private import check_folder, private_dir
@@ -46,6 +48,9 @@ from actors.shm import sweep
 __all__ = ["ActorSystem", "ProcessInfo"]
 
 log = logging.getLogger("actors.system")
+
+#: Blocked in a standby from its birth until it takes over or stops (see actors.spawn).
+_STANDBY_SIGNALS = {TAKE_OVER, signal.SIGTERM}
 
 
 class ProcessInfo:
@@ -60,6 +65,12 @@ class ProcessInfo:
         self.exited = threading.Event()
         self.exit_code: int | None = None
         self.failure: str | None = None
+        #: "fork" (a child of the fork server) or "spawn" (a fresh interpreter: actors.spawn).
+        self.method = "fork"
+        #: A warm standby that has not taken over yet (see :meth:`ActorSystem.take_over`).
+        self.standby = False
+        #: Set once a standby said it is ready to take over.
+        self.standing_by = threading.Event()
 
 
 def class_path(cls: type) -> str:
@@ -98,6 +109,7 @@ class ActorSystem:
         self._attached_hosts: dict[str, ActorHost] = {}
         self._tokens = itertools.count(1)
         self._spawning: dict[int, ProcessInfo] = {}
+        self._spawned: dict[int, tuple[subprocess.Popen[bytes], ProcessInfo, int]] = {}  # pid -> (proc, info, pidfd)
         self.exit_listeners: list[Callable[[ProcessInfo], None]] = []
         #: Run first by :meth:`shutdown` (a supervision tree stops itself here).
         self.before_shutdown: list[Callable[[], None]] = []
@@ -129,6 +141,15 @@ class ActorSystem:
                 kind, name, pid = msg[0], msg[1], msg[2]
             except Exception:
                 log.warning("dropped a corrupt control frame")
+                continue
+            spawned = self._spawned.get(pid) if isinstance(pid, int) else None
+            if spawned is not None and spawned[1].standby:  # a standby's notes are its own
+                if kind == "standby":
+                    spawned[1].standing_by.set()
+                elif kind == "failed":
+                    spawned[1].failure = msg[3]
+                for fn in self.event_listeners:
+                    fn(msg)
                 continue
             info = self.procs.get(name)
             if info is not None and info.pid is None:
@@ -178,26 +199,89 @@ class ActorSystem:
                 self._exited(info, -signal.SIGKILL, self.forkserver_failure)
 
     # -- processes ----------------------------------------------------------
-    def start_process(self, spec: dict[str, Any]) -> ProcessInfo:
+    def start_process(self, spec: dict[str, Any], *, method: str = "fork", standby: bool = False) -> ProcessInfo:
         """Start (or restart) the actor process described by ``spec``; returns at once.
 
-        The supervisor uses this; most code wants :meth:`spawn`.
+        ``method``: "fork" (from the fork server: milliseconds) or "spawn" (a
+        fresh interpreter, :mod:`actors.spawn`: for actors that may use CUDA,
+        which does not survive ``fork``). ``standby=True`` (spawned) starts a
+        warm standby: it gets ready and waits for :meth:`take_over`; until
+        then it is not the actor ``spec["name"]`` (exit listeners still see
+        its exit, with this ``ProcessInfo``). The supervisor uses this; most
+        code wants :meth:`spawn`.
         """
+        if method not in ("fork", "spawn"):
+            raise ValueError(f"start method must be 'fork' or 'spawn', not {method!r}")
+        if standby:
+            method = "spawn"
         name = spec["name"]
         info = ProcessInfo(name, spec)
+        info.method, info.standby = method, standby
         token = next(self._tokens)
 
         def go() -> None:
-            self.procs[name] = info
+            if not standby:
+                self.procs[name] = info
             info.started_at = time.monotonic()
             if self.forkserver_failure is not None:  # a start that fails at once, with the reason
                 self._exited(info, None, self.forkserver_failure)
+                return
+            if method == "spawn":
+                self._spawn_process(info, dict(spec, standby=standby))
                 return
             self._spawning[token] = info
             self.forkserver.send(["spawn", token, spec])
 
         self.rt.on_client(go)
         return info
+
+    def _spawn_process(self, info: ProcessInfo, spec: dict[str, Any]) -> None:
+        """Run ``python -m actors.spawn`` with ``spec`` on its stdin (root IO thread)."""
+        spec["root_pid"] = os.getpid()
+        env = dict(os.environ)
+        # The child imports the actor's class itself: give it the root's import path.
+        env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        # A standby is born with the take-over signal blocked (the mask survives exec): one sent
+        # while its interpreter still starts waits for it instead of killing it.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STANDBY_SIGNALS) if spec["standby"] else None
+        try:
+            proc = subprocess.Popen([sys.executable, "-m", "actors.spawn"], stdin=subprocess.PIPE, env=env)
+        except OSError as exc:
+            self._exited(info, None, f"cannot spawn {sys.executable} -m actors.spawn: {exc}")
+            return
+        finally:
+            if mask is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        assert proc.stdin is not None
+        with contextlib.suppress(BrokenPipeError):  # it died at once: its exit says so below
+            proc.stdin.write(msgpack.packb(spec))
+        with contextlib.suppress(BrokenPipeError):
+            proc.stdin.close()
+        info.pid = proc.pid
+        pidfd = os.pidfd_open(proc.pid)  # readable once it exits: no polling
+        self._spawned[proc.pid] = (proc, info, pidfd)
+        self.loop.add(pidfd, lambda: self._on_spawned_exit(proc.pid))
+
+    def _on_spawned_exit(self, pid: int) -> None:
+        proc, info, pidfd = self._spawned.pop(pid)
+        self.loop.remove(pidfd)
+        os.close(pidfd)
+        code = proc.wait()
+        cleanup_pid(self.run_dir, shm_prefix(self.run_id), pid)  # what the fork server does for its own
+        self._exited(info, code)
+
+    def take_over(self, info: ProcessInfo) -> None:
+        """Make the waiting standby ``info`` the actor ``info.name`` now (root IO thread).
+
+        It binds the actor's mailbox, so senders re-send to it what its
+        predecessor had not acknowledged, and reports ready as any start does.
+        """
+        if not info.standby or info.pid is None or info.exited.is_set():
+            raise ActorError(f"{info.name!r}: that process is not a waiting standby")
+        info.standby = False
+        self.procs[info.name] = info
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(info.pid, TAKE_OVER)
 
     def make_spec(self, cls: type[Actor], name: str, args: tuple[Any, ...], kwargs: dict[str, Any], **opts: Any) -> dict[str, Any]:
         """The process spec ``start_process`` takes: msgpack-able data the fork server hands the child.
@@ -309,7 +393,10 @@ class ActorSystem:
     def signal(self, name: str, sig: int) -> None:
         """Send a signal to actor ``name``'s process (tests and the supervisor use it)."""
         info = self.procs[name]
-        if info.pid is not None and self.forkserver_failure is None and not info.exited.is_set():
+        if info.pid is not None and info.method == "spawn" and not info.exited.is_set():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(info.pid, sig)
+        elif info.pid is not None and self.forkserver_failure is None and not info.exited.is_set():
             self.forkserver.send(["kill", info.pid, int(sig)])
 
     def ctrl(self, name: str, cmd: str, *args: Any, timeout: float = 5.0) -> Any:
@@ -359,11 +446,34 @@ class ActorSystem:
             with contextlib.suppress(Exception):
                 self.stop(name, timeout)
         self.rt.on_client(lambda: self.loop.remove(self.forkserver.fileno()))
+        self._reap_spawned(timeout)
         self.forkserver.close()
         self.rt.close()
         set_current(None)
         sweep(shm_prefix(self.run_id))
         shutil.rmtree(self.run_dir, ignore_errors=True)
+
+    def _reap_spawned(self, timeout: float) -> None:
+        """No spawned process (a standby nobody stopped) outlives the run: SIGTERM, then SIGKILL."""
+        entries = self.rt.on_client(lambda: [(proc, info.standby) for proc, info, _ in self._spawned.values()])
+        procs = [proc for proc, _ in entries]
+        for proc, standby in entries:
+            with contextlib.suppress(ProcessLookupError):
+                # A standby holds nothing yet (and may be busy in on_standby with SIGTERM blocked).
+                proc.send_signal(signal.SIGKILL if standby else signal.SIGTERM)
+        deadline = time.monotonic() + timeout
+        for proc in procs:
+            try:
+                proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        # Reaped here; their exits (pidfd closed, files removed, listeners told) on the IO thread.
+        def reaped() -> None:
+            for pid in list(self._spawned):
+                self._on_spawned_exit(pid)
+
+        self.rt.on_client(reaped)
 
     def __enter__(self) -> ActorSystem:
         return self

@@ -3,8 +3,11 @@
 The root of ``embagents supervise`` serves a ``call`` control command
 (:func:`call_command`): it checks that the component exists and has that
 public method, asks the component's actor (the same
-:class:`~embagents.runtime.requests.Call` an event's ``call`` action sends)
-and answers with what the method returned. :func:`call` is the client side;
+:class:`~embagents.runtime.requests.Call` an event's ``call`` action sends,
+with the request's deadline: a call still queued then never runs) and
+answers with what the method returned, or the method's error in one line
+(its remote traceback rides along: ``embagents call -v`` prints it).
+:func:`call` is the client side (:mod:`embagents.live` for many calls);
 each ``ARG`` is read as JSON when it parses (``3``, ``true``, ``[1, 2]``),
 else taken as a string.
 
@@ -17,6 +20,7 @@ Example (examples/vlm.py running)::
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -45,6 +49,7 @@ def _public_methods(component: Any) -> list[str]:
 def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
     """The root's handler of ``{"cmd": "call", "component", "method", "args", "kwargs", "timeout"}``."""
     from actors import ActorRef
+    from actors.errors import RemoteError, Timeout
     from embagents.runtime.requests import Call
 
     def handle(req: dict[str, Any]) -> dict[str, Any]:
@@ -59,9 +64,19 @@ def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str,
                     f"its methods: {', '.join(_public_methods(comp))}"}
         args, kwargs = req.get("args") or [], req.get("kwargs") or {}
         timeout = float(req.get("timeout") or 60.0)
+        if req.get("deadline") is not None:  # the caller stops waiting then: so does the ask
+            timeout = max(0.001, min(timeout, req["deadline"] - time.monotonic()))
+        # The Call carries the ask's deadline: behind a slow call in the mailbox past it, it never runs.
+        call = Call(method, list(args), dict(kwargs), deadline=time.monotonic() + timeout)
         try:
-            result = ActorRef(name).ask(Call(method, list(args), dict(kwargs)), timeout=timeout).get()
-        except Exception as exc:  # the method raised, the actor died, or it took too long: say which
+            result = ActorRef(name).ask(call, timeout=timeout).get()
+        except RemoteError as exc:  # the method raised: its type and message; the traceback for -v
+            return {"ok": False, "error": f"{name}.{method} failed: {exc.exc_type}: {exc.remote_message}",
+                    "traceback": exc.remote_traceback}
+        except Timeout:
+            return {"ok": False, "error": f"{name}.{method} did not answer within {timeout:.3g} s (if it had "
+                    "started it may still be running; if not, it will not start)"}
+        except Exception as exc:  # the actor died, or is not there
             return {"ok": False, "error": f"{name}.{method} failed: {type(exc).__name__}: {exc}"}
         try:
             json.dumps(result)
@@ -76,13 +91,14 @@ def call(component: str, method: str, args: Sequence[Any] = (), kwargs: dict[str
          run: str | None = None, timeout: float = 60.0) -> dict[str, Any]:
     """Call ``component.method(*args, **kwargs)`` in the live run ``run`` (default: the only one).
 
+    One call, one connection: a script making many uses :func:`embagents.live.connect`.
     Raises ``supervisor.client.ControlError`` with the root's reason (no run, unknown
-    component or method, the method's own error).
+    component or method, the method's own error: its traceback in ``err.reply["traceback"]``).
     """
-    from supervisor.client import pick_run, request
+    from embagents.live import connect
 
-    found = pick_run(run)
     msg = {"cmd": "call", "component": component, "method": method, "args": list(args),
            "kwargs": dict(kwargs or {}), "timeout": timeout}
-    reply = request(found["run_dir"], msg, timeout + 5.0)
-    return {**reply, "run_id": found.get("run_id"), "system": found.get("system")}
+    with connect(run) as live:
+        reply = live.request(msg, timeout + 5.0)  # the root answers a timeout itself, at `timeout`
+        return {**reply, "run_id": live.run_id, "system": live.system}

@@ -10,7 +10,11 @@ component it is about. Levels:
   action naming a component that is not in the system (or a method, client
   or config key it does not have), ROS bridge wiring the bridge refuses, a
   model whose local file is not there (or that the system does not declare),
-  a supervision policy the supervision tree refuses (checked by building it).
+  a supervision policy the supervision tree refuses (checked by building it),
+  CUDA initialised in this (the root) process by the system file's import
+  (``cuda-in-root``: CUDA does not survive ``fork``, and every actor process
+  is forked from the root's memory, so each would fail later with CUDA's
+  "initialization error"; the problem names the line and the fix).
 - **warning** (it may run, but look): an input topic nothing in the system
   publishes. It may come from outside (another system, a test harness): say
   so with ``System(external=[topic])`` and the warning goes away.
@@ -29,10 +33,12 @@ Example::
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
 from collections import Counter
+from collections.abc import Callable
 from typing import Any, Literal
 
 import attrs
@@ -44,7 +50,7 @@ from embagents.events import Action
 from embagents.models import models_of
 from embagents.system import System, SystemFileError, load_system
 
-__all__ = ["Problem", "check_file", "check_system", "errors"]
+__all__ = ["Problem", "check_file", "check_system", "cuda_in_process", "errors"]
 
 Level = Literal["error", "warning"]
 
@@ -263,9 +269,95 @@ def _supervision_problems(system: System) -> list[Problem]:
     return []
 
 
+def _read_maps() -> str:
+    try:
+        with open("/proc/self/maps") as f:
+            return f.read()
+    except OSError:  # not Linux: no maps to read; torch's own answer still counts
+        return ""
+
+
+def cuda_in_process(read_maps: Callable[[], str] = _read_maps) -> str | None:
+    """Why CUDA is initialised in this process (a forked child could not use it), or None.
+
+    Without importing torch: torch's own answer if something imported it,
+    else whether the CUDA driver library (``libcuda.so``, loaded when a
+    framework creates a context) is mapped into this process.
+
+    >>> cuda_in_process(lambda: "7f00-7f01 r-xp 0 08:01 5 /usr/lib/x86_64-linux-gnu/libcuda.so.535.104.05")
+    'the CUDA driver (libcuda.so.535.104.05) is loaded in this process'
+    >>> cuda_in_process(lambda: "7f00-7f01 r-xp 0 08:01 5 /usr/lib/libm.so.6") is None
+    True
+    """
+    torch = sys.modules.get("torch")
+    cuda = getattr(torch, "cuda", None)
+    try:
+        if cuda is not None and cuda.is_initialized():
+            return "torch.cuda is initialised in this process"
+    except Exception:  # noqa: BLE001 - a half-imported torch: the maps below still tell
+        pass
+    for line in read_maps().splitlines():
+        lib = os.path.basename(line.split()[-1]) if line.split() else ""
+        if lib.startswith("libcuda.so"):
+            return f"the CUDA driver ({lib}) is loaded in this process"
+    return None
+
+
+def _system_file(system: System) -> str | None:
+    """The file ``system`` was loaded from (the module of :func:`load_system` that holds it)."""
+    for name, module in list(sys.modules.items()):
+        if name.startswith("_embagents_system_") and any(v is system for v in vars(module).values()):
+            return getattr(module, "__file__", None)
+    return None
+
+
+def _cuda_line(path: str) -> tuple[int, str] | None:
+    """The first statement run at import (not inside a function) whose text mentions CUDA."""
+    try:
+        with open(path) as f:
+            source = f.read()
+        tree = ast.parse(source)
+    except (OSError, SyntaxError, ValueError):
+        return None
+    lines = source.splitlines()
+
+    def walk(body: list[ast.stmt]) -> tuple[int, str] | None:
+        for stmt in body:
+            if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue  # runs later, in the actor's process: that is where GPU work belongs
+            if isinstance(stmt, ast.ClassDef):
+                found = walk(stmt.body)
+            elif "cuda" in (ast.get_source_segment(source, stmt) or "").lower() and not isinstance(
+                    stmt, (ast.Import, ast.ImportFrom)):
+                found = (stmt.lineno, lines[stmt.lineno - 1].strip())
+            else:
+                found = None
+            if found is not None:
+                return found
+        return None
+
+    return walk(tree.body)
+
+
+def _cuda_problems(system: System, read_maps: Callable[[], str] = _read_maps) -> list[Problem]:
+    why = cuda_in_process(read_maps)
+    if why is None:
+        return []
+    path = _system_file(system)
+    found = _cuda_line(path) if path else None
+    where = f"{path}:{found[0]}: `{found[1]}`" if found else (f"importing {path}" if path else "this process")
+    fix = ("move the GPU work into the component's on_configure (it runs in the component's own process) "
+           "and give that component start_method=\"spawn\" (or standby=True)")
+    return [Problem(None, "cuda-in-root",
+                    f"{where} initialised CUDA in the root process ({why}); every actor process is forked from "
+                    f"the root and CUDA does not survive fork (children would fail with CUDA's "
+                    f"\"initialization error\"): {fix}")]
+
+
 def check_system(system: System) -> list[Problem]:
     """Every problem of ``system`` (errors and warnings; see the module docstring)."""
     problems = _component_problems(system)
+    problems += _cuda_problems(system)
     problems += _model_problems(system)
     if not errors(problems):  # else the tree would repeat them (duplicate names, undeclared models)
         problems += _supervision_problems(system)

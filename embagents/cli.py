@@ -224,6 +224,7 @@ def _call_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("method", help="its action, e.g. describe")
     parser.add_argument("args", nargs="*", help="arguments: JSON when they parse (3, true, [1, 2]), else strings")
     parser.add_argument("--kwargs", metavar="JSON", help='keyword arguments as a JSON object, e.g. \'{"query": "hi"}\'')
+    parser.add_argument("-v", "--verbose", action="store_true", help="with an error the action raised: its traceback")
 
 
 def _call(args: argparse.Namespace) -> int:
@@ -239,7 +240,10 @@ def _call(args: argparse.Namespace) -> int:
             raise ValueError(f"--kwargs must be a JSON object, got {args.kwargs!r}")
         reply = call(args.component, args.method, parse_args(args.args), kwargs, run=args.run, timeout=args.timeout)
     except (ControlError, UnsafeFolder, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        remote = (getattr(exc, "reply", None) or {}).get("traceback")
+        if remote and args.verbose:
+            print(f"remote traceback ({args.component}'s process):\n{remote.rstrip()}", file=sys.stderr)
+        print(f"error: {exc}" + (" (-v: its traceback)" if remote and not args.verbose else ""), file=sys.stderr)
         return 1
     print(f"{args.component}.{args.method} -> {reply['result']!r}")
     return 0

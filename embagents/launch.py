@@ -285,13 +285,18 @@ def _reach(edges: dict[str, set[str]]) -> dict[str, set[str]]:
 def _start_dashboard(sup: Any, control: Any, system: Any, topics: Any, where: tuple[str, int]) -> Any:
     """The running dashboard, or None (said on stderr) if it cannot start: the system runs on without it."""
     from embagents.tools.dashboard import Dashboard, DashboardError
+    from embagents.tools.webguard import exposed_warning
 
     try:
         dash = Dashboard(sup, control, system, topics).start(*where)
     except DashboardError as exc:
         print(f"embagents supervise: {exc}; the system runs without it", file=sys.stderr, flush=True)
         return None
-    print(f"embagents: dashboard on http://{where[0]}:{dash.port}/", file=sys.stderr, flush=True)
+    print(f"embagents: dashboard on {dash.url}", file=sys.stderr, flush=True)  # the token: only its user sees it
+    warning = exposed_warning("the dashboard", where[0], "--dashboard-host",
+                              "whoever reaches it with its token controls the run, and the token crosses in clear")
+    if warning:
+        print(f"embagents: {warning}", file=sys.stderr, flush=True)
     return dash
 
 

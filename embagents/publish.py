@@ -3,7 +3,8 @@
 The root of ``embagents supervise`` serves a ``publish`` control command
 (:func:`publish_command`): it builds the topic's message type from the
 fields it is sent and publishes it from the root's own runtime, like any
-publisher of the run. :func:`publish` is the client side: a positional text
+publisher of the run. :func:`publish` is the client side (through
+:class:`embagents.live.LiveRun`, which scripts use directly): a positional text
 becomes the ``data`` field (``String``, ``StreamingString``); other fields
 come as JSON.
 
@@ -75,7 +76,7 @@ def publish(topic: str, text: str | None = None, fields: str | None = None, *, r
     ``text`` is the ``data`` field; ``fields`` a JSON object of fields. Raises
     ``supervisor.client.ControlError`` (no run, unknown topic, bad fields) or ``ValueError`` (bad JSON).
     """
-    from supervisor.client import pick_run, request
+    from embagents.live import connect
 
     values: dict[str, Any] = {}
     if fields:
@@ -83,8 +84,8 @@ def publish(topic: str, text: str | None = None, fields: str | None = None, *, r
             values = json.loads(fields)
         except ValueError as exc:
             raise ValueError(f"--fields is not JSON ({exc}): pass an object such as '{{\"data\": \"hi\"}}'") from None
-    if text is not None:
-        values["data"] = text
-    found = pick_run(run)
-    reply = request(found["run_dir"], {"cmd": "publish", "topic": topic, "fields": values}, timeout)
-    return {**reply, "run_id": found.get("run_id"), "system": found.get("system")}
+        if not isinstance(values, dict):
+            raise ValueError(f"--fields must be a JSON object such as '{{\"data\": \"hi\"}}', got {fields!r}")
+    with connect(run, timeout=timeout) as live:
+        reply = live.publish(topic, text, **values)  # text, if given, is the data field
+        return {**reply, "run_id": live.run_id, "system": live.system}

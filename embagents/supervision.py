@@ -100,7 +100,8 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None, *
         batch = {"max_batch": m.max_batch, "batch_wait_ms": m.batch_wait_ms}
         args = (m.kind, (resolved or {}).get(m.name, m.name), m.options(), m.warmup, batch)
         # A model beats per token; a long prompt evaluation is work, not a hang.
-        children.append(ChildSpec(m.name, (ModelActor, args), heartbeat=MODEL_HEARTBEAT_S, start_timeout=600))
+        children.append(ChildSpec(m.name, (ModelActor, args), heartbeat=MODEL_HEARTBEAT_S, start_timeout=600,
+                                  standby=m.standby, start_method=m.start_method))
     if system.ros:
         from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
 
@@ -110,7 +111,8 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None, *
         heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S
         children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=heartbeat,
                                   lifecycle="inactive" if str(c.name) in activate_later else "active",
-                                  snapshot_interval=0.5, start_timeout=120))
+                                  snapshot_interval=0.5, start_timeout=120,
+                                  standby=getattr(c, "standby", False), start_method=getattr(c, "start_method", "fork")))
     for mgr in getattr(system, "managers", ()):
         from embagents.runtime.agent_actor import AgentActor
         from embagents.runtime.manager_actor import ManagerActor

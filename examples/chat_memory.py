@@ -1,5 +1,6 @@
 """The point of supervision: SIGKILL the LLM mid-conversation and the conversation goes on.
 
+    pip install -e ".[llm]"
     embagents supervise examples/chat_memory.py
 
 The ``demo`` component tells the ``llm`` (with ``chat_history=True``) a fact,

@@ -1,5 +1,6 @@
 """The robot's ears, offline: real speech through voice activity detection to transcripts.
 
+    pip install -e ".[speech]"
     embagents supervise examples/listen.py
 
 ``clip`` plays a real English speech clip (beckett.wav from PyPI's

@@ -1,6 +1,6 @@
 """A manager main loop: wait for a camera, drive to a target, stop.
 
-Run it with ``python examples/manager_loop.py``; it finishes on its own in
+Run it with ``python examples/manager_loop.py`` (``pip install -e .``: no extra); it finishes on its own in
 about four seconds, with no ROS and no network. What happens:
 
 - a simulated camera (an attached node with its own thread) starts sending

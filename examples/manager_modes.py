@@ -1,5 +1,6 @@
 """ROS Base style (b): one global ``state`` string drives every handler, broadcast on a topic.
 
+    pip install -e .
     embagents supervise examples/manager_modes.py
 
 Offline, no ROS, about five seconds. A simulated mobile base (``base``, a

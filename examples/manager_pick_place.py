@@ -1,5 +1,6 @@
 """ROS Base style (a): a handler owns a fine-grained pick-and-place state machine.
 
+    pip install -e .                # add [vision] (OpenCV) for the filmstrip
     embagents supervise examples/manager_pick_place.py
 
 Offline, no ROS, about ten seconds. What runs, each in its own process:

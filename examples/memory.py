@@ -1,5 +1,6 @@
 """Remember what was seen where, then answer from memory, offline.
 
+    pip install -e ".[llm,memory]"
     embagents supervise examples/memory.py
 
 ``base`` (a scripted mobile base) drives a path through a flat, publishing

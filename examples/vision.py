@@ -1,5 +1,6 @@
 """The robot's eyes, offline: a camera, a face detector, motion clips.
 
+    pip install -e ".[vision]"
     embagents supervise examples/vision.py
 
 A real photo (scikit-image's astronaut.png, Eileen Collins) becomes a short

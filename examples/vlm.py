@@ -1,5 +1,6 @@
 """Ask a vision-language model what the camera sees.
 
+    pip install -e ".[llm,vision,hub]"
     embagents check examples/vlm.py          # offline with no VLM: says which two files to get, and how
     EMBAGENTS_VLM_MODEL=moondream2/moondream2-text-model-f16.gguf \\
     EMBAGENTS_VLM_PROJECTOR=moondream2/moondream2-mmproj-f16.gguf \\

@@ -1,5 +1,6 @@
 """A voice robot, offline: a spoken question in, a spoken answer out, every model in its own process.
 
+    pip install -e ".[llm,speech]"
     embagents supervise examples/voice.py
 
 ``mic`` plays a WAV file of a spoken question as a microphone would

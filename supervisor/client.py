@@ -2,8 +2,11 @@
 
 :func:`find_runs` lists the runs announced in :func:`supervisor.control.runs_dir`
 (dropping announcements whose process is gone; a folder that is not private
-to this user is refused with :class:`actors.UnsafeFolder`); :func:`request` sends one
-control request (see :mod:`supervisor.control`) and returns the answer;
+to this user is refused with :class:`actors.UnsafeFolder`); :class:`ControlClient`
+keeps one connection to a run's control endpoint for many requests (each with
+its deadline and an id, so a late answer to an earlier request is never taken
+for the answer to this one); :func:`request` sends one control request (see
+:mod:`supervisor.control`) and returns the answer;
 :func:`format_status_table` renders status rows; :func:`control` runs one
 command and prints its outcome (``embagents status|restart|stop`` call it).
 :func:`main` is a small command line over them (``python -m supervisor.client status --json``).
@@ -23,11 +26,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
 import sys
+import threading
 import time
 from collections.abc import Sequence
+from types import TracebackType
 from typing import Any
 
 import msgpack
@@ -37,11 +43,16 @@ from actors import UnsafeFolder, check_folder, pid_alive
 from actors.app import app_name
 from supervisor.control import control_endpoint, runs_dir
 
-__all__ = ["ControlError", "control", "find_runs", "format_status_table", "main", "pick_run", "request", "wait_ready"]
+__all__ = ["ControlClient", "ControlError", "control", "find_runs", "format_status_table", "main", "pick_run",
+           "request", "wait_ready"]
 
 
 class ControlError(RuntimeError):
-    """The run could not be reached, or refused the request."""
+    """The run could not be reached, or refused the request; ``reply`` is its answer (None when there was none)."""
+
+    def __init__(self, message: str, reply: dict[str, Any] | None = None) -> None:
+        super().__init__(message)
+        self.reply = reply
 
 
 def find_runs() -> list[dict[str, Any]]:
@@ -87,26 +98,84 @@ def pick_run(which: str | None = None) -> dict[str, Any]:
     return runs[0]
 
 
+class ControlClient:
+    """One run's control endpoint, connected once for many requests; safe to share between threads.
+
+    Each thread gets its own DEALER socket (a ZeroMQ socket belongs to one
+    thread). Every request carries ``deadline`` (``time.monotonic()`` + its
+    timeout: the root does not start it later) and ``id`` (answers to requests
+    this client gave up on are recognised and dropped).
+
+    Example::
+
+        with ControlClient(pick_run()["run_dir"]) as c:
+            rows = c.request({"cmd": "status"})["rows"]
+    """
+
+    def __init__(self, run_dir: str, timeout: float = 5.0) -> None:
+        self.run_dir, self.timeout = run_dir, timeout
+        self._ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
+        self._local = threading.local()
+        self._socks: list[zmq.Socket[bytes]] = []
+        self._lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._closed = False
+
+    def _sock(self) -> zmq.Socket[bytes]:
+        if self._closed:
+            raise ControlError(f"this client of the run at {self.run_dir} is closed")
+        s: zmq.Socket[bytes] | None = getattr(self._local, "sock", None)
+        if s is None:
+            with self._lock:
+                s = self._ctx.socket(zmq.DEALER)
+                s.setsockopt(zmq.LINGER, 0)
+                s.connect(control_endpoint(self.run_dir))
+                self._socks.append(s)
+            self._local.sock = s
+        return s
+
+    def request(self, msg: dict[str, Any], timeout: float | None = None) -> dict[str, Any]:
+        """Send ``msg``; its answer (a dict). :class:`ControlError` if none comes within ``timeout`` or it says no."""
+        timeout = self.timeout if timeout is None else timeout
+        sock, rid = self._sock(), next(self._ids)
+        deadline = time.monotonic() + timeout
+        sock.send_multipart([b"", msgpack.packb({**msg, "id": rid, "deadline": deadline})])
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not sock.poll(int(left * 1000) + 1):
+                raise ControlError(f"no answer from the run at {self.run_dir} within {timeout:g} s "
+                                   "(is it still running? a slow command needs a longer --timeout); "
+                                   "if the run had not started it yet, it will not")
+            reply = msgpack.unpackb(sock.recv_multipart()[-1])
+            if isinstance(reply, dict) and reply.get("id") == rid:
+                break  # else: the late answer to a request this thread gave up on
+        if not reply.get("ok"):
+            raise ControlError(reply.get("error", "the run refused the request"), reply)
+        return reply
+
+    def close(self) -> None:
+        """Close every thread's socket; call it when no request is in flight (each socket is its thread's)."""
+        with self._lock:
+            self._closed = True
+            for s in self._socks:
+                s.close()
+            self._socks.clear()
+
+    def __enter__(self) -> ControlClient:
+        return self
+
+    def __exit__(self, *exc: type[BaseException] | BaseException | TracebackType | None) -> None:
+        self.close()
+
+
 def request(run_dir: str, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
     """Send one control request to the run at ``run_dir``; returns its answer (a dict).
 
     Raises :class:`ControlError` if there is no answer within ``timeout``
-    seconds or the run answered ``ok: false``.
+    seconds (the root then no longer starts it) or the run answered ``ok: false``.
     """
-    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
-    s = ctx.socket(zmq.REQ)
-    s.setsockopt(zmq.LINGER, 0)
-    try:
-        s.connect(control_endpoint(run_dir))
-        s.send(msgpack.packb(msg))
-        if not s.poll(int(timeout * 1000)):
-            raise ControlError(f"no answer from the run at {run_dir} within {timeout} s (is it still running?)")
-        reply = msgpack.unpackb(s.recv())
-    finally:
-        s.close()
-    if not reply.get("ok"):
-        raise ControlError(reply.get("error", "the run refused the request"))
-    return reply
+    with ControlClient(run_dir, timeout) as client:
+        return client.request(msg)
 
 
 #: How often :func:`wait_ready` looks for a run that has not announced itself yet.
@@ -129,12 +198,11 @@ def wait_ready(run: str | None = None, timeout: float = 60.0) -> dict[str, Any]:
             if "several live runs" in str(exc) or time.monotonic() + _LOOK_EVERY_S > deadline:
                 raise
             time.sleep(_LOOK_EVERY_S)
-    left = max(0.001, deadline - time.monotonic())
     try:
-        request(picked["run_dir"], {"cmd": "wait_ready"}, left)
+        request(picked["run_dir"], {"cmd": "wait_ready"}, max(0.001, deadline - time.monotonic()))
     except ControlError as exc:
-        if "no answer" in str(exc):
-            raise ControlError(f"run {picked['run_id']} ({picked.get('system')}) was not ready within {timeout} s") from None
+        if "no answer" in str(exc) or "not ready yet" in str(exc):
+            raise ControlError(f"run {picked['run_id']} ({picked.get('system')}) was not ready within {timeout:g} s") from None
         raise
     return picked
 

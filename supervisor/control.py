@@ -17,12 +17,24 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
 - ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
   reverse order).
 - ``{"cmd": "wait_ready"}`` -> ``{"ok", "ready": true}``, answered once the run
-  is ready (at once if it is): a blocking request, no polling. The run is
-  ready when the layer above says so (:meth:`ControlServer.mark_ready`), or,
-  unless it :meth:`~ControlServer.hold_ready`, once the tree has started.
-  ``status`` answers ``ready`` too.
+  is ready (at once if it is; an error if the run ends first): a blocking
+  request, no polling. The run is ready when the layer above says so
+  (:meth:`ControlServer.mark_ready`), or, unless it
+  :meth:`~ControlServer.hold_ready`, once the tree has started. ``status``
+  answers ``ready`` too.
 - any command the layer above adds with :meth:`ControlServer.add_command`
   (``embagents supervise`` adds ``publish``: a message on a topic of the system).
+
+Every request may carry ``deadline`` (:func:`time.monotonic` seconds, the
+clock every process of this machine shares: when its sender stops waiting)
+and ``id`` (any value, echoed in the answer so a DEALER client can match
+answers to requests). A request whose deadline has passed when the root gets
+to it is not carried out (answered ``{"ok": False, "expired": True}``), so a
+command its sender reported as failed never happens later; ``restart``
+checks it again when the supervisor starts the job. The control thread only
+receives and answers: every command but ``stop`` runs on a thread of its
+own (at most :data:`MAX_IN_FLIGHT` at once), so a slow ``call`` never holds
+up ``status``.
 
 While the endpoint is up, ``<private>/runs/<run_id>.json`` (``<private>`` is
 :func:`actors.private_dir`: ``$XDG_RUNTIME_DIR/embagents`` or
@@ -40,6 +52,7 @@ Example::
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import logging
@@ -56,12 +69,30 @@ import zmq
 
 from actors import ActorRef, ActorSystem, check_folder, private_dir
 from actors.app import env
+from supervisor.errors import SupervisorError
 from supervisor.rootio import on_root
 from supervisor.tree import Tree
 
-__all__ = ["ControlServer", "control_endpoint", "runs_dir"]
+__all__ = ["MAX_IN_FLIGHT", "ControlServer", "control_endpoint", "expired", "runs_dir"]
 
 log = logging.getLogger("supervisor.control")
+
+#: Requests served at once; one more is refused at once (``busy``) rather than queued.
+MAX_IN_FLIGHT = 64
+
+
+def expired(msg: dict[str, Any]) -> dict[str, Any] | None:
+    """The answer to ``msg`` if its ``deadline`` has passed (logged: it is not carried out), else None."""
+    deadline = msg.get("deadline")
+    if deadline is None:
+        return None
+    late = time.monotonic() - deadline
+    if late <= 0:
+        return None
+    log.info("control: %s not carried out: its deadline passed %.2f s before the run got to it", msg.get("cmd"), late)
+    return {"ok": False, "expired": True,
+            "error": f"{msg.get('cmd')} not carried out: its deadline passed {late:.2f} s before the run got to it "
+                     "(a longer --timeout gives it more time)"}
 
 
 def runs_dir() -> str:
@@ -81,7 +112,7 @@ def _ctrl_async(name: str, cmd: str, timeout: float) -> pykka.Future:
 
 
 class ControlServer:
-    """Serves control requests on its own thread; writes and removes the discovery file."""
+    """Serves control requests (see the module docs); writes and removes the discovery file."""
 
     def __init__(
         self,
@@ -101,10 +132,16 @@ class ControlServer:
         self._prev: dict[str, tuple[int, int, float]] = {}  # name -> (incarnation, handled, when)
         self._closed = threading.Event()
         self._commands: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {}
+        self._rows_lock = threading.Lock()  # status requests run side by side; _prev is shared
+        # Answers from worker threads: queued here, the control thread woken through a pipe (it owns the socket).
+        self._answers: collections.deque[tuple[list[bytes], dict[str, Any]]] = collections.deque()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        self._wake_lock = threading.Lock()  # the pipe is closed once, never written after
+        self._in_flight = 0
         self.ready = False
         self.ready_held = False
-        self._waiting: list[bytes] = []  # idents of wait_ready requests not answered yet (control thread only)
-        self._wake_r, self._wake_w = os.pipe()  # mark_ready wakes the control thread to answer them
+        self._ready_or_closed = threading.Event()  # wait_ready requests wait on it
         self.endpoint = control_endpoint(system.run_dir)
         self.sock = system.rt.ctx.socket(zmq.ROUTER)
         self.sock.setsockopt(zmq.LINGER, 200)
@@ -140,61 +177,103 @@ class ControlServer:
         self.ready = True
         with contextlib.suppress(OSError):
             self._announce()
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"r")
+        self._ready_or_closed.set()
 
-    # -- serving (its own thread: a status request may wait on actors) -------
-    def _answer_waiting(self) -> None:
-        with contextlib.suppress(OSError):
-            os.read(self._wake_r, 64)
-        if not self.ready:
-            return
-        waiting, self._waiting = self._waiting, []
-        for ident in waiting:
-            with contextlib.suppress(zmq.ZMQError):
-                self.sock.send_multipart([ident, b"", msgpack.packb({"ok": True, "ready": True})])
+    def _wait_ready(self, msg: dict[str, Any]) -> dict[str, Any]:
+        """Answer once the run is ready, or ends, or the request's deadline passed (its worker thread waits)."""
+        deadline = msg.get("deadline")
+        self._ready_or_closed.wait(None if deadline is None else max(0.0, deadline - time.monotonic()))
+        if self.ready:
+            return {"ok": True, "ready": True}
+        if self._closed.is_set():
+            return {"ok": False, "error": "the run stopped before it was ready"}
+        return {"ok": False, "ready": False, "error": "the run is not ready yet"}
 
+    # -- serving (its own thread: it receives and answers; commands run on worker threads) ----
     def _serve(self) -> None:
         poller = zmq.Poller()
         poller.register(self.sock, zmq.POLLIN)
         poller.register(self._wake_r, zmq.POLLIN)
-        while not self._closed.is_set():
-            events = dict(poller.poll(100))
-            if self._wake_r in events:
-                self._answer_waiting()
-            if self.sock not in events:
-                continue
-            try:
-                frames = self.sock.recv_multipart(zmq.NOBLOCK)
-            except zmq.ZMQError:
-                continue
-            if len(frames) < 2:
-                continue
-            ident, body = frames[0], frames[-1]
-            msg: Any = None
-            try:
-                msg = msgpack.unpackb(body)
-                if not isinstance(msg, dict):
-                    raise ValueError("a request is a msgpack map with a 'cmd' key")
-                if msg.get("cmd") == "wait_ready" and not self.ready:
-                    self._waiting.append(ident)  # answered by _answer_waiting once ready
-                    continue
-                reply = self.handle(msg)
-            except Exception as exc:
-                reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-            with contextlib.suppress(zmq.ZMQError):
-                self.sock.send_multipart([ident, b"", msgpack.packb(reply, default=str)])
-            if reply.get("stopping"):  # answered first: the CLI learns the stop began
-                self._stop_run()
-        for ident in self._waiting:  # the run ends before it was ready: say so rather than fall silent
-            with contextlib.suppress(zmq.ZMQError):
-                self.sock.send_multipart([ident, b"", msgpack.packb({"ok": False, "error": "the run stopped before it was ready"})])
+        while True:
+            ready = dict(poller.poll())
+            if self._wake_r in ready:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._wake_r, 4096)
+                while self._answers:
+                    self._send(*self._answers.popleft())
+                    self._in_flight -= 1  # only this thread counts: no lock
+            if self._closed.is_set():
+                break
+            if self.sock in ready:
+                while True:
+                    try:
+                        frames = self.sock.recv_multipart(zmq.NOBLOCK)
+                    except zmq.ZMQError:
+                        break
+                    if len(frames) >= 2:
+                        self._take(frames[:-1], frames[-1])
         self.sock.close()
+        with self._wake_lock:
+            os.close(self._wake_r)
+            os.close(self._wake_w)
+            self._wake_r = self._wake_w = -1
+
+    def _take(self, envelope: list[bytes], body: bytes) -> None:
+        """One request (control thread): answered at once if it is bad, late, ``stop`` or one too many."""
+        msg: Any = None
+        try:
+            msg = msgpack.unpackb(body)
+            if not isinstance(msg, dict):
+                raise ValueError("a request is a msgpack map with a 'cmd' key")
+            if msg.get("deadline") is not None and not isinstance(msg["deadline"], (int, float)):
+                raise ValueError(f"'deadline' is time.monotonic() seconds, got {msg['deadline']!r}")
+        except Exception as exc:
+            self._send(envelope, {"ok": False, "error": f"{type(exc).__name__}: {exc}"}, msg if isinstance(msg, dict) else None)
+            return
+        late = expired(msg)
+        if late is not None:
+            self._send(envelope, late, msg)
+        elif msg.get("cmd") == "stop":
+            self._send(envelope, {"ok": True, "stopping": True}, msg)
+            self._stop_run()  # answered first: the CLI learns the stop began
+        elif self._in_flight >= MAX_IN_FLIGHT:
+            self._send(envelope, {"ok": False, "busy": True, "error": f"the run is serving {self._in_flight} "
+                                  "control requests already; try again when some have answered"}, msg)
+        else:
+            self._in_flight += 1
+            threading.Thread(target=self._work, args=(envelope, msg), name=f"control-{msg.get('cmd')}",
+                             daemon=True).start()
+
+    def _work(self, envelope: list[bytes], msg: dict[str, Any]) -> None:
+        """Serve one request on this worker thread; the control thread sends the answer."""
+        try:
+            reply = expired(msg) or self.handle(msg)  # a thread may start late on a busy machine
+        except Exception as exc:
+            reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        with self._wake_lock:
+            if self._wake_w < 0:
+                return  # closed: nobody to answer
+            self._answers.append((envelope, self._tagged(reply, msg)))
+            os.write(self._wake_w, b"\0")
+
+    @staticmethod
+    def _tagged(reply: dict[str, Any], msg: dict[str, Any]) -> dict[str, Any]:
+        return {**reply, "id": msg["id"]} if "id" in msg else reply
+
+    def _send(self, envelope: list[bytes], reply: dict[str, Any], msg: dict[str, Any] | None = None) -> None:
+        if msg is not None:
+            reply = self._tagged(reply, msg)
+        with contextlib.suppress(zmq.ZMQError):  # a sender that gave up is gone: the ROUTER drops its answer
+            self.sock.send_multipart([*envelope, msgpack.packb(reply, default=str)])
 
     def add_command(self, cmd: str, handler: Callable[[dict[str, Any]], dict[str, Any]]) -> None:
-        """Serve ``{"cmd": cmd, ...}`` with ``handler(request) -> answer`` (on the control thread).
+        """Serve ``{"cmd": cmd, ...}`` with ``handler(request) -> answer``, on a thread of the request's own.
 
-        An exception in ``handler`` is answered as ``{"ok": False, "error": ...}``.
+        Requests run side by side, so ``handler`` must be thread-safe. It may
+        take its time (others are served meanwhile); the request's ``deadline``
+        (``time.monotonic()``, or None) says when its sender stops waiting: work
+        that would start after it should not start. An exception in ``handler``
+        is answered as ``{"ok": False, "error": ...}``.
         """
         if cmd in ("status", "restart", "stop", "wait_ready") or cmd in self._commands:
             raise ValueError(f"control command {cmd!r} is already served")
@@ -213,7 +292,7 @@ class ControlServer:
                 "rows": self.rows(),
             }
         if cmd == "wait_ready":
-            return {"ok": True, "ready": self.ready}
+            return self._wait_ready(msg)
         if cmd == "restart":
             name = msg.get("name")
             if not isinstance(name, str):
@@ -222,7 +301,13 @@ class ControlServer:
             if found is None:
                 names = sorted(on_root(self.system, lambda: [r["name"] for s in self.tree.roots for r in s._rows()]))
                 return {"ok": False, "error": f"no child named {name!r} in this run; known: {', '.join(names) or 'none'}"}
-            return {"ok": True, "pid": found.bounce(name)}
+            try:
+                return {"ok": True, "pid": found.bounce(name, deadline=msg.get("deadline"))}
+            except SupervisorError as exc:
+                if exc.reason != "expired":
+                    raise
+                log.info("control: %s", exc)
+                return {"ok": False, "expired": True, "error": str(exc)}
         if cmd == "stop":
             return {"ok": True, "stopping": True}
         if isinstance(cmd, str) and cmd in self._commands:
@@ -259,12 +344,13 @@ class ControlServer:
             subs = st.get("subscriptions") or []
             r["subscriptions"], r["drops"] = subs, sum(s["dropped"] for s in subs)
             r["stalled"] = st.get("stalled") or {}  # keep-all subscribers its publishers drop for
-            prev = self._prev.get(r["name"])
-            if prev is not None and prev[0] == st["incarnation"] and now > prev[2]:
-                r["rate"] = round((st["handled"] - prev[1]) / (now - prev[2]), 1)
-            else:
-                r["rate"] = round(st["handled"] / max(r["uptime"], 0.1), 1)
-            self._prev[r["name"]] = (st["incarnation"], st["handled"], now)
+            with self._rows_lock:
+                prev = self._prev.get(r["name"])
+                if prev is not None and prev[0] == st["incarnation"] and now > prev[2]:
+                    r["rate"] = round((st["handled"] - prev[1]) / (now - prev[2]), 1)
+                else:
+                    r["rate"] = round(st["handled"] / max(r["uptime"], 0.1), 1)
+                self._prev[r["name"]] = (st["incarnation"], st["handled"], now)
         return rows
 
     def _stop_run(self) -> None:
@@ -282,9 +368,10 @@ class ControlServer:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(self.discovery)
         self._closed.set()
+        self._ready_or_closed.set()  # held wait_ready requests answer (if the control thread still sends)
+        with self._wake_lock:
+            if self._wake_w >= 0:
+                os.write(self._wake_w, b"\0")  # the control thread sees _closed and ends
         if self._thread is not threading.current_thread():
             self._thread.join(2)
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
 

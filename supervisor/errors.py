@@ -17,7 +17,8 @@ __all__ = ["StartError", "SupervisorError"]
 class SupervisorError(Exception):
     """A supervisor call failed; ``reason`` is one of OTP's: "not_found",
     "running", "restarting", "already_present", "already_started",
-    "simple_one_for_one", "shutdown", "start_failed"."""
+    "simple_one_for_one", "shutdown", "start_failed"; or "expired": an
+    operator's request whose deadline passed before its turn came."""
 
     def __init__(self, reason: str, message: str) -> None:
         super().__init__(message)

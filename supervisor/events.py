@@ -8,7 +8,10 @@ saw it, e.g. "root/sensors"); most also carry ``child`` and ``pid``.
 event              extra fields
 =================  ==========================================================
 started            child, pid, type
-restarted          child, pid, restarts (how many so far), downtime (s)
+restarted          child, pid, restarts (how many so far), downtime (s), standby
+                   (True: a warm standby took over)
+standby_ready      child, pid, prepare_s: a warm standby waits (supervisor.standby)
+standby_lost       child, pid, exit_code, detail: a standby died; another follows
 exited             child, pid, reason, detail   (a normal end)
 crashed            child, pid, reason, detail, exit_code, phase ("run"/"start")
 restarting         child, delay (s): a backoff delay before the restart

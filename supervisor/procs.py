@@ -8,8 +8,8 @@ polite request: SIGTERM, on which an actor runs ``on_stop``) and ``kill()``
 (SIGKILL). This module has the base class and the actor process; see
 :mod:`supervisor.command` for external commands.
 
-Exits come from the fork server's SIGCHLD path through
-``system.exit_listeners`` (no polling); "ready" comes from the actor's own
+Exits come from the fork server's SIGCHLD path (a spawned process's: its
+pidfd) through ``system.exit_listeners`` (no polling); "ready" comes from the actor's own
 note to the root once ``on_start`` (and the lifecycle replay) is done; a
 failed start, or a told message that raised, ends the process with status 1
 after its "failed" note (:func:`actors.child.child_main` sends both).
@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from supervisor.spec import ChildSpec
     from supervisor.tree import Tree
 
-__all__ = ["ActorProcess", "Incarnation", "Usage"]
+__all__ = ["ActorProcess", "Incarnation", "Usage", "process_spec"]
 
 
 class Usage:
@@ -109,8 +109,32 @@ class Incarnation:
         self.exited.set_result(ex)
 
 
+def process_spec(tree: Tree, s: ChildSpec) -> dict[str, Any]:
+    """The process spec of actor child ``s`` (what the fork server or :mod:`actors.spawn` gets)."""
+    st = s.start
+    # Extension hooks run in this order (actors.extension): the snapshot is restored
+    # before on_start, the lifecycle replayed after it; the child's own come last.
+    extensions = []
+    if keeps_snapshots(st.cls):
+        extensions.append(extension_spec(Snapshots, {"interval": s.snapshot_interval}))
+    extensions.append(extension_spec(Lifecycle, {"target": s.lifecycle}))
+    extensions += [extension_spec(cls, config) for cls, config in s.extensions]
+    return tree.system.make_spec(
+        st.cls,
+        s.id,
+        st.args,
+        st.kwargs,
+        heartbeat=s.heartbeat or 1.0,
+        poison_limit=s.poison_limit,
+        nice=s.nice,
+        cpu_affinity=list(s.cpu_affinity) if s.cpu_affinity else None,
+        extensions=extensions,
+    )
+
+
 class ActorProcess(Incarnation):
-    """An actor in its own process, forked by the run's fork server."""
+    """An actor in its own process: forked by the run's fork server, spawned (``start_method="spawn"``),
+    or a warm standby that takes over (:mod:`supervisor.standby`)."""
 
     kind = "actor"
 
@@ -120,40 +144,28 @@ class ActorProcess(Incarnation):
         self.info: ProcessInfo | None = None
         self.expected_incarnation = 0
         self.failure: str | None = None
+        self.from_standby = False  # a warm standby took over as this incarnation
 
     @property
     def pid(self) -> int | None:
         return None if self.info is None else self.info.pid
 
     def process_spec(self) -> dict[str, Any]:
-        s = self.spec
-        st = s.start
-        # Extension hooks run in this order (actors.extension): the snapshot is restored
-        # before on_start, the lifecycle replayed after it; the child's own come last.
-        extensions = []
-        if keeps_snapshots(st.cls):
-            extensions.append(extension_spec(Snapshots, {"interval": s.snapshot_interval}))
-        extensions.append(extension_spec(Lifecycle, {"target": s.lifecycle}))
-        extensions += [extension_spec(cls, config) for cls, config in s.extensions]
-        return self.tree.system.make_spec(
-            st.cls,
-            self.name,
-            st.args,
-            st.kwargs,
-            heartbeat=s.heartbeat or 1.0,
-            poison_limit=s.poison_limit,
-            nice=s.nice,
-            cpu_affinity=list(s.cpu_affinity) if s.cpu_affinity else None,
-            extensions=extensions,
-        )
+        return process_spec(self.tree, self.spec)
 
     def start(self) -> None:
-        spec = self.process_spec()
         # A ready note names the incarnation: a late note from a dead predecessor is ignored.
         self.expected_incarnation = self.journal.incarnation + 1
         self.tree.procs[self.name] = self
         self.started_at = time.monotonic()
-        self.info = self.tree.system.start_process(spec)
+        standby = self.tree.standbys.get(self.name) if self.spec.standby else None
+        info = standby.take() if standby is not None else None
+        if info is not None:  # the warm standby becomes this incarnation (supervisor.standby)
+            self.from_standby = True
+            self.info = info
+            self.tree.system.take_over(info)
+            return
+        self.info = self.tree.system.start_process(self.process_spec(), method=self.spec.start_method)
 
     # -- called by the tree's listeners -------------------------------------
     def on_note(self, kind: str, pid: int, rest: list[Any]) -> None:

@@ -33,6 +33,7 @@ from supervisor.states import StrEnum
 __all__ = [
     "LIFECYCLE_TARGETS",
     "RESTART_TYPES",
+    "START_METHODS",
     "STRATEGIES",
     "ActorStart",
     "ChildSpec",
@@ -82,6 +83,8 @@ class Restart(StrEnum):
 STRATEGIES = tuple(s.value for s in Strategy)
 RESTART_TYPES = tuple(r.value for r in Restart)
 LIFECYCLE_TARGETS = ("unconfigured", "inactive", "active")
+#: How an actor child's process starts: forked from the fork server, or a fresh interpreter.
+START_METHODS = ("fork", "spawn")
 
 
 class ActorStart(NamedTuple):
@@ -140,6 +143,13 @@ class ChildSpec:
     - ``extensions``: more :class:`actors.HostExtension` subclasses to run in
       the actor's process, each a class or ``(class, config dict)``; they run
       after the supervisor's own (snapshots, lifecycle).
+    - ``start_method``: "fork" (from the pre-imported fork server: tens of
+      ms) or "spawn" (a fresh interpreter, :mod:`actors.spawn`: for an actor
+      that may initialise CUDA, which does not survive ``fork``).
+    - ``standby``: keep a warm standby (spawned; see
+      :mod:`supervisor.standby`): a second process that ran the actor's
+      ``on_standby()`` and waits; when the active one dies or is restarted
+      it takes over at once, and a new standby is prepared. Twice the memory.
     """
 
     id: str
@@ -159,6 +169,8 @@ class ChildSpec:
     lifecycle: str | None = None
     snapshot_interval: float = 0.0
     extensions: Sequence[Any] = ()
+    start_method: str = "fork"
+    standby: bool = False
 
     def __post_init__(self) -> None:
         wire.check_name(self.id)
@@ -202,6 +214,16 @@ class ChildSpec:
         if self.cpu_affinity is not None:
             self.cpu_affinity = [int(c) for c in self.cpu_affinity]
         self.extensions = tuple(_normalize_extension(self.id, e) for e in self.extensions)
+        if self.start_method not in START_METHODS:
+            raise ValueError(
+                f"child {self.id!r}: start_method must be one of {', '.join(START_METHODS)}, not {self.start_method!r}"
+            )
+        if not isinstance(self.standby, bool):
+            raise TypeError(f"child {self.id!r}: standby must be True or False, not {self.standby!r}")
+        if self.standby and kind != "actor":
+            raise ValueError(f"child {self.id!r}: standby (a warm second process) needs an actor child")
+        if self.standby:
+            self.start_method = "spawn"  # a standby may initialise CUDA: every incarnation is spawned
 
     @property
     def kind(self) -> str:

@@ -205,12 +205,21 @@ class Supervisor:
         """Forget a stopped child's spec (and its journal and snapshot)."""
         self._call(lambda: self._delete_child(child_id))
 
-    def bounce(self, child_id: str) -> int | None:
+    def bounce(self, child_id: str, *, deadline: float | None = None) -> int | None:
         """Stop a child and start it again now (an operator's restart); returns the new pid.
 
         Counted in the child's restarts column, not in the restart intensity.
+        ``deadline`` (``time.monotonic()``): if the job is still queued behind
+        others then, it is not carried out (``SupervisorError("expired")``).
         """
-        return self._call(lambda: self._bounce(child_id))
+        async def job() -> int | None:
+            late = 0.0 if deadline is None else time.monotonic() - deadline
+            if late > 0:
+                raise SupervisorError("expired", f"restart of {child_id!r} not carried out: its deadline passed "
+                                      f"{late:.2f} s before {self.path} got to it (other jobs ran first)")
+            return await self._bounce(child_id)
+
+        return self._call(job)
 
     def child(self, child_id: str) -> Supervisor:
         """The current incarnation of nested supervisor ``child_id``."""
@@ -344,7 +353,8 @@ class Supervisor:
             if restart:
                 c.restarts += 1
                 down = None if c.down_since is None else round(time.monotonic() - c.down_since, 4)
-                self.tree.events.emit("restarted", **ev, restarts=c.restarts, downtime=down)
+                took_over = isinstance(inc, ActorProcess) and inc.from_standby
+                self.tree.events.emit("restarted", **ev, restarts=c.restarts, downtime=down, standby=took_over)
             else:
                 self.tree.events.emit("started", **ev, type=c.spec.type)
             c.down_since = None
@@ -365,6 +375,8 @@ class Supervisor:
     def _watch(self, c: Child, inc: Incarnation) -> None:
         if isinstance(inc, ActorProcess) and c.spec.heartbeat:
             watch_heartbeat(self.tree, inc, inc.journal, c.spec.heartbeat)
+        if isinstance(inc, ActorProcess) and c.spec.standby:
+            self.tree.keep_standby(c.spec, self.path)  # the next one gets ready while this one serves
         if isinstance(inc, (ActorProcess, CommandProcess)):
             self.tree.monitor.watch(inc)
 
@@ -392,6 +404,7 @@ class Supervisor:
         )
         kind = Restart(c.spec.restart)
         if not kind.restarts(ex.normal):
+            self.tree.drop_standby(c.id)
             if kind is Restart.TEMPORARY or self.simple:
                 self._remove(c)
             return
@@ -506,6 +519,7 @@ class Supervisor:
                     await self._terminate(c)
         for c in self.children:
             c.status = ChildStatus.STOPPED
+            self.tree.drop_standby(c.id)
 
     def _shutdown(self) -> Future[Exit]:
         """Stop everything in reverse order, whatever the supervisor was doing (IO thread)."""
@@ -532,6 +546,7 @@ class Supervisor:
         incs = [c.inc for c in self.children if c.inc is not None]
         for c in self.children:
             self._cancel_timer(c)
+            self.tree.drop_standby(c.id)
         for inc in incs:
             inc.stopping = True
             inc.kill()
@@ -574,6 +589,7 @@ class Supervisor:
     def _remove(self, c: Child) -> None:
         if c in self.children:
             self.children.remove(c)
+        self.tree.drop_standby(c.id)
         self.tree.forget(c.id)
 
     def _find(self, child_id: str) -> Child | None:
@@ -629,6 +645,7 @@ class Supervisor:
 
     async def _terminate_child(self, child_id: str) -> None:
         c = self._need(child_id)
+        self.tree.drop_standby(child_id)
         await self._terminate(c)
         c.status = ChildStatus.STOPPED
         if c.spec.restart == "temporary" or self.simple:
@@ -709,6 +726,7 @@ class Supervisor:
                 "rss_mb": round(inc.usage.rss_mb, 1) if running and inc is not None and inc.usage.at else None,
                 "lifecycle": None,
                 "last_exit": str(c.last_exit) if c.last_exit is not None else None,
+                "standby": self.tree.standbys[c.id].state if c.id in self.tree.standbys else None,
             }
             if c.spec.managed and c.id in self.tree.journals:
                 row["lifecycle"] = lifecycle.state_name(self.tree.journals[c.id].state())

@@ -30,6 +30,8 @@ from supervisor.rootio import on_root
 
 if TYPE_CHECKING:
     from supervisor.procs import ActorProcess
+    from supervisor.spec import ChildSpec
+    from supervisor.standby import Standby
     from supervisor.supervisor import Supervisor
 
 __all__ = ["Tree"]
@@ -46,6 +48,7 @@ class Tree:
         self.events = Events(system)
         self.monitor = ResourceMonitor(self)
         self.procs: dict[str, ActorProcess] = {}  # live actor incarnations by name
+        self.standbys: dict[str, Standby] = {}  # warm standbys by child name (supervisor.standby)
         self.names: dict[str, str] = {}  # child name -> path of the supervisor that has it
         self.registered: set[str] = set()  # actor names this tree put in the registry
         self.journals: dict[str, Journal] = {}
@@ -69,15 +72,41 @@ class Tree:
         proc = self.procs.get(info.name)
         if proc is not None:
             proc.on_exit(info)
+        standby = self.standbys.get(info.name)
+        if standby is not None:
+            standby.on_exit(info)
 
     def _on_note(self, msg: list[Any]) -> None:
         try:
             kind, name, pid = str(msg[0]), str(msg[1]), int(msg[2])
         except (IndexError, TypeError, ValueError):
             return
+        if kind == "standby":
+            standby = self.standbys.get(name)
+            if standby is not None:
+                standby.on_note(kind, pid)
+            return
         proc = self.procs.get(name)
         if proc is not None:
             proc.on_note(kind, pid, list(msg[3:]))
+
+    # -- warm standbys (supervisor.standby) ----------------------------------
+    def keep_standby(self, spec: ChildSpec, path: str) -> None:
+        """Make sure child ``spec.id`` has a standby alive or on its way."""
+        from supervisor.standby import Standby
+
+        standby = self.standbys.get(spec.id)
+        if standby is None or standby.stopped or standby.spec is not spec:
+            if standby is not None:
+                standby.stop()
+            standby = self.standbys[spec.id] = Standby(self, spec, path)
+        standby.prepare()
+
+    def drop_standby(self, name: str) -> None:
+        """Kill child ``name``'s standby, if it has one (the child stops)."""
+        standby = self.standbys.pop(name, None)
+        if standby is not None:
+            standby.stop()
 
     # -- names --------------------------------------------------------------
     def claim(self, name: str, path: str, kind: str) -> None:

@@ -1,10 +1,12 @@
 """Every example system passes `embagents check`; the chat-memory example keeps its conversation;
 the vision example finds the astronaut's face and cuts two motion clips; the manager examples run their
 missions to the end, the pick-and-place one through a SIGKILL of its manager mid-mission; the arm example
-reaches its target."""
+reaches its target. Each runs with only what the extras its docstring names (as the README does) install:
+the other extras' modules are hidden from its processes."""
 
 from __future__ import annotations
 
+import ast
 import os
 import re
 import signal
@@ -16,24 +18,62 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.helpers import ALSA_CONF, alsa_file_devices, wait_until
+from tests.helpers import (
+    alsa_file_devices,
+    hide_modules,
+    modules_outside_extras,
+    skip_unless_portaudio,
+    wait_until,
+)
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
+README = Path(__file__).parents[1] / "README.md"
+_INSTALL = r'pip install -e (?:"\.\[([\w,]+)\]"|\.(?![\w\[]))'
+
+
+def documented_extras(name: str) -> list[str]:
+    """The extras the example's docstring names: `pip install -e ".[a,b]"`, or `pip install -e .` for none."""
+    doc = ast.get_docstring(ast.parse((EXAMPLES / name).read_text())) or ""
+    m = re.search(_INSTALL, doc)
+    assert m, f"examples/{name}: its docstring names no install line (pip install -e \".[EXTRAS]\" or pip install -e .)"
+    return m[1].split(",") if m[1] else []
+
+
+def as_installed(name: str, folder: Path, env: dict[str, str] | None = None,
+                 extras: list[str] | None = None) -> dict[str, str]:
+    """``env`` (default os.environ) in which the example's processes import only what its documented extras
+    (or ``extras``) and the base dependencies install: every other extra's modules are hidden."""
+    hidden = modules_outside_extras(documented_extras(name) if extras is None else extras)
+    return hide_modules(folder / "as_installed", hidden, env)
+
+
+def test_each_example_names_its_extras_and_the_readme_names_the_same() -> None:
+    for example in sorted(EXAMPLES.glob("*.py")):
+        documented_extras(example.name)  # each names its install line, or fails naming the example
+    readme = README.read_text()
+    said = re.findall(r'`(?:examples/)?(\w+\.py)`[^`]*?`' + _INSTALL, readme)
+    said += [(n, x) for x, n in re.findall(_INSTALL + r' && embagents supervise examples/(\w+\.py)', readme)]
+    assert {n for n, _ in said} >= {"chat.py", "listen.py", "voice.py", "vision.py", "arm.py", "memory.py",
+                                    "ros_chat.py"}, said
+    for name, extras in said:
+        assert sorted(extras.split(",")) == sorted(documented_extras(name)), (
+            f"the README installs {extras!r} for examples/{name}; its docstring: {documented_extras(name)}")
 
 
 @pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py", "voice.py",
-                                  "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py"])
-def test_example_systems_check_clean(name: str) -> None:
+                                  "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py",
+                                  "gpu_pipeline.py"])
+def test_example_systems_check_clean(name: str, tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=120, env=as_installed(name, tmp_path))
     assert out.returncode == 0, out.stdout + out.stderr
     assert out.stdout.startswith("OK:")
 
 
-def test_chat_memory_survives_a_sigkill_of_the_llm() -> None:
+def test_chat_memory_survives_a_sigkill_of_the_llm(tmp_path: Path) -> None:
     pytest.importorskip("llama_cpp", reason="the example runs SmolLM2 (pip install 'embagents[llm]')")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "chat_memory.py")],
-                         capture_output=True, text=True, timeout=300)
+                         capture_output=True, text=True, timeout=300, env=as_installed("chat_memory.py", tmp_path))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     lines = out.stdout.splitlines()
     assert lines[0] == "Q: My favourite colour is blue." and lines[1], out.stdout
@@ -56,7 +96,8 @@ def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: 
     for module in ("onnxruntime", "cv2", "skimage", "supervision"):
         pytest.importorskip(module, reason="the example needs the vision extra (pip install 'embagents[vision]')")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "vision.py")],
-                         capture_output=True, text=True, timeout=180, env={**os.environ, "EMBAGENTS_VISION_OUT": str(tmp_path)})
+                         capture_output=True, text=True, timeout=180,
+                         env=as_installed("vision.py", tmp_path, {**os.environ, "EMBAGENTS_VISION_OUT": str(tmp_path)}))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     found = [re.fullmatch(r"detection: face (0\.9\d\d|1\.000) box \((\d+), (\d+), (\d+), (\d+)\)", x)
              for x in out.stdout.splitlines() if x.startswith("detection:")]
@@ -69,10 +110,10 @@ def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: 
     assert out.stdout.splitlines()[-1] == f"done: 2 clips in {tmp_path}", out.stdout
 
 
-def test_listen_example_hears_the_six_phrases_of_the_clip() -> None:
+def test_listen_example_hears_the_six_phrases_of_the_clip(tmp_path: Path) -> None:
     pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "listen.py")],
-                         capture_output=True, text=True, timeout=180)
+                         capture_output=True, text=True, timeout=180, env=as_installed("listen.py", tmp_path))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     heard = [re.sub(r"[^a-z ]", "", x[len("heard: "):].lower()) for x in out.stdout.splitlines() if x.startswith("heard: ")]
     assert heard == ["ever tried", "ever failed", "no matter", "try again", "fail again", "fail better"], out.stdout
@@ -84,7 +125,8 @@ def test_voice_example_hears_the_question_and_speaks_an_answer_a_recognizer_hear
     pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
     pytest.importorskip("espeakng_loader", reason="the example needs the speech extra (pip install 'embagents[speech]')")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "voice.py")],
-                         capture_output=True, text=True, timeout=240, env={**os.environ, "EMBAGENTS_VOICE_OUT": str(tmp_path)})
+                         capture_output=True, text=True, timeout=240,
+                         env=as_installed("voice.py", tmp_path, {**os.environ, "EMBAGENTS_VOICE_OUT": str(tmp_path)}))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     lines = out.stdout.splitlines()
     assert "heard: What is the capital of France?" in lines, out.stdout
@@ -108,11 +150,7 @@ def test_voice_example_hears_the_question_and_speaks_an_answer_a_recognizer_hear
 def test_voice_example_listens_live_on_a_microphone_and_answers_through_a_speaker(tmp_path: Path) -> None:
     # A microphone and a speaker with no sound card: ALSA's file plugin (tests/helpers.alsa_file_devices).
     pytest.importorskip("sherpa_onnx", reason="the example needs the speech extra (pip install 'embagents[speech]')")
-    pytest.importorskip("sounddevice", reason="live listening needs the speech extra (pip install 'embagents[speech]')")
-    import ctypes.util
-
-    if ctypes.util.find_library("portaudio") is None or not os.path.isfile(ALSA_CONF):
-        pytest.skip("live listening needs PortAudio and ALSA's library: sudo apt install libportaudio2")
+    skip_unless_portaudio()
     from embagents.components import read_wav
     from embagents.components.audio_io import spoken_clip_path
 
@@ -123,7 +161,8 @@ def test_voice_example_listens_live_on_a_microphone_and_answers_through_a_speake
            "EMBAGENTS_SPEAKER_DEVICE": "robotspeaker", "ALSA_CONFIG_PATH": alsa_file_devices(tmp_path),
            "EMBAGENTS_VOICE_OUT": str(tmp_path)}
     proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "voice.py")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=as_installed("voice.py", tmp_path, env))
     lines: list[str] = []
     try:
         assert proc.stdout is not None
@@ -142,9 +181,10 @@ def test_voice_example_listens_live_on_a_microphone_and_answers_through_a_speake
     assert any(x.startswith("said: ") and "Paris" in x for x in lines), lines
 
 
-def test_pick_place_resumes_its_state_machine_after_a_sigkill_of_the_manager() -> None:
+def test_pick_place_resumes_its_state_machine_after_a_sigkill_of_the_manager(tmp_path: Path) -> None:
     proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "manager_pick_place.py")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=as_installed("manager_pick_place.py", tmp_path))
     err: list[str] = []
     killed = threading.Event()
 
@@ -181,9 +221,9 @@ def test_pick_place_resumes_its_state_machine_after_a_sigkill_of_the_manager() -
     assert len(placed) == 3, out  # each cube once: the restart neither lost nor repeated a step
 
 
-def test_modes_example_goes_through_its_modes_to_the_goal() -> None:
+def test_modes_example_goes_through_its_modes_to_the_goal(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "manager_modes.py")],
-                         capture_output=True, text=True, timeout=90)
+                         capture_output=True, text=True, timeout=90, env=as_installed("manager_modes.py", tmp_path))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     modes = re.findall(r"mode (\w+) -> (\w+)", out.stdout)
     assert modes == [("None", "cold_start"), ("cold_start", "turn"), ("turn", "navigation"),
@@ -193,11 +233,11 @@ def test_modes_example_goes_through_its_modes_to_the_goal() -> None:
 
 
 def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
-    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py"):
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "cv2"):
         pytest.importorskip(module, reason="the example needs the sim extra (pip install 'embagents[sim]')")
     env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache")}
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
-                         capture_output=True, text=True, timeout=180, env=env)
+                         capture_output=True, text=True, timeout=180, env=as_installed("arm.py", tmp_path, env))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     lines = out.stdout.splitlines()
     errors = [float(x.split()[2]) for x in lines if x.startswith("joint error:")]
@@ -219,7 +259,8 @@ def test_arm_example_describes_its_camera_with_a_vlm_when_one_is_present(tmp_pat
     env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache"),
            "EMBAGENTS_VLM_MODEL": tiny_vlm, "EMBAGENTS_VLM_HANDLER": "llava15"}  # the tiny LLaVA-style model
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
-                         capture_output=True, text=True, timeout=180, env=env)
+                         capture_output=True, text=True, timeout=180,
+                         env=as_installed("arm.py", tmp_path, env, extras=["sim", "llm"]))  # as its docstring says
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     lines = out.stdout.splitlines()
     described = [x for x in lines if x.startswith("describe: ")]
@@ -235,7 +276,7 @@ def test_memory_example_answers_where_the_cup_was_from_a_tool_call(tmp_path: Pat
         pytest.importorskip(module, reason="the example needs the llm and memory extras")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "memory.py")],
                          capture_output=True, text=True, timeout=240,
-                         env={**os.environ, "EMBAGENTS_MEMORY_DB": str(tmp_path / "memory.db")})
+                         env=as_installed("memory.py", tmp_path, {**os.environ, "EMBAGENTS_MEMORY_DB": str(tmp_path / "memory.db")}))
     assert out.returncode == 0, out.stdout + out.stderr[-3000:]
     lines = out.stdout.splitlines()
     assert "[base] at (4.0, 2.0): sees cup, bottle; note: the kitchen table" in lines, out.stdout

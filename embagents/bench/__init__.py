@@ -55,6 +55,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_actors,
     cases_arm,
     cases_chaos,
+    cases_gpu,
     cases_llm,
     cases_manager,
     cases_memory,

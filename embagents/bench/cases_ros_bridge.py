@@ -22,7 +22,7 @@ import numpy as np
 
 import embagents.msgs  # noqa: F401 - registers Image for the subscriber's decoding
 from actors import Actor, ActorSystem
-from embagents.bench.registry import FRAME_1080P, BenchOptions, case, percentiles
+from embagents.bench.registry import FRAME_1080P, BenchOptions, case, percentiles, scoped_environ
 
 __all__ = ["FrameLatency"]
 
@@ -110,9 +110,7 @@ def ros_bridge_image(opts: BenchOptions) -> dict[str, Any]:
         sub.kill()
         sub.wait()
     # Through the bridge: publisher process -> bridge actor -> subscriber actor.
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ.update({k: env[k] for k in saved})
-    try:
+    with scoped_environ({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}):
         with ActorSystem() as asys:
             probe = asys.spawn(FrameLatency, "bench_frame_latency")
             inputs = [{"ros_topic": TOPIC, "ros_type": "sensor_msgs/Image", "topic": "bench_frames", "qos": {"depth": 2}}]
@@ -120,12 +118,6 @@ def ros_bridge_image(opts: BenchOptions) -> dict[str, Any]:
             _publish(n, period, warm, env)
             time.sleep(0.5)
             bridged = probe.ask("latencies", timeout=10).get()
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
     if not bridged or not plain:
         raise RuntimeError(f"frames received: bridge {len(bridged)}, plain rclpy {len(plain)} of {n}")
     ours, base = percentiles(_trimmed(bridged, skip)), percentiles(_trimmed(plain, skip))

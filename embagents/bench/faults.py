@@ -20,18 +20,21 @@ Example::
 
 from __future__ import annotations
 
+import glob
 import os
 import signal
+import tempfile
 import threading
 import time
 from typing import Any
 
 from actors import Actor, ActorCrashed, ActorSystem, Timeout
+from embagents.bench.registry import scoped_environ
 from supervisor.spec import ChildSpec, SupervisorSpec
 from supervisor.supervisor import start_supervisor
 from supervisor.tree import Tree
 
-__all__ = ["Light", "measure_crash_detect", "measure_hang_detect", "measure_restart_ready"]
+__all__ = ["Light", "measure_crash_detect", "measure_hang_detect", "measure_restart_ready", "measure_standby_takeover"]
 
 
 class Light(Actor):
@@ -134,3 +137,102 @@ def measure_hang_detect(deadline: float = 0.5, n: int = 5) -> list[float]:
         sup.stop()
         tree.close()
     return out
+
+
+def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0,
+                             rate_hz: float = 200.0) -> dict[str, Any]:
+    """SIGKILL the :mod:`embagents.bench.standby_system` component ``kills`` times while numbers flow.
+
+    Returns ``samples`` (seconds from each SIGKILL until a ``Call("pid")`` ask
+    is answered by another process), ``sent`` and ``lost`` (numbers told at
+    ``rate_hz`` and never recorded: the mailbox, at-least-once) and
+    ``topic_lost`` (the same numbers published on a ``keep="all"`` topic and
+    not recorded, from the first one heard on: a subscription does not outlive
+    its process, so what is published while none serves is not delivered).
+    With ``standby``, each kill waits until the next standby is ready.
+    """
+    with tempfile.TemporaryDirectory(prefix="standby-bench-") as out, scoped_environ({
+        "EMBAGENTS_BENCH_OUT": out, "EMBAGENTS_BENCH_CONFIGURE_S": str(configure_s),
+        "EMBAGENTS_BENCH_STANDBY": "1" if standby else "0",  # read by the system file, in every process
+    }):
+        samples, sent = _kill_and_time(kills, standby, configure_s, rate_hz)
+        seen: dict[str, set[int]] = {"T": set(), "S": set()}
+        for f in glob.glob(os.path.join(out, "rec-*.log")):
+            with open(f) as fh:
+                for how, n in (line.split() for line in fh):
+                    seen[how].add(int(n))
+    first = min(seen["S"], default=sent)
+    return {"samples": samples, "sent": sent, "lost": sum(1 for n in range(sent) if n not in seen["T"]),
+            "topic_lost": sum(1 for n in range(first, sent) if n not in seen["S"])}
+
+
+def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float) -> tuple[list[float], int]:
+    from actors.topics import Publisher
+    from embagents.bench.standby_system import NUMBERS
+    from embagents.msgs import String
+    from embagents.runtime.component_actor import remember_system
+    from embagents.runtime.requests import Call
+    from embagents.supervision import build_spec
+    from embagents.system import load_system
+
+    path = os.path.join(os.path.dirname(__file__), "standby_system.py")
+    system_decl = load_system(path)
+    remember_system(path, system_decl)
+    spec = build_spec(system_decl, path)
+    spec.intensity, spec.period = 1_000_000, 1.0
+    samples: list[float] = []
+    sent = [0]
+    with ActorSystem() as system:
+        tree = Tree.of(system)
+        ready = threading.Event()
+        tree.events.listeners.append(lambda ev: ready.set() if ev["event"] == "standby_ready" else None)
+        sup = start_supervisor(system, spec, "bench")
+        stop = threading.Event()
+
+        numbers = system.rt.on_client(lambda: Publisher(system.rt, NUMBERS.name))
+
+        def send() -> None:
+            ref = system.ref("slow")
+            n = 0
+            while not stop.wait(1.0 / rate_hz):
+                ref.tell(Call("record", [n]))
+                system.rt.on_client(lambda n=n: numbers.publish(String(data=str(n))))
+                n += 1
+            sent[0] = n
+            ref.ask(Call("pid"), timeout=60).get()  # in order: every tell before it was handled
+
+        ref = system.ref("slow")
+        pid = ref.ask(Call("pid"), timeout=60).get()
+        sender = threading.Thread(target=send, name="standby-bench-sender")
+        sender.start()
+        try:
+            for _ in range(kills):
+                if standby and not ready.wait(configure_s + 60):
+                    raise TimeoutError("no standby got ready")
+                ready.clear()
+                time.sleep(0.05)  # the senders' links settle on the serving incarnation
+                t0 = time.perf_counter()
+                os.kill(pid, signal.SIGKILL)
+                pid = _other_pid(ref, pid, t0 + configure_s + 60)
+                samples.append(time.perf_counter() - t0)
+        finally:
+            stop.set()
+            sender.join(120)
+        sup.stop()
+        system.rt.on_client(numbers.close)
+        tree.close()
+    return samples, sent[0]
+
+
+def _other_pid(ref: Any, old: int, deadline: float) -> int:
+    """Ask ``Call("pid")`` until a process other than ``old`` answers."""
+    from embagents.runtime.requests import Call
+
+    while time.perf_counter() < deadline:
+        try:
+            pid = ref.ask(Call("pid"), timeout=1.0).get()
+        except (ActorCrashed, Timeout):
+            continue
+        if pid != old:
+            return int(pid)
+    raise TimeoutError("the component did not come back")

@@ -31,7 +31,7 @@ import subprocess
 import sys
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,6 +46,7 @@ __all__ = [
     "TRANSPORTS",
     "BenchOptions",
     "Case",
+    "Skipped",
     "case",
     "interleaved",
     "iterations",
@@ -54,6 +55,7 @@ __all__ = [
     "percentiles",
     "run_case",
     "run_rounds",
+    "scoped_environ",
     "select",
     "shm_entries",
     "shm_leftovers",
@@ -272,11 +274,31 @@ def select(only: list[str] | None) -> list[Case]:
     return sorted(out, key=lambda c: TRANSPORTS.index(c.transport))
 
 
+@contextlib.contextmanager
+def scoped_environ(values: dict[str, str]) -> Iterator[None]:
+    """Set environment variables for the block (the actor processes it starts inherit them), then restore them."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+class Skipped(Exception):
+    """Raised by a case that cannot run here (no GPU, say); its message is the row's note."""
+
+
 def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
     """Run one case and return its row.
 
-    ``row["status"]`` is ``"ok"``, ``"skipped"`` (``needs`` is not installed;
-    ``note`` says so) or ``"error"`` (``error`` holds the exception).
+    ``row["status"]`` is ``"ok"``, ``"skipped"`` (``needs`` is not installed,
+    or the case raised :class:`Skipped`; ``note`` says why) or ``"error"``
+    (``error`` holds the exception).
     """
     row: dict[str, Any] = {
         "name": c.name,
@@ -290,6 +312,9 @@ def run_case(c: Case, opts: BenchOptions) -> dict[str, Any]:
     t0 = time.monotonic()
     try:
         res = c.fn(opts)
+    except Skipped as exc:
+        row.update(status="skipped", note=f"skipped: {exc}")
+        return row
     except Exception as exc:
         row.update(status="error", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc())
         return row

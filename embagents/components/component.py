@@ -42,6 +42,7 @@ from typing import Any, ClassVar
 
 from embagents.config import BaseComponentConfig, ConfigError, apply_config
 from embagents.events import Event, Fallback
+from embagents.extras import install_hint
 from embagents.msgs import Health, HealthStatus
 from embagents.topic import Topic
 
@@ -122,7 +123,10 @@ class Component:
     """Base class of all components (see the module docstring).
 
     Keyword arguments beyond the named ones are config overrides, e.g.
-    ``MyComponent(name="x", loop_rate_hz=5)``. Subclasses that take their own
+    ``MyComponent(name="x", loop_rate_hz=5)``. ``start_method="spawn"`` starts
+    its process as a fresh interpreter (for CUDA, which does not survive
+    ``fork``); ``standby=True`` keeps a warm standby that ran ``on_configure``
+    and takes over at once when this one dies (see :mod:`supervisor.standby`). Subclasses that take their own
     arguments set them before calling ``super().__init__`` and extend
     :meth:`validate` (which the constructor runs last).
 
@@ -162,10 +166,17 @@ class Component:
         trigger: float | Topic | Sequence[Topic] | Event | None = UNSET,
         config: Any = None,
         fallback: Fallback | None = None,
+        standby: bool = False,
+        start_method: str = "fork",
         **config_overrides: Any,
     ) -> None:
         self._init_problems: list[ComponentProblem] = []
         self.name = name
+        #: Keep a warm standby (spawned, configured, inactive) that takes over when this one dies:
+        #: for a component whose on_configure takes seconds (a CUDA model); twice the memory.
+        self.standby = standby
+        #: "fork" (from the pre-imported fork server) or "spawn" (a fresh interpreter: for CUDA).
+        self.start_method = start_method
         self.inputs = self._topics(inputs, "inputs")
         self.outputs = self._topics(outputs, "outputs")
         self.config = self._make_config(config, config_overrides)
@@ -188,6 +199,7 @@ class Component:
         self.incarnation = 0
         #: Model client switches this incarnation made (health reports carry it).
         self.client_switches = 0
+        self._missing_module: str | None = None  # set when a step found a module missing
         self.problems: list[ComponentProblem] = self.validate()
         self._required_inputs: list[Topic] = (
             self._match(self.allowed_inputs, self.inputs, "input")[1] if self.allowed_inputs is not None else []
@@ -329,6 +341,11 @@ class Component:
                 inputs = ", ".join(by_name) or "none"
                 problems.append(("trigger-not-input", f"{self._label()}: trigger topic {t.name!r} is not one of "
                                                       f"its inputs ({inputs}); add it to inputs"))
+        if not isinstance(self.standby, bool):
+            problems.append(("bad-standby", f"{self._label()}: standby must be True or False, got {self.standby!r}"))
+        if self.start_method not in ("fork", "spawn"):
+            problems.append(("bad-start-method", f"{self._label()}: start_method must be 'fork' or 'spawn' "
+                                                 f"(spawn for a component that uses CUDA), got {self.start_method!r}"))
         if self.fallback is not None and not isinstance(self.fallback, Fallback):
             problems.append(("bad-fallback", f"{self._label()}: fallback must be a Fallback, got {self.fallback!r}"))
         elif self.fallback is not None:
@@ -413,14 +430,28 @@ class Component:
 
         An exception in the step is logged and reported as ALGORITHM_FAILURE
         (the process keeps running); a step that does not set a status itself
-        leaves the component HEALTHY.
+        leaves the component HEALTHY. A module missing (ModuleNotFoundError) is
+        a COMPONENT_FAILURE naming the extra that installs it, logged once: the
+        component steps no more (no traceback a second for a module that will
+        not appear).
         """
+        if self._missing_module is not None:
+            return False  # it failed for good: nothing to retry until the process restarts
         inputs = self.current_inputs(now)
         if self.missing_inputs(inputs=inputs):
             return False
         self._health_set_in_step = False
         try:
             self._execution_step(**inputs)
+        except ModuleNotFoundError as exc:
+            # Every later step would fail the same way: one failure naming the extra, no traceback a second.
+            self._missing_module = exc.name or str(exc)
+            text = (f"{self._label()}: its step needs the module {exc.name!r}, which is not installed: "
+                    f"{install_hint(exc.name)}" if exc.name else f"{self._label()}: its step failed: {exc}")
+            text += f"; it stops stepping (after installing: embagents restart {self.name})"
+            self.logger.error("%s", text)
+            self.set_component_failure(text)
+            return False
         except Exception as exc:
             self.logger.exception("%s: step failed", self._label())
             self.set_algorithm_failure(f"{type(exc).__name__}: {exc}")

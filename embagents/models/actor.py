@@ -28,7 +28,7 @@ from typing import Any
 import zmq
 
 from actors import Actor
-from actors.errors import StaleFrame
+from actors.errors import StaleFrame, UnknownMessage
 from actors.runtime import current
 from embagents.models.protocol import (
     BadRequest,
@@ -62,7 +62,7 @@ class ModelActor(Actor):
         self.max_batch = max(1, int(batch.get("max_batch", 8)))
         self.batch_wait = max(0.0, float(batch.get("batch_wait_ms", 3.0))) / 1000.0
 
-    def on_start(self) -> None:
+    def _load(self) -> None:
         from embagents.models.serving import make_serving
 
         t0 = time.monotonic()
@@ -71,6 +71,14 @@ class ModelActor(Actor):
         if self.do_warmup:
             self.serving.warmup()
         log.info("loaded %s in %.2f s", self.path, time.monotonic() - t0)
+
+    def on_standby(self) -> None:
+        # A warm standby (supervisor.standby) loads and warms the model while the active one serves.
+        self._load()
+
+    def on_start(self) -> None:
+        if getattr(self, "serving", None) is None:  # not loaded ahead by a standby
+            self._load()
         rt = current()
         s = rt.ctx.socket(zmq.ROUTER)
         s.setsockopt(zmq.LINGER, 0)
@@ -271,7 +279,7 @@ class ModelActor(Actor):
     def on_receive(self, message: Any) -> Any:
         if message == "stats":
             return {**self.stats, "model": self.path, "kind": self.kind}
-        raise ValueError(f"unknown message {message!r}: send 'stats'")
+        raise UnknownMessage(f"model actor {self.name!r}", message, "send 'stats' (inference goes to its .inf socket)")
 
     def on_stop(self) -> None:
         self.sock.close(0)

@@ -49,6 +49,11 @@ class Model:
     #: A batching backend waits at most this long for more requests of other clients.
     batch_wait_ms: float = 3.0
     max_batch: int = 8
+    #: Keep a warm standby of the model actor (loaded and warmed, spawned so it may use CUDA) that
+    #: takes over at once when the active one dies; twice the memory (supervisor.standby).
+    standby: bool = False
+    #: "fork" (from the pre-imported fork server) or "spawn" (a fresh interpreter: for CUDA).
+    start_method: str = attrs.field(default="fork", validator=attrs.validators.in_(("fork", "spawn")))
 
     def resolve(self) -> str:
         """The local file (or folder) the backend loads; may fetch it (with a progress bar)."""

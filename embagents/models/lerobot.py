@@ -36,6 +36,9 @@ Example::
 from __future__ import annotations
 
 import functools
+import ipaddress
+import logging
+import os
 import time
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -45,6 +48,8 @@ import numpy as np
 
 from embagents.models.policy import STATE_KEY, PolicyLate
 from embagents.models.protocol import BadRequest, ModelError, ModelUnavailable
+
+log = logging.getLogger("embagents.models.lerobot")
 
 __all__ = [
     "CHUNK_BYTES",
@@ -186,6 +191,23 @@ def decode_payload(data: bytes) -> dict[str, Any]:
 # -- the client --------------------------------------------------------------------------------------------------
 
 
+def is_loopback(address: str) -> bool:
+    """Whether ``host:port`` (or ``unix:PATH``) stays on this machine.
+
+    >>> is_loopback("127.0.0.1:8080"), is_loopback("[::1]:8080"), is_loopback("localhost:1"), is_loopback("gpu:8080")
+    (True, True, True, False)
+    """
+    if address.startswith(("unix:", "unix-abstract:")):
+        return True
+    host = address.rpartition(":")[0].strip("[]") or address
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name: assume it is another machine
+
+
 class LeRobotPolicyClient:
     """A :class:`~embagents.models.policy.PolicyClient` for a LeRobot async-inference policy server.
 
@@ -194,15 +216,32 @@ class LeRobotPolicyClient:
     - ``policy_type``, ``pretrained_name_or_path``, ``device``, ``lerobot_features``,
       ``rename_map``: the policy setup sent once per connection (LeRobot's ``RemotePolicyConfig``);
     - payloads are msgpack (never pickle): the server is :mod:`embagents.models.lerobot_server`
-      or another that speaks it.
+      or another that speaks it;
+    - ``tls_ca``: a PEM file of the server's certificate (or its CA): the channel is TLS and the
+      server must prove it holds that certificate's key; ``token``: a shared secret sent with every
+      call (``authorization: Bearer``; TLS only: gRPC sends it over nothing else), which our server
+      takes with ``--tls-cert``, ``--tls-key`` and ``--token-file``. Without them the channel is
+      plaintext and unauthenticated, as LeRobot's own: a warning says so when it leaves the machine.
     """
 
     def __init__(self, address: str, *, actions_per_chunk: int, policy_type: str = "act",
                  pretrained_name_or_path: str = "", device: str = "cpu",
                  lerobot_features: Mapping[str, Any] | None = None, rename_map: Mapping[str, str] | None = None,
-                 name: str = "lerobot") -> None:
+                 name: str = "lerobot", tls_ca: str | None = None, token: str | None = None) -> None:
         if int(actions_per_chunk) < 1:
             raise ValueError(f"actions_per_chunk must be >= 1, got {actions_per_chunk!r}")
+        if token and not tls_ca:
+            raise ValueError("a token needs TLS: pass tls_ca= (the server's certificate, PEM) as well; "
+                             "over plaintext anyone on the way could read it")
+        self._root_certificates: bytes | None = None
+        if tls_ca:
+            try:
+                with open(os.path.expanduser(tls_ca), "rb") as f:
+                    self._root_certificates = f.read()
+            except OSError as exc:
+                raise ValueError(f"cannot read tls_ca {tls_ca!r} ({exc.strerror}); pass the PEM certificate "
+                                 "the policy server was started with (--tls-cert)") from None
+        self._token = token
         self.address, self.name = address, name
         self.actions_per_chunk = int(actions_per_chunk)
         self.setup = {"policy_type": policy_type, "pretrained_name_or_path": pretrained_name_or_path,
@@ -211,6 +250,11 @@ class LeRobotPolicyClient:
         self._channel: Any = None
         self._ready = False
         self._timestep = 0
+        if not is_loopback(address) and not tls_ca:
+            log.warning("%s: the LeRobot gRPC channel to %s is plaintext and unauthenticated (LeRobot's protocol has "
+                        "no keys): anyone on that network can read the observations and send the robot actions; "
+                        "keep the policy server on this machine, reach it through a tunnel you trust (ssh -L, "
+                        "WireGuard), or serve it with TLS and a token (tls_ca=, token=)", name, address)
 
     def __repr__(self) -> str:
         return f"LeRobotPolicyClient({self.address!r})"
@@ -222,8 +266,14 @@ class LeRobotPolicyClient:
         except ImportError as exc:
             raise ModuleNotFoundError(f"the LeRobot client needs grpcio: {_INSTALL_HINT}") from exc
         if self._channel is None:
-            self._channel = grpc.insecure_channel(self.address, options=[
-                ("grpc.max_receive_message_length", 4 * CHUNK_BYTES), ("grpc.max_send_message_length", 4 * CHUNK_BYTES)])
+            options = [("grpc.max_receive_message_length", 4 * CHUNK_BYTES), ("grpc.max_send_message_length", 4 * CHUNK_BYTES)]
+            if self._root_certificates is None:
+                self._channel = grpc.insecure_channel(self.address, options=options)
+            else:
+                creds = grpc.ssl_channel_credentials(root_certificates=self._root_certificates)
+                if self._token:
+                    creds = grpc.composite_channel_credentials(creds, grpc.access_token_call_credentials(self._token))
+                self._channel = grpc.secure_channel(self.address, creds, options=options)
         m = messages()
         return getattr(self._channel, kind)(method(name), request_serializer=lambda msg: msg.SerializeToString(),
                                             response_deserializer=m[response].FromString)
@@ -301,6 +351,9 @@ class LeRobotPolicyClient:
         in_setup, self._ready = not self._ready, False
         if code == grpc.StatusCode.INVALID_ARGUMENT:
             return BadRequest(f"policy server {self.address} refused the request: {details}")
+        if code == grpc.StatusCode.UNAUTHENTICATED:
+            return PolicyError(f"policy server {self.address} refused this client: {details}; pass the token its "
+                               "--token-file holds (token=)")
         hint = ""
         if code == grpc.StatusCode.UNKNOWN and in_setup:
             hint = (" (LeRobot's own policy_server reads pickles only, and embagents never sends or loads one: "

@@ -24,6 +24,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import hmac
 import io
 import logging
 import queue
@@ -137,8 +138,15 @@ class PolicyServer:
         return m["Actions"](data=encode_payload({"timestep": obs.get("timestep", 0), "actions": actions}))
 
     # -- lifecycle --------------------------------------------------------------------------------------------
-    def start(self, address: str = "127.0.0.1:8080", workers: int = 4) -> int:
-        """Serve on ``address`` (``host:port``; port 0 picks one); returns the port."""
+    def start(self, address: str = "127.0.0.1:8080", workers: int = 4, *, tls: tuple[bytes, bytes] | None = None,
+              token: str | None = None) -> int:
+        """Serve on ``address`` (``host:port``; port 0 picks one); returns the port.
+
+        ``tls``: (certificate, key), PEM: TLS instead of plaintext; ``token``: calls without
+        ``authorization: Bearer TOKEN`` are refused (UNAUTHENTICATED). A token needs TLS.
+        """
+        if token and tls is None:
+            raise ValueError("a token needs TLS (--tls-cert and --tls-key): over plaintext anyone on the way could read it")
         try:
             import grpc
         except ImportError as exc:
@@ -157,9 +165,13 @@ class PolicyServer:
                 self.send_observations, request_deserializer=m["Observation"].FromString,
                 response_serializer=lambda msg: msg.SerializeToString()),
         }
-        server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers))
+        interceptors = [_token_check(token)] if token else []
+        server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers), interceptors=interceptors)
         server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, handlers),))
-        port = server.add_insecure_port(address)
+        if tls is not None:
+            port = server.add_secure_port(address, grpc.ssl_server_credentials([(tls[1], tls[0])]))
+        else:
+            port = server.add_insecure_port(address)
         if port == 0:
             raise OSError(f"cannot listen on {address} (in use, or not an address of this machine)")
         server.start()
@@ -178,6 +190,37 @@ class PolicyServer:
             self._server = None
 
 
+def _token_check(token: str) -> Any:
+    """A server interceptor that lets through only calls carrying ``token``."""
+    import grpc
+
+    class TokenCheck(grpc.ServerInterceptor):
+        """Refuses calls that do not carry the token (compared in constant time)."""
+
+        def __init__(self) -> None:
+            self.expected = f"Bearer {token}".encode()
+
+            def deny(request: Any, context: Any) -> Any:
+                context.abort(grpc.StatusCode.UNAUTHENTICATED, "no valid token (authorization: Bearer ...)")
+
+            self.deny_unary = grpc.unary_unary_rpc_method_handler(deny)
+            self.deny_stream = grpc.stream_unary_rpc_method_handler(deny)
+
+        def intercept_service(self, continuation: Any, details: Any) -> Any:
+            got = dict(details.invocation_metadata or ()).get("authorization", "")
+            if hmac.compare_digest(str(got).encode(), self.expected):
+                return continuation(details)
+            log.warning("refused a call of %s: no valid token", details.method)
+            return self.deny_stream if details.method.endswith("/SendObservations") else self.deny_unary
+
+    return TokenCheck()
+
+
+def _read(path: str) -> bytes:
+    with open(path, "rb") as f:
+        return f.read()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m embagents.models.lerobot_server --onnx POLICY.onnx [--host H] [--port P] [--latency-s S]``."""
     parser = argparse.ArgumentParser(prog="python -m embagents.models.lerobot_server", description=__doc__.split("\n")[0])
@@ -185,10 +228,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, default=8080)
     parser.add_argument("--latency-s", type=float, default=0.0, help="answer no sooner than this (tests)")
+    parser.add_argument("--tls-cert", metavar="PEM", help="serve TLS with this certificate (clients pass it as tls_ca)")
+    parser.add_argument("--tls-key", metavar="PEM", help="the certificate's private key")
+    parser.add_argument("--token-file", metavar="FILE", help="refuse calls without the token this file holds (needs TLS)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="lerobot_server: %(message)s")
+    if bool(args.tls_cert) != bool(args.tls_key) or (args.token_file and not args.tls_cert):
+        parser.error("pass --tls-cert and --tls-key together, and --token-file only with them")
+    try:
+        tls = (_read(args.tls_cert), _read(args.tls_key)) if args.tls_cert else None
+        token = _read(args.token_file).decode().strip() if args.token_file else None
+    except OSError as exc:
+        parser.error(f"cannot read {exc.filename}: {exc.strerror}")
+    if token == "":
+        parser.error(f"{args.token_file} is empty: put the token in it")
+    if tls is None and args.host not in ("127.0.0.1", "localhost", "::1"):
+        log.warning("serving plaintext and unauthenticated on %s: anyone who can reach it can read observations and "
+                    "send actions; pass --tls-cert, --tls-key and --token-file", args.host)
     server = PolicyServer(onnx_policy(args.onnx), latency_s=args.latency_s)
-    port = server.start(f"{args.host}:{args.port}")
+    port = server.start(f"{args.host}:{args.port}", tls=tls, token=token)
     print(f"serving {args.onnx} on {args.host}:{port}", flush=True)
     try:
         server.wait()

@@ -37,6 +37,7 @@ from actors.curve import (
     curve_server,
     load_public_key,
     load_secret_key,
+    raise_fd_limit,
 )
 from actors.runtime import current
 from embagents.models.actor import ModelActor
@@ -99,8 +100,9 @@ class RemoteModelActor(ModelActor):
     def on_start(self) -> None:
         super().on_start()  # loads the model, binds the ipc endpoint (no CURVE: it is this host's)
         _, secret = load_secret_key(self.secret_key)
-        self.auth = CurveAllowList(current().ctx, [load_public_key(k) for k in self.allowed])
-        curve_server(self.sock, secret)
+        self.auth = CurveAllowList(current().ctx, [load_public_key(k) for k in self.allowed], watch=self.sock)
+        curve_server(self.sock, secret)  # and a 5 s handshake limit: silent peers do not keep their fds
+        fds = raise_fd_limit()  # connections that never finish a handshake must not run us out of fds
         self.sock.maxmsgsize = MAX_FRAME_BYTES  # an allowed peer still cannot make us buffer more
         for b in self.binds:
             try:
@@ -109,7 +111,8 @@ class RemoteModelActor(ModelActor):
                 self.auth.close()
                 raise ValueError(f"cannot bind {b}: {exc}; is something else listening there, or is the address "
                                  "not one of this host's? pick another --bind") from None
-        log.info("serving %s on %s for %d allowed key(s)", self.name, ", ".join(self.binds), len(self.allowed))
+        log.info("serving %s on %s for %d allowed key(s) (up to %d open files)", self.name, ", ".join(self.binds),
+                 len(self.allowed), fds)
 
     def _decode(self, frame: zmq.Frame, mapped: list[list[Any]]) -> Any:
         try:

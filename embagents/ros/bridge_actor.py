@@ -27,6 +27,7 @@ import logging
 from typing import Any
 
 from actors import Actor
+from actors.errors import UnknownMessage
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
 
 __all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActor"]
@@ -168,7 +169,7 @@ class RosBridgeActor(Actor):
     def on_receive(self, message: Any) -> Any:
         if message == "stats":
             return {"in": self.forwarded_in, "out": self.forwarded_out}
-        raise ValueError(f"unknown request {message!r}: the ROS bridge answers 'stats'")
+        raise UnknownMessage("the ROS bridge", message, "it answers 'stats'")
 
     def on_stop(self) -> None:
         self.core.stop()

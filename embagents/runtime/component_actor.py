@@ -15,6 +15,7 @@ import time
 from typing import Any
 
 from actors import Actor
+from actors.errors import UnknownMessage
 from embagents.rate import next_deadline
 from embagents.runtime.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
 
@@ -71,8 +72,17 @@ class ComponentActor(Actor):
             self.on_configure()
             self.on_activate()
 
+    def on_standby(self) -> None:
+        # A warm standby (supervisor.standby): configure now, while the active incarnation serves; the
+        # component has no publisher yet (publishing belongs in on_activate or a step).
+        loaded_system(self.system_path).component(self.component_name).on_configure()
+        self._configured_ahead = True
+
     # -- lifecycle (ROS 2 managed-node transitions, driven by the supervisor) --
     def on_configure(self) -> None:
+        if getattr(self, "_configured_ahead", False):  # done by on_standby before the takeover
+            self._configured_ahead = False
+            return
         self.component.on_configure()
 
     def on_activate(self) -> None:
@@ -128,7 +138,16 @@ class ComponentActor(Actor):
     def on_receive(self, message: Any) -> Any:
         comp = self.component
         if isinstance(message, Call):
-            return getattr(comp, message.method)(*message.args, **message.kwargs)
+            late = 0.0 if message.deadline is None else time.monotonic() - message.deadline
+            if late > 0:  # its caller gave up and said so: running it now would surprise them
+                comp.logger.warning("%s: call of %s not run: its deadline passed %.2f s before its turn",
+                                    comp._label(), message.method, late)
+                raise TimeoutError(f"{message.method} not run: its deadline passed {late:.2f} s before its turn")
+            method = getattr(comp, message.method, None) if isinstance(message.method, str) else None
+            if not callable(method):
+                raise UnknownMessage(f"component {self.component_name!r}", message,
+                                     f"{type(comp).__name__} has no method {message.method!r}")
+            return method(*message.args, **message.kwargs)
         if isinstance(message, HealthQuery):
             return {"status": int(comp.health_status), "text": comp.health.text}
         if isinstance(message, Reconfigure):
@@ -136,10 +155,8 @@ class ComponentActor(Actor):
             return None
         if isinstance(message, ChangeModelClient):
             return comp.change_model_client(message.client)
-        raise ValueError(
-            f"component {self.component_name!r}: unknown request {message!r}; send one of "
-            "embagents.runtime.requests: Call, HealthQuery, Reconfigure, ChangeModelClient"
-        )
+        raise UnknownMessage(f"component {self.component_name!r}", message, "send one of embagents.runtime.requests: "
+                             "Call, HealthQuery, Reconfigure, ChangeModelClient")
 
     def snapshot(self) -> Any:
         return self.component.snapshot()

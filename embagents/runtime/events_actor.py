@@ -32,6 +32,7 @@ from collections import defaultdict
 from typing import Any
 
 from actors import Actor, ActorNotFound
+from actors.errors import UnknownMessage
 from embagents.runtime.component_actor import loaded_system
 from embagents.runtime.requests import (
     SUPERVISOR_REQUESTS,
@@ -150,4 +151,4 @@ class EventsActor(Actor):
             return list(self.fired)
         if message == "ignored":
             return dict(self.ignored)
-        raise ValueError(f"unknown request {message!r}: the events actor answers 'fired' and 'ignored'")
+        raise UnknownMessage("the events actor", message, "it answers 'fired' and 'ignored'")

@@ -32,6 +32,7 @@ from collections.abc import Callable
 from typing import Any
 
 from actors import Actor, Codec
+from actors.errors import UnknownMessage
 from embagents.manager.handshake import HandshakeProgress
 from embagents.manager.nodes import Node
 from embagents.msgs import Health, HealthStatus
@@ -213,8 +214,7 @@ class ManagerActor(Actor):
             return self.status()
         if isinstance(message, Call) and message.method == "state":
             return self._encodable(self.manager.state.kept())
-        raise ValueError(f"manager {self.manager_name!r}: unknown request {message!r}; send HealthQuery(), "
-                         "Call('status') or Call('state')")
+        raise UnknownMessage(f"manager {self.manager_name!r}", message, "send HealthQuery(), Call('status') or Call('state')")
 
     # -- snapshots -------------------------------------------------------------------
     def snapshot(self) -> Any:

@@ -11,7 +11,7 @@ Example::
     >>> from actors.codec import Codec
     >>> frame, _ = Codec().encode(Call("greet", ("ada",)), shm=False)
     >>> Codec().decode(frame)
-    Call(method='greet', args=['ada'], kwargs={})
+    Call(method='greet', args=['ada'], kwargs={}, deadline=None)
     >>> SupervisorRequest("reboot", "camera")
     Traceback (most recent call last):
     ...
@@ -48,11 +48,17 @@ SUPERVISOR_REQUEST_KINDS = ("start", "stop", "restart", "give_up")
 @message("embagents/Call")
 @attrs.define
 class Call:
-    """Call ``component.<method>(*args, **kwargs)``; an ask gets its return value."""
+    """Call ``component.<method>(*args, **kwargs)``; an ask gets its return value.
+
+    ``deadline`` (``time.monotonic()``, the clock every process of the machine
+    shares): when the caller stops waiting. A call still in the mailbox then
+    (behind a slow one) is not run: its caller was told it failed.
+    """
 
     method: str
     args: list[Any] = attrs.field(factory=list, converter=list)
     kwargs: dict[str, Any] = attrs.field(factory=dict, converter=dict)
+    deadline: float | None = None
 
 
 @message("embagents/Reconfigure")

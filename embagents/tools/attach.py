@@ -15,14 +15,16 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import signal
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import Any
 
-from supervisor.client import ControlError, pick_run, request
+from embagents.live import find_topic
+from supervisor.client import pick_run, request
 
-__all__ = ["Attached", "find_topic", "run_topics"]
+__all__ = ["Attached", "find_topic", "interrupted_by_sigterm", "run_topics"]
 
 
 def run_topics(run: str | None = None, timeout: float = 5.0) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -31,18 +33,18 @@ def run_topics(run: str | None = None, timeout: float = 5.0) -> tuple[dict[str, 
     return found, request(found["run_dir"], {"cmd": "topics"}, timeout)["topics"]
 
 
-def find_topic(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
-    """The row of topic ``name``; ControlError naming the run's topics if there is none."""
-    name = name.removeprefix("/")
-    for r in rows:
-        if r["name"] == name:
-            return r
-    raise ControlError(f"no topic {name!r} in this run; its topics: {', '.join(r['name'] for r in rows)} "
-                       "(see `embagents topic list`)")
-
-
 def _interrupt(*_: Any) -> None:
     raise KeyboardInterrupt  # a signal does not end a poll; an exception does
+
+
+@contextlib.contextmanager
+def interrupted_by_sigterm() -> Iterator[None]:
+    """Within it, SIGTERM raises KeyboardInterrupt as Ctrl-C does (a terminal's tool ends the same either way)."""
+    old = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 class Attached:
@@ -71,13 +73,11 @@ class Attached:
 
     def run(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
         """Serve the subscriptions until ``until()``, ``timeout``, Ctrl-C or SIGTERM."""
-        old = signal.signal(signal.SIGTERM, _interrupt)
-        try:
-            self.loop.run(until=until, timeout=timeout)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            signal.signal(signal.SIGTERM, old)
+        with interrupted_by_sigterm():
+            try:
+                self.loop.run(until=until, timeout=timeout)
+            except KeyboardInterrupt:
+                pass
 
     def __enter__(self) -> Attached:
         return self

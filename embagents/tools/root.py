@@ -5,7 +5,8 @@
 - ``{"cmd": "topics"}`` -> ``{"ok", "topics": [{name, type, wire, keep, queue_size,
   publishers, subscribers, rate}]}``: the declared topics (and the runtime's
   own, such as ``_supervisor.events``); ``rate`` is messages/s, measured from
-  the subscribers' counters (``None`` when nobody subscribes).
+  the subscribers' counters (``None`` when nobody subscribes); with
+  ``"rates": false`` the rows come at once, every ``rate`` ``None``.
 - ``{"cmd": "record_start", "path", "topics", "max_bytes", "max_seconds",
   "max_files", "compression", "chunk_bytes", "overwrite"}`` -> starts a
   :class:`~embagents.tools.recorder.RecorderActor` child of the root
@@ -75,8 +76,11 @@ class _Topics:
     def __init__(self, control: Any, system: Any) -> None:
         self.control, self.system = control, system
         self.prev: tuple[float, dict[str, int]] | None = None
+        self.lock = threading.Lock()  # requests run side by side: one look at the counters at a time
 
-    def __call__(self, _req: dict[str, Any]) -> dict[str, Any]:
+    def __call__(self, req: dict[str, Any]) -> dict[str, Any]:
+        if req.get("rates") is False:  # a client checking a name: no half-second look at the rates
+            return {"ok": True, "topics": [{**r, "rate": None} for r in topic_rows(self.system, self.control.system.run_dir)]}
         rows = self.control.rows()
         if self.prev is None or time.monotonic() - self.prev[0] > 10:  # no recent look: take one now
             self.table(rows)
@@ -86,15 +90,16 @@ class _Topics:
 
     def table(self, status_rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """The topic rows, rates since the previous call (from ``status_rows``' subscription counters)."""
-        now, counts = time.monotonic(), _received(status_rows)
-        then, before = self.prev or (now, {})
+        with self.lock:
+            now, counts = time.monotonic(), _received(status_rows)
+            then, before = self.prev or (now, {})
+            self.prev = (now, counts)
         rows = topic_rows(self.system, self.control.system.run_dir)
         for r in rows:
             key = r["name"].replace("/", ".")
             n, n0 = counts.get(key), before.get(key)
             ok = n is not None and n0 is not None and n >= n0 and now > then
             r["rate"] = round((n - n0) / (now - then), 1) if ok else None  # type: ignore[operator]
-        self.prev = (now, counts)
         return rows
 
 

@@ -26,7 +26,6 @@ import math
 import sys
 import time
 from collections import deque
-from typing import Any
 
 from actors import UnsafeFolder
 from supervisor.client import ControlError, request
@@ -81,23 +80,23 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _echo(args: argparse.Namespace) -> int:
-    from embagents.tools.attach import Attached, find_topic, run_topics
+    from embagents.live import connect
+    from embagents.tools.attach import interrupted_by_sigterm
     from embagents.tools.plain import format_text, to_plain
 
-    found, rows = run_topics(args.run, args.timeout)
-    topic = find_topic(rows, args.name)["name"]
-    seen = [0]
-
-    def show(msg: Any) -> None:
-        plain = to_plain(msg, full_arrays=args.full_arrays)
-        print(json.dumps(plain) if args.json else format_text(plain) + "\n---", flush=True)
-        seen[0] += 1
-
-    with Attached(found) as seat:
-        sub = seat.subscribe(topic, show)
-        seat.run(until=lambda: args.count is not None and seen[0] >= args.count, timeout=args.duration)
-        if sub.dropped:
-            print(f"echo: {sub.dropped} messages on {topic} dropped (this terminal was slower than the topic)",
+    with connect(args.run, timeout=args.timeout) as live, interrupted_by_sigterm():
+        topic = live.topic(args.name)["name"]
+        messages = live.echo(topic, count=args.count, timeout=args.duration)
+        try:
+            for msg in messages:
+                plain = to_plain(msg, full_arrays=args.full_arrays)
+                print(json.dumps(plain) if args.json else format_text(plain) + "\n---", flush=True)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            messages.close()
+        if messages.dropped:
+            print(f"echo: {messages.dropped} messages on {topic} dropped (this terminal was slower than the topic)",
                   file=sys.stderr)
     return 0
 

@@ -7,8 +7,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from actors.codec import Codec, message
-from actors.errors import CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
+from actors.codec import EXT_MESSAGE, MAX_EXT_DEPTH, Codec, message
+from actors.errors import CodecError, CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
 from actors.shm import ShmPool, ShmReader
 
 
@@ -51,6 +51,54 @@ def test_messages_inside_messages_round_trip_after_a_frame_that_failed_deep_insi
     assert out["outer"] == Point(5.0, [], None)
     for p in (out["deep"][0], out["deep"][1]["again"].arr):
         assert p.x == 4.0 and p.tags == ["y"] and p.arr.tolist() == [0, 1, 2] and p.arr.dtype == np.int16
+
+
+def nested_message(levels: int) -> msgpack.ExtType:
+    """``levels`` messages, each one a field of the last, as their extension (a frame's body)."""
+    data = msgpack.packb(["test/Point", {"x": 1.0}])
+    for _ in range(levels - 1):
+        data = msgpack.packb(["test/Point", {"x": msgpack.ExtType(EXT_MESSAGE, data)}])
+    return msgpack.ExtType(EXT_MESSAGE, data)
+
+
+def nested_frame(levels: int) -> bytes:
+    return msgpack.packb(nested_message(levels))
+
+
+@pytest.mark.parametrize("levels", [200, 10_000])
+def test_deeply_nested_messages_are_a_corrupt_frame_not_a_crash(levels: int) -> None:
+    # Each level used to be one more msgpack unpacker on the C stack: 200 levels were a SIGSEGV.
+    with pytest.raises(CorruptFrame, match=f"nested more than {MAX_EXT_DEPTH} deep"):
+        Codec().decode(nested_frame(levels))
+    with pytest.raises(CorruptFrame, match=f"nested more than {MAX_EXT_DEPTH} deep"):
+        Codec().peek(nested_frame(levels))
+
+
+def test_nesting_up_to_the_limit_round_trips_and_beyond_it_is_refused_when_encoding() -> None:
+    c = Codec()
+    deep = c.decode(nested_frame(MAX_EXT_DEPTH))
+    for _ in range(MAX_EXT_DEPTH - 1):
+        deep = deep.x
+    assert deep == Point(1.0)
+    p = Point(1.0)
+    for _ in range(MAX_EXT_DEPTH):
+        p = Point(p)  # type: ignore[arg-type]
+    with pytest.raises(CodecError, match=f"nest more than {MAX_EXT_DEPTH} deep"):
+        c.encode(p)
+    assert c.decode(c.encode(Point(2.0))[0]) == Point(2.0)  # the packers were left empty
+
+
+def test_ten_thousand_nested_arrays_are_a_corrupt_frame() -> None:
+    with pytest.raises(CorruptFrame):
+        Codec().decode(b"\x91" * 10_000 + b"\xc0")
+
+
+def test_a_corrupt_frame_quotes_what_it_got_briefly() -> None:
+    c = Codec()
+    for body in (["n" * 1_000_000, {}], ["test/Point", {"k" * 1_000_000: 1}]):  # a huge name, a huge field
+        with pytest.raises(CodecError) as err:
+            c.decode(msgpack.packb(msgpack.ExtType(EXT_MESSAGE, msgpack.packb(body))))
+        assert len(str(err.value)) < 500
 
 
 def test_object_arrays_are_refused() -> None:

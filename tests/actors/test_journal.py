@@ -28,3 +28,18 @@ def test_heartbeat_and_state_survive_reopening(tmp_path: Path) -> None:
     j.close()
     j2 = Journal(str(tmp_path / "b.journal"))
     assert j2.last_beat() == beat and j2.state() == 2
+
+
+def test_a_crash_while_a_frame_was_decoded_is_told_from_one_in_its_handler(tmp_path: Path) -> None:
+    j = Journal(str(tmp_path / "c.journal"))
+    j.begin(b"sender", 3, decoded=False)  # died decoding message 3
+    j.close()
+    j = Journal(str(tmp_path / "c.journal"))
+    j.on_restart()
+    j.begin(b"sender", 4, decoded=False)
+    j.decoded()  # died in the handler of message 4
+    j.close()
+    j = Journal(str(tmp_path / "c.journal"))
+    j.on_restart()
+    assert j.crashes() == {(b"sender", 3): 1, (b"sender", 4): 1}
+    assert j.undecodable() == {(b"sender", 3)}

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from actors import ActorSystem, wire
 from actors.codec import EXT_MESSAGE, EXT_NDARRAY, EXT_SHM
+from tests.actors.test_codec import nested_message
 from tests.actors.workers import Echo
 
 
@@ -60,6 +61,21 @@ def test_a_malformed_frame_is_dropped_and_the_actor_goes_on(echo_system: ActorSy
     try:
         sock.send(msgpack.packb(frame))
         _alive(echo_system, "fuzz", pid)
+    finally:
+        sock.close()
+
+
+@pytest.mark.parametrize("levels", [200, 10_000])
+def test_a_frame_of_deeply_nested_messages_is_dropped_and_the_actor_goes_on(echo_system: ActorSystem, levels: int) -> None:
+    ref = echo_system.ref("fuzz") if _spawned(echo_system) else echo_system.spawn(Echo, "fuzz")
+    pid = ref.ask("pid", timeout=5).get()
+    dropped = echo_system.ctrl("fuzz", "stats")["dropped"]
+    sock = _raw(echo_system, "fuzz")
+    try:
+        for kind in (wire.TELL, wire.ASK):  # 200 levels of these used to kill the actor with SIGSEGV
+            sock.send(msgpack.packb([kind, 1 << 40, nested_message(levels)]))
+        _alive(echo_system, "fuzz", pid)
+        assert echo_system.ctrl("fuzz", "stats")["dropped"] == dropped + 2
     finally:
         sock.close()
 

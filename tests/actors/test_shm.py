@@ -6,8 +6,9 @@ import os
 import numpy as np
 import pytest
 
-from actors.errors import StaleFrame
-from actors.shm import ShmPool, ShmReader, sweep
+from actors import shm
+from actors.errors import CorruptFrame, StaleFrame
+from actors.shm import SHM_DIR, ShmPool, ShmReader, sweep
 
 
 @pytest.fixture
@@ -92,3 +93,52 @@ def test_only_topic_frames_of_other_processes_may_be_forwarded(pool: ShmPool) ->
         del topic, told, mine
     finally:
         own.close()
+
+
+def _plant(name: str, *, uid: int | None = None, mode: int = 0o600, like: list | None = None) -> None:
+    """A segment made by someone else under ``name`` (a valid frame header, so only its owner or mode is wrong)."""
+    fd = os.open(os.path.join(SHM_DIR, name), os.O_CREAT | os.O_EXCL | os.O_RDWR, mode)
+    try:
+        os.ftruncate(fd, 1 << 16)
+        if like is not None:  # copy a real frame's header and generation
+            with open(os.path.join(SHM_DIR, like[0]), "rb") as f:
+                os.write(fd, f.read(64))
+        os.fchmod(fd, mode)
+        if uid is not None:
+            os.fchown(fd, uid, uid)
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.skipif(os.getuid() != 0, reason="making a segment of another user needs root")
+def test_a_segment_of_another_user_or_open_to_others_or_of_another_run_is_refused(pool: ShmPool) -> None:
+    real = pool.put(np.ones(70_000, np.uint8))
+    reader = ShmReader(prefix=f"eatest{os.getpid()}_")
+    assert int(reader.view(real, None)[0]) == 1
+    cases = {f"{pool.prefix}90r0": {"uid": 65534}, f"{pool.prefix}91r0": {"mode": 0o666}}
+    try:
+        for name, how in cases.items():
+            _plant(name, like=real, **how)
+            with pytest.raises(CorruptFrame, match=f"refused shared-memory frame {name}: owned by uid"):
+                reader.view([name, *real[1:]], None)
+        with pytest.raises(CorruptFrame, match="is not of this run"):
+            ShmReader(prefix="eaother_").view(real, None)
+    finally:
+        sweep(f"{pool.prefix}9")
+
+
+def test_a_taken_segment_name_is_not_used_and_another_is_tried(pool: ShmPool, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Another local user can list /dev/shm and make the name a writer will take next: the first of
+    # the old names (prefix + a counter), and a name whose random part it guessed.
+    tokens = iter(["guessed", "guessed", "fresh"])
+    monkeypatch.setattr(shm, "_token", lambda: next(tokens))
+    planted = [f"{pool.prefix}1", f"{pool.prefix}1rguessed", f"{pool.prefix}2rguessed"]
+    for name in planted:
+        _plant(name)
+    try:
+        h = pool.put(np.full(70_000, 5, np.uint8))
+        assert h[0] == f"{pool.prefix}3rfresh"
+        assert int(ShmReader().view(h, None)[-1]) == 5
+    finally:
+        for name in planted:
+            os.unlink(os.path.join(SHM_DIR, name))

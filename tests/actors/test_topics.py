@@ -148,6 +148,29 @@ def test_garbage_on_a_subscription_socket_is_counted_and_skipped(system: ActorSy
     assert st["bad"] == 4, st
 
 
+def test_a_frame_of_ten_thousand_nested_messages_is_counted_and_skipped(system: ActorSystem) -> None:
+    from tests.actors.test_codec import nested_frame
+
+    sub = system.spawn(TopicCounter, "sub", "numbers", 10, "latest", 0.0)
+    pub = system.spawn(Burst, "pub")
+    wait_until(lambda: pub.ask(["numbers", 1], timeout=5).get() and sub.ask("stats", timeout=5).get()["got"])
+    pid = sub.ask("pid", timeout=5).get()
+    [mark] = os.listdir(os.path.join(system.run_dir, "topics", "numbers"))
+    xpub = zmq.Context.instance().socket(zmq.XPUB)  # a publisher of its own, as another process could be
+    xpub.setsockopt(zmq.LINGER, 1000)
+    xpub.connect(f"ipc://{system.run_dir}/s.{mark}")
+    try:
+        assert xpub.poll(5000) and xpub.recv()[:1] == b"\x01"  # the subscription is live
+        for levels in (200, 10_000):  # 200 levels used to kill the subscriber with SIGSEGV
+            xpub.send(b"\x07" * 16 + nested_frame(levels))
+        st = wait_until(lambda: (s := sub.ask("stats", timeout=5).get())["bad"] >= 2 and s)
+    finally:
+        xpub.close()
+    assert st["bad"] == 2 and sub.ask("pid", timeout=5).get() == pid
+    pub.ask(["numbers", 3], timeout=5).get()
+    wait_until(lambda: sub.ask("stats", timeout=5).get()["last"] == 2)  # it goes on: 0, 1, 2 arrive
+
+
 def test_publishes_and_tells_of_large_arrays_from_two_threads_keep_their_own_memory(system: ActorSystem) -> None:
     # A topic's frames go into its ring (reused after 8 newer frames); a tell's into segments kept
     # until acknowledged. Encoding one on another thread must never put it in the other's place.

@@ -17,6 +17,7 @@ from importlib.util import find_spec
 
 import pytest
 
+from embagents.bench.cases_gpu import cuda_available
 from embagents.bench.registry import (
     CASES,
     FRAME_1080P,
@@ -100,8 +101,10 @@ def test_quick_run_covers_every_case_family(quick_run: tuple[dict, str, str]) ->
     idle = [r for r in rows if r["name"] == "idle_10_actors"]
     assert len(idle) == 1 and idle[0]["transport"] == "embagents"
     assert type(idle[0]["cpu_percent"]) is float
+    gpu = cuda_available()
+    assert any(r["name"] == "gpu_pipeline" for r in (rows if gpu else doc["skipped"]))  # runs only on a GPU
     if not HAVE_RCLPY:
-        assert {s["transport"] for s in doc["skipped"]} == {"rclpy"}
+        assert {s["transport"] for s in doc["skipped"] if s["name"] != "gpu_pipeline"} == {"rclpy"}
 
 
 def test_quick_run_prints_the_table_ratios_and_ungraded_bars(quick_run: tuple[dict, str, str]) -> None:

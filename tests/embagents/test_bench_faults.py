@@ -34,3 +34,16 @@ def test_startup_loss_loses_nothing_with_a_source_listed_first() -> None:
 
     res = measure_startup_loss(1)
     assert res["lost"] == [0] and res["ready_s"][0] > 0
+def test_standby_takeover_serves_again_before_a_5_s_configure_could_and_loses_nothing() -> None:
+    from embagents.bench.faults import measure_standby_takeover
+
+    warm = measure_standby_takeover(2, standby=True, configure_s=5.0)
+    assert len(warm["samples"]) == 2 and max(warm["samples"]) < 2.5  # a fresh start would configure for 5 s
+    assert warm["sent"] > 0 and warm["lost"] == 0
+
+
+def test_without_a_standby_a_restart_configures_again() -> None:
+    from embagents.bench.faults import measure_standby_takeover
+
+    cold = measure_standby_takeover(1, standby=False, configure_s=1.0)
+    assert min(cold["samples"]) >= 1.0 and cold["lost"] == 0

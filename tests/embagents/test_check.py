@@ -317,3 +317,72 @@ def test_a_handshake_on_a_topic_no_node_subscribes_to_is_an_error() -> None:
         "manager 'boss': handshake rule 'first_message_on_camera_image_raw' waits for a message on 'camera/image_raw', "
         "which none of its nodes subscribes to (it would never hold); add the topic to a Node(subscribe=[...]) of "
         "the manager")
+
+
+CUDA_AT_IMPORT = """\
+import ctypes
+import os
+
+from embagents.components import Component
+from embagents.system import System
+
+# Stands in for `model = Net().cuda()`: what that leaves in the process is the CUDA driver library.
+driver = ctypes.CDLL(os.path.join(os.path.dirname(os.path.abspath(__file__)), "libcuda.so.1"))
+
+
+class Gpu(Component):
+    def on_configure(self):
+        self.net = "Net().cuda() belongs here: it runs in the component's own process"
+
+
+system = System([Gpu(name="gpu", start_method="spawn")])
+"""
+
+
+def _stand_in_driver(folder) -> None:
+    """A real shared library (libm) under the CUDA driver's name: loading it maps `libcuda.so.1`."""
+    import ctypes.util
+    import shutil
+
+    libm = next(line.split()[-1] for line in open("/proc/self/maps") if "/libm.so" in line or "/libm-" in line)
+    assert ctypes.util.find_library("m")
+    shutil.copy(libm, os.path.join(folder, "libcuda.so.1"))
+
+
+@pytest.mark.parametrize("command", ["check", "supervise"])
+def test_a_system_file_that_initialises_cuda_in_the_root_is_refused_naming_the_line_and_the_fix(tmp_path, command):
+    _stand_in_driver(tmp_path)
+    path = write(tmp_path, CUDA_AT_IMPORT)
+    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.run([sys.executable, "-m", "embagents.cli", command, path],
+                          capture_output=True, text=True, env=env, timeout=60)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out
+    line = len(HEADER.splitlines()) + 8  # write() puts HEADER first
+    assert f"[cuda-in-root] {path}:{line}: `driver = ctypes.CDLL(" in out
+    assert "the CUDA driver (libcuda.so.1) is loaded" in out
+    assert "on_configure" in out and 'start_method="spawn"' in out
+
+
+def test_gpu_work_inside_on_configure_passes_the_check(tmp_path):
+    path = write(tmp_path, CUDA_AT_IMPORT.replace("driver = ctypes.CDLL", "def load(): return ctypes.CDLL"))
+    system, problems = check_file(path)
+    assert [p.code for p in problems] == []
+    assert system is not None and system.components[0].start_method == "spawn"
+
+
+def test_cuda_detection_reads_the_process_maps():
+    from embagents.check import cuda_in_process
+
+    maps = ("55d0-55d1 r--p 0 08:01 11 /usr/bin/python3.11\n"
+            "7f00-7f01 r-xp 0 08:01 12 /usr/lib/x86_64-linux-gnu/libcuda.so.550.54.15\n")
+    assert cuda_in_process(lambda: maps) == "the CUDA driver (libcuda.so.550.54.15) is loaded in this process"
+    assert cuda_in_process(lambda: maps.replace("libcuda", "libcudart")) is None  # the runtime alone: no context
+    assert cuda_in_process() is None  # this test process has none
+
+
+def test_a_bad_start_method_is_a_component_problem(tmp_path):
+    path = write(tmp_path, CUDA_AT_IMPORT.replace("driver = ctypes.CDLL", "def load(): return ctypes.CDLL")
+                 .replace('start_method="spawn"', 'start_method="forkserver"'))
+    _, problems = check_file(path)
+    assert [p.code for p in problems] == ["bad-start-method"]

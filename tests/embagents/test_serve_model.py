@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -112,6 +113,65 @@ def test_serve_model_is_supervised_and_serves_allowed_keys_on_loopback(tmp_path:
     assert code == 0, served.log()
 
 
+def test_serve_model_survives_deep_frames_silent_and_null_peers_and_logs_each_refusal(tmp_path: Path, tiny_gguf: str) -> None:
+    import resource
+    import socket
+    import time
+
+    import zmq
+
+    from actors import Codec
+    from actors.curve import curve_client, load_secret_key
+    from embagents.models.protocol import InferError
+    from tests.actors.test_codec import nested_frame
+
+    keys = keys_in(tmp_path)
+    port = free_port()
+    served = serve(tiny_gguf, keys, "127.0.0.1", port, [])
+    try:
+        st = served.status()
+        assert st is not None
+        pid = st["rows"][0]["pid"]
+        # A silent peer holds a file descriptor only for the 5 s handshake limit (libzmq's default: 30 s).
+        idle = socket.create_connection(("127.0.0.1", port), timeout=20)
+        t0 = time.monotonic()
+        assert idle.recv(4096)[:1] == b"\xff" and idle.recv(4096) == b""  # the server's greeting, then the close
+        assert 3 < time.monotonic() - t0 < 15
+        idle.close()
+        # An allowed client's frame of 10,000 nested messages (200 used to kill the model actor) is answered.
+        ctx = zmq.Context.instance()
+        raw = ctx.socket(zmq.DEALER)
+        raw.linger = 0
+        curve_client(raw, keys["server"][0], *load_secret_key(keys["client"][1]))
+        raw.connect(f"tcp://127.0.0.1:{port}")
+        try:
+            for levels in (200, 10_000):
+                raw.send(nested_frame(levels))
+                assert raw.poll(20000)
+                answer = Codec().decode(raw.recv())
+                assert isinstance(answer, InferError) and "nested more than 32 deep" in answer.error
+        finally:
+            raw.close(0)
+        null = ctx.socket(zmq.DEALER)  # no CURVE: refused before the allow list is asked, and logged
+        null.linger = 0
+        null.connect(f"tcp://127.0.0.1:{port}")
+        null.send(b"hello")
+        # Which side sees the mismatch first is a race: either way the refusal is logged.
+        wait_until(lambda: re.search(r"refused a client from .*: (it does not speak CURVE|it hung up during the handshake) "
+                                     r"\(a NULL or PLAIN client", served.log()), 10, "the refusal logged")
+        assert re.search(r"refused a client from 127\.0\.0\.1:\d+: it did not finish its handshake within 5 s", served.log())
+        null.close(0)
+        with ActorSystem():
+            assert client(keys, "127.0.0.1", port).chat(HI, max_tokens=4)["usage"]["completion_tokens"] >= 1
+        st = served.status()
+        assert st is not None and st["rows"][0]["pid"] == pid and st["rows"][0]["restarts"] == 0
+        hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]  # the soft limit was raised to it
+        assert f"up to {hard} open files" in served.log()
+    finally:
+        code = served.stop()
+    assert code == 0, served.log()
+
+
 @pytest.fixture()
 def netns() -> Iterator[tuple[str, str, str]]:
     """A network namespace with a veth pair: (namespace, host address, namespace address); removed after."""
@@ -173,3 +233,13 @@ def test_a_tcp_bind_without_keys_is_refused_naming_the_fix(tmp_path: Path) -> No
                          capture_output=True, text=True, timeout=60, env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path)})
     assert out.returncode == 1
     assert "unauthenticated TCP is not offered; make keys with `embagents keys` and pass --key" in out.stderr
+
+
+def test_a_public_key_file_given_as_key_names_the_secret_file_to_pass(tmp_path: Path) -> None:
+    keys = keys_in(tmp_path)
+    public_file = keys["server"][1][: -len("_secret")]
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "serve-model", "smollm2", "--bind", "tcp://127.0.0.1:5555",
+                          "--allow", keys["client"][0].decode(), "--key", public_file],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1
+    assert f"{public_file} is a public key (it holds no secret key): pass {keys['server'][1]}" in out.stderr

@@ -51,3 +51,21 @@ def test_a_step_longer_than_step_timeout_s_gets_its_component_killed_and_restart
             assert pid("fine") == fine  # one_for_one: the others keep running
         finally:
             sup.stop()
+
+
+def test_standby_and_start_method_of_components_and_models_reach_their_child_specs(tmp_path: Path) -> None:
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent('''
+        from embagents import LLM, LlamaModel, LocalModelClient, String, System, Topic
+        from embagents.components import Component
+
+        q, a = Topic("q", String), Topic("a", String)
+        model = LlamaModel(name="m", local_model_path="/models/m.gguf", standby=True)
+        system = System([
+            LLM(name="llm", inputs=[q], outputs=[a], model_client=LocalModelClient(model), start_method="spawn"),
+            Component(name="plain"),
+        ], models=[model], external=[q])
+    '''))
+    spec = build_spec(load_system(str(path)), str(path))
+    got = {c.id: (c.standby, c.start_method) for c in spec.children}
+    assert got == {"m": (True, "spawn"), "llm": (False, "spawn"), "plain": (False, "fork")}

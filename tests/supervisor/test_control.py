@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -14,7 +17,7 @@ from supervisor.client import request
 from supervisor.control import ControlServer, runs_dir
 from tests.helpers import wait_until
 from tests.supervisor.conftest import EventLog, ask
-from tests.supervisor.workers import Echo
+from tests.supervisor.workers import Echo, SlowStop
 
 
 def tree(system: ActorSystem):
@@ -108,17 +111,24 @@ def test_the_discovery_file_lives_as_long_as_the_endpoint(system: ActorSystem) -
     assert not os.path.exists(path)
 
 
-def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: ActorSystem) -> None:
-    import msgpack
+def _dealer(system: ActorSystem) -> Any:
+    """A raw DEALER on the run's control endpoint (frames as a client in any language sends them)."""
     import zmq
 
-    tree(system)
-    control = ControlServer(system, "demo")
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.RCVTIMEO, 5000)
+    sock.connect(f"ipc://{system.run_dir}/_control")
+    return sock
+
+
+def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: ActorSystem) -> None:
+    import msgpack
+
+    tree(system)
+    control = ControlServer(system, "demo")
+    sock = _dealer(system)
     try:
-        sock.connect(f"ipc://{system.run_dir}/_control")
         for junk in [b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"cmd": 7}), msgpack.packb({"cmd": "restart", "name": ["x"]})]:
             sock.send_multipart([b"", junk])
             reply = msgpack.unpackb(sock.recv_multipart()[-1])
@@ -148,27 +158,124 @@ def test_wait_ready_is_answered_when_the_run_is_ready_and_status_keeps_being_ser
         with open(control.discovery) as f:
             assert json.load(f)["ready"] is True
         assert request(system.run_dir, {"cmd": "wait_ready"}) == {"ok": True, "ready": True}  # at once now
+# -- serving side by side, and deadlines --------------------------------------
+def test_a_slow_command_does_not_hold_up_status(system: ActorSystem) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    release = threading.Event()
+    control.add_command("slow", lambda msg: {"ok": release.wait(30)})
+    answers: list[dict] = []
+    slow = threading.Thread(target=lambda: answers.append(request(system.run_dir, {"cmd": "slow"}, 30)))
+    try:
+        slow.start()
+        # One request at a time would leave this one waiting behind "slow": no answer within 5 s.
+        assert request(system.run_dir, {"cmd": "status"}, 5)["rows"]
+        assert not answers  # "slow" is still in flight
+        release.set()
+        slow.join(10)
+        assert answers[0]["ok"] is True
+    finally:
+        release.set()
+        control.close()
+
+
+def test_a_late_answer_to_an_abandoned_request_is_not_taken_for_the_next_one(system: ActorSystem) -> None:
+    from supervisor.client import ControlClient, ControlError
+
+    tree(system)
+    control = ControlServer(system, "demo")
+    release = threading.Event()
+    control.add_command("slow", lambda msg: {"ok": True, "slow": release.wait(30)})
+    try:
+        with ControlClient(system.run_dir) as client:
+            with pytest.raises(ControlError, match="no answer .* within 0.2 s"):
+                client.request({"cmd": "slow"}, 0.2)
+            release.set()  # its answer comes now, to a request nobody waits for
+            reply = client.request({"cmd": "status"})
+            assert "rows" in reply and "slow" not in reply
+    finally:
+        release.set()
+        control.close()
+
+
+def test_a_request_whose_deadline_passed_is_answered_and_not_carried_out(system: ActorSystem) -> None:
+    import time
+
+    import msgpack
+
+    tree(system)
+    control = ControlServer(system, "demo")
+    sock = _dealer(system)
+    try:
+        pid = ask(system, "a")
+        late = {"cmd": "restart", "name": "a", "deadline": time.monotonic() - 1.0, "id": 7}
+        sock.send_multipart([b"", msgpack.packb(late)])
+        reply = msgpack.unpackb(sock.recv_multipart()[-1])
+        assert reply["ok"] is False and reply["expired"] is True and reply["id"] == 7
+        assert "restart not carried out: its deadline passed" in reply["error"]
+        assert ask(system, "a") == pid
+        assert {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}["a"]["restarts"] == 0
+    finally:
+        sock.close()
+        control.close()
+
+
+def test_a_restart_whose_deadline_passes_behind_a_slow_restart_is_not_carried_out(
+        system: ActorSystem, tmp_path: Path) -> None:
+    from supervisor.client import ControlError
+
+    stopping = str(tmp_path / "stopping")
+    start_supervisor(system, SupervisorSpec(children=[
+        ChildSpec("slow", (SlowStop, (3.0, None, False, stopping)), shutdown=20), ChildSpec("a", Echo),
+        ChildSpec("b", Echo)]))
+    control = ControlServer(system, "demo")
+    try:
+        pid = ask(system, "a")
+        slow = threading.Thread(target=request, args=(system.run_dir, {"cmd": "restart", "name": "slow"}, 30))
+        slow.start()
+        wait_until(lambda: os.path.exists(stopping), 10, "the slow child to begin stopping")
+        with pytest.raises(ControlError, match="no answer"):  # queued behind slow's restart in the supervisor
+            request(system.run_dir, {"cmd": "restart", "name": "a"}, 0.5)
+        slow.join(30)
+        request(system.run_dir, {"cmd": "restart", "name": "b"}, 30)  # a's job, queued before it, has had its turn
+        assert ask(system, "a") == pid  # reported as failed: it never happened
+        assert {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}["a"]["restarts"] == 0
     finally:
         control.close()
 
 
 def test_wait_ready_is_told_when_the_run_ends_before_it_was_ready(system: ActorSystem) -> None:
-    from supervisor.client import ControlError
-
     tree(system)
     control = ControlServer(system, "demo")
     control.hold_ready()
-    errors: list[str] = []
+    try:
+        assert control.handle({"cmd": "wait_ready", "deadline": time.monotonic() + 0.05}) == {
+            "ok": False, "ready": False, "error": "the run is not ready yet"}  # its deadline passed
+    finally:
+        control.close()
+    assert control.handle({"cmd": "wait_ready"}) == {"ok": False, "error": "the run stopped before it was ready"}
 
-    def wait() -> None:
-        try:
-            request(system.run_dir, {"cmd": "wait_ready"}, 30)
-        except ControlError as exc:
-            errors.append(str(exc))
 
-    waiter = threading.Thread(target=wait)
-    waiter.start()
-    wait_until(lambda: control._waiting, 10, "the wait_ready request held")
-    control.close()
-    waiter.join(10)
-    assert errors == ["the run stopped before it was ready"]
+def test_requests_beyond_the_limit_are_refused_at_once(system: ActorSystem, monkeypatch: pytest.MonkeyPatch) -> None:
+    import supervisor.control
+
+    monkeypatch.setattr(supervisor.control, "MAX_IN_FLIGHT", 2)
+    tree(system)
+    control = ControlServer(system, "demo")
+    release = threading.Event()
+    started = threading.Semaphore(0)
+    control.add_command("slow", lambda msg: {"ok": started.release() or release.wait(30)})
+    waiting = [threading.Thread(target=request, args=(system.run_dir, {"cmd": "slow"}, 30)) for _ in range(2)]
+    try:
+        for t in waiting:
+            t.start()
+        for _ in waiting:
+            assert started.acquire(timeout=10)
+        assert "serving 2 control requests already" in request_error(system, {"cmd": "status"})
+        release.set()
+        for t in waiting:
+            t.join(10)
+        assert request(system.run_dir, {"cmd": "status"})["rows"]
+    finally:
+        release.set()
+        control.close()

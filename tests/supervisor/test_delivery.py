@@ -13,7 +13,7 @@ import pytest
 from actors import ActorSystem
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 from tests.supervisor.conftest import EventLog, ask, read_lines, wait_until
-from tests.supervisor.workers import BurstSender, Recorder
+from tests.supervisor.workers import BurstSender, DiesWhenDecoded, Recorder
 
 
 def dead_letters(system: ActorSystem) -> list[dict]:
@@ -80,6 +80,26 @@ def test_a_poison_message_is_dead_lettered_and_the_actor_keeps_serving(system: A
     assert dead["message"] == "'poison'" and dead["reason"] == "it crashed actor 'rec' 3 times"
     assert len(events.of("crashed", "rec")) == 3
     assert all("ValueError: poison" in e["detail"] for e in events.of("crashed", "rec"))
+
+
+def test_a_frame_that_kills_its_decoder_counts_towards_the_poison_limit(system: ActorSystem, events: EventLog, tmp_path) -> None:
+    # The journal takes a message before its frame is decoded: a frame that crashes the decoder is
+    # dead-lettered, undecoded, at the poison limit, not re-sent to each new incarnation until the
+    # supervisor gives up.
+    path = str(tmp_path / "processed")
+    start_supervisor(system, SupervisorSpec(intensity=5, period=60, children=[
+        ChildSpec("rec", (Recorder, (path,)), poison_limit=3)]))
+    ref = system.ref("rec")
+    ref.tell("before")
+    ref.tell(DiesWhenDecoded(os.getpid()))
+    ref.tell("after")
+    assert ref.flush(30)
+    assert ask(system, "rec") > 0
+    assert "after" in read_lines(path)
+    [dead] = dead_letters(system)
+    assert dead["reason"] == "it crashed actor 'rec' 3 times" and "not decoded: decoding it crashed" in dead["message"]
+    assert dead["kind"] == "tell"
+    assert len(events.of("crashed", "rec")) == 3
 
 
 @pytest.mark.parametrize(("batch", "pause"), [(100, 0.4), (25, 0.06)])

@@ -8,7 +8,9 @@ import signal
 import time
 from typing import Any
 
-from actors import Actor
+import attrs
+
+from actors import Actor, message
 
 
 def _append(path: str, line: str) -> None:
@@ -78,24 +80,42 @@ class FailStart(Actor):
 
 
 class SlowStop(Actor):
-    """Takes ``seconds`` to stop cleanly (or ignores SIGTERM with ``ignore_term``)."""
+    """Takes ``seconds`` to stop cleanly (or ignores SIGTERM with ``ignore_term``); creates ``stopping`` as it begins."""
 
-    def __init__(self, seconds: float, log: str | None = None, ignore_term: bool = False) -> None:
+    def __init__(self, seconds: float, log: str | None = None, ignore_term: bool = False,
+                 stopping: str | None = None) -> None:
         self.seconds = seconds
         self.log = log
         self.ignore_term = ignore_term
+        self.stopping = stopping
 
     def on_start(self) -> None:
         if self.ignore_term:
             signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
     def on_stop(self) -> None:
+        if self.stopping:
+            open(self.stopping, "w").close()
         time.sleep(self.seconds)
         if self.log:
             _append(self.log, f"stopped {self.name}")
 
     def on_receive(self, message: Any) -> Any:
         return os.getpid() if message == "pid" else message
+
+
+def _die_if_decoded_elsewhere(pid: int) -> int:
+    if pid != os.getpid():
+        os.kill(os.getpid(), signal.SIGKILL)  # as a decoder that crashes on a frame would
+    return pid
+
+
+@message("tests/DiesWhenDecoded")
+@attrs.define
+class DiesWhenDecoded:
+    """Kills any process but its sender ``pid`` that decodes it (its class is built while the frame decodes)."""
+
+    pid: int = attrs.field(converter=_die_if_decoded_elsewhere)
 
 
 class Recorder(Actor):
@@ -186,3 +206,25 @@ class BurstSender(Actor):
             if (i + 1) % batch == 0:
                 time.sleep(pause)  # still inside the handler: the sender's loop does not run
         return n
+
+
+class SlowConfigure(Managed):
+    """A Managed actor whose ``on_configure`` takes ``configure_s`` (a CUDA model's start, say).
+
+    A warm standby does that work in ``on_standby``; the configure of its takeover then finds it done.
+    """
+
+    def __init__(self, log: str, configure_s: float = 5.0) -> None:
+        super().__init__(log)
+        self.configure_s = configure_s
+        self.ready_ahead = False
+
+    def on_standby(self) -> None:
+        time.sleep(self.configure_s)
+        self.ready_ahead = True
+        _append(self.log, f"on_standby {os.getpid()}")
+
+    def on_configure(self) -> None:
+        if not self.ready_ahead:
+            time.sleep(self.configure_s)
+        _append(self.log, f"on_configure {os.getpid()} ahead={self.ready_ahead}")

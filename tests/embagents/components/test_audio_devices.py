@@ -5,14 +5,15 @@ ALSA's ``file`` plugin makes the devices (defined in a private config that
 raw 16 kHz S16_LE file, ``robotspeaker`` writes what it plays to one. Their
 slave is ALSA's ``null`` PCM, which does not pace: a device is as fast as it
 is read, so the Microphone (which reads what its buffer holds at each step)
-hears the clip about ``buffer_ms / chunk_ms`` times faster than real time.
+hears the clip about ``buffer_ms / chunk_ms`` times faster than real time: 6
+chunks of 100 ms a step, with alsa-lib 1.2.8 and PortAudio 19.6. How far it has
+read when the last phrase is heard is a race between its next step and Whisper
+(96 chunks, 16 steps, where Whisper answers within the 100 ms to the next step,
+as on a fast idle machine; more on a loaded one): no test counts on it.
 """
 
 from __future__ import annotations
 
-import ctypes.util
-import importlib.util
-import os
 import queue
 import re
 import textwrap
@@ -24,12 +25,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tests.helpers import ALSA_CONF, alsa_file_devices, wait_until
+from tests.helpers import alsa_file_devices, skip_unless_portaudio, wait_until
 
-if importlib.util.find_spec("sounddevice") is None:
-    pytest.skip("the Microphone and Speaker need sounddevice (pip install -e '.[speech]')", allow_module_level=True)
-if ctypes.util.find_library("portaudio") is None or not os.path.isfile(ALSA_CONF):
-    pytest.skip("needs PortAudio and ALSA's library: sudo apt install libportaudio2", allow_module_level=True)
+skip_unless_portaudio()
 
 from actors import ActorSystem  # noqa: E402
 from actors.topics import Publisher, Subscription  # noqa: E402
@@ -245,5 +243,8 @@ def test_the_microphone_hears_the_clip_and_speech_to_text_gets_its_words(
             phrases.append(words(heard.get(timeout=30).data))
         assert " ".join(phrases) == SPEECH_CLIP_WORDS
         assert health(asys, "mic")["status"] == HealthStatus.HEALTHY
-        stats = asys.ref("mic").ask(Call("stats"), timeout=5).get()
-        assert stats["open"] and stats["chunks"] >= 100 and stats["overflows"] == 0  # 10 s in 100 ms chunks
+        # The whole clip, 10 s in 100 ms chunks, with nothing lost: waited for, as how far the microphone has
+        # read when the last phrase is heard depends on how fast Whisper is (the module's docstring).
+        stats = wait_until(lambda: (s := asys.ref("mic").ask(Call("stats"), timeout=5).get())["chunks"] >= 100 and s,
+                           30, "the clip's 100 chunks published", interval=0.1)
+        assert stats["open"] and stats["overflows"] == 0, stats

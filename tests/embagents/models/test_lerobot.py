@@ -214,3 +214,52 @@ class _Evil:
 
     def __reduce__(self) -> tuple:
         return (open, (self.path, "w"))
+
+
+def test_a_channel_that_leaves_the_machine_is_named_plaintext_in_a_warning(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level("WARNING", "embagents.models.lerobot")
+    for address in ("127.0.0.1:8080", "localhost:8080", "[::1]:8080"):
+        LeRobotPolicyClient(address, actions_per_chunk=CHUNK)
+    assert not caplog.records  # loopback stays on the machine: nothing to warn of
+    LeRobotPolicyClient("10.1.2.3:8080", actions_per_chunk=CHUNK, name="arm")
+    [record] = caplog.records
+    assert "arm: the LeRobot gRPC channel to 10.1.2.3:8080 is plaintext and unauthenticated" in record.getMessage()
+
+
+@pytest.fixture(scope="module")
+def tls_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """A self-signed certificate for 127.0.0.1, its key, and a token file."""
+    folder = tmp_path_factory.mktemp("tls")
+    cert, key, token = folder / "cert.pem", folder / "key.pem", folder / "token"
+    out = subprocess.run(["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1",
+                          "-nodes", "-keyout", str(key), "-out", str(cert), "-days", "1", "-subj", "/CN=127.0.0.1",
+                          "-addext", "subjectAltName=IP:127.0.0.1"], capture_output=True, text=True, timeout=60)
+    if out.returncode != 0:
+        pytest.skip(f"openssl could not make a test certificate: {out.stderr.strip()[-200:]}")
+    token.write_text("s3cret-token\n")
+    return {"cert": str(cert), "key": str(key), "token": str(token)}
+
+
+def test_over_tls_with_a_token_a_chunk_comes_back_and_a_wrong_token_or_plaintext_is_refused(
+        policy: str, tls_files: dict[str, str], caplog: pytest.LogCaptureFixture) -> None:
+    port = _free_port()
+    with serving(policy, port, "--tls-cert", tls_files["cert"], "--tls-key", tls_files["key"],
+                 "--token-file", tls_files["token"]):
+        address = f"127.0.0.1:{port}"
+        good = LeRobotPolicyClient(address, actions_per_chunk=CHUNK, tls_ca=tls_files["cert"], token="s3cret-token")
+        wrong = LeRobotPolicyClient(address, actions_per_chunk=CHUNK, tls_ca=tls_files["cert"], token="guess")
+        plain = LeRobotPolicyClient(address, actions_per_chunk=CHUNK)
+        try:
+            assert np.allclose(good.infer(obs(), "reach", 10.0), expected_chunk(STATE), atol=1e-6)
+            with pytest.raises(PolicyError, match="refused this client: no valid token"):
+                wrong.infer(obs(), "reach", 10.0)
+            with pytest.raises((PolicyUnavailable, PolicyError)):  # a plaintext client gets no TLS handshake
+                plain.infer(obs(), "reach", 5.0)
+        finally:
+            for c in (good, wrong, plain):
+                c.close()
+    with pytest.raises(ValueError, match="a token needs TLS"):
+        LeRobotPolicyClient(address, actions_per_chunk=CHUNK, token="s3cret-token")
+    caplog.set_level("WARNING", "embagents.models.lerobot")
+    LeRobotPolicyClient("10.1.2.3:8080", actions_per_chunk=CHUNK, tls_ca=tls_files["cert"], token="t")
+    assert not caplog.records  # TLS and a token: nothing to warn of

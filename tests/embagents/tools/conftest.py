@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -57,12 +58,24 @@ system = System([Talker(name="talker", outputs=[chatter, image, dets], trigger=2
 '''
 
 
+def dashboard_url(log: Path) -> str:
+    """The ``http://...?token=...`` URL that an `embagents supervise --dashboard` said in ``log``."""
+    said = re.search(r"dashboard on (http://\S+/\?token=\S+)", log.read_text(errors="replace"))
+    assert said is not None, f"no dashboard line in {log}"
+    return said.group(1)
+
+
 class Run:
     """The live run: ``cli(...)`` runs an `embagents` command against it."""
 
     def __init__(self, proc: subprocess.Popen[bytes], folder: Path, dashboard_port: int) -> None:
         self.proc, self.folder, self.dashboard_port = proc, folder, dashboard_port
         self.id = str(proc.pid)
+
+    @property
+    def dashboard_url(self) -> str:
+        """The URL `embagents supervise` printed for the dashboard, token included."""
+        return dashboard_url(self.folder / "root.log")
 
     def cli(self, *args: str, timeout: float = 60, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
         return subprocess.run([sys.executable, "-m", "embagents.cli", *args, "--run", self.id], input=stdin,

@@ -9,6 +9,7 @@ mouse event, and sees the restart count go up. The screenshot is docs/dashboard.
 from __future__ import annotations
 
 import base64
+import http.client
 import itertools
 import json
 import os
@@ -22,14 +23,34 @@ import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs, urlsplit
 
 import pytest
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from tests.embagents.tools.conftest import Run
+from tests.embagents.tools.conftest import Run, dashboard_url
 from tests.helpers import free_port, wait_until
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+#: The headers of a WebSocket handshake, for a raw HTTP client.
+UPGRADE = {"Upgrade": "websocket", "Connection": "Upgrade", "Sec-WebSocket-Version": "13",
+           "Sec-WebSocket-Key": base64.b64encode(b"0123456789abcdef").decode()}
+
+
+def _token(run: Run) -> str:
+    return parse_qs(urlsplit(run.dashboard_url).query)["token"][0]
+
+
+def _get(port: int, path: str, headers: dict[str, str] | None = None) -> tuple[int, http.client.HTTPResponse, bytes]:
+    """``GET path`` with exactly these headers (a ``Host`` given here replaces the real one)."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        conn.request("GET", path, headers=headers or {})
+        r = conn.getresponse()
+        return r.status, r, r.read()
+    finally:
+        conn.close()
 
 
 class Page:
@@ -65,16 +86,16 @@ def browser(live_run: Run, tmp_path: Path) -> Iterator[Page]:
     if CHROMIUM is None:
         pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run installs it)")
     port = free_port()
-    url = f"http://127.0.0.1:{live_run.dashboard_port}/"
+    url = f"http://127.0.0.1:{live_run.dashboard_port}/"  # where the printed URL (with the token) leads
     proc = subprocess.Popen([CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
                              f"--remote-debugging-port={port}", f"--user-data-dir={tmp_path / 'profile'}",
-                             "--window-size=1280,900", url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             "--window-size=1280,900", live_run.dashboard_url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     try:
         def page_target() -> str | None:
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=2) as r:
-                    pages = [t for t in json.load(r) if t["type"] == "page" and t["url"].startswith(url)]
+                    pages = [t for t in json.load(r) if t["type"] == "page" and t["url"] == url]
             except OSError:
                 return None
             return pages[0]["webSocketDebuggerUrl"] if pages else None
@@ -113,17 +134,18 @@ def test_page_is_live_and_restart_button_restarts(live_run: Run, browser: Page, 
 
 
 def test_json_api_and_image(live_run: Run) -> None:
-    base = f"http://127.0.0.1:{live_run.dashboard_port}"
-    with urllib.request.urlopen(f"{base}/api/state", timeout=10) as r:
+    base, token = f"http://127.0.0.1:{live_run.dashboard_port}", _token(live_run)
+    with urllib.request.urlopen(f"{base}/api/state?token={token}", timeout=10) as r:
         state = json.load(r)
     assert state["system"] == "tools_test" and {r["name"] for r in state["rows"]} >= {"talker", "shout"}
     assert {t["name"] for t in state["topics"]} >= {"chatter", "camera/image"}
-    with urllib.request.urlopen(f"{base}/api/image?topic=camera/image", timeout=10) as r:
+    image = urllib.request.Request(f"{base}/api/image?topic=camera/image", headers={"Authorization": f"Bearer {token}"})
+    with urllib.request.urlopen(image, timeout=10) as r:
         assert r.headers["Content-Type"] == "image/jpeg" and r.read(3) == b"\xff\xd8\xff"
 
 
 def test_websocket_api_pushes_state_and_runs_lifecycle_transitions(live_run: Run) -> None:
-    with connect(f"ws://127.0.0.1:{live_run.dashboard_port}/ws", open_timeout=30) as ws:
+    with connect(f"ws://127.0.0.1:{live_run.dashboard_port}/ws?token={_token(live_run)}", open_timeout=30) as ws:
         assert json.loads(ws.recv(timeout=30))["op"] == "state"
 
         def act(**req: Any) -> dict[str, Any]:
@@ -138,6 +160,7 @@ def test_websocket_api_pushes_state_and_runs_lifecycle_transitions(live_run: Run
         assert act(op="lifecycle", name="shout", transition="activate")["lifecycle"] == "active"
         bad = act(op="lifecycle", name="shout", transition="explode")
         assert not bad["ok"] and "unknown transition 'explode'" in bad["error"]
+        assert "\n" not in bad["error"] and "traceback" not in bad["error"] and ".py" not in bad["error"]  # one line
         assert "no child named 'nobody'" in act(op="restart", name="nobody")["error"]
 
 
@@ -166,3 +189,107 @@ def test_a_taken_dashboard_port_says_which_and_the_system_runs_on(tmp_path: Path
         finally:
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(30) == 0
+
+
+@pytest.mark.parametrize("origin", ["http://evil.example", "null", "http://127.0.0.1:1"])
+def test_a_page_of_another_origin_is_refused_on_the_websocket(live_run: Run, origin: str) -> None:
+    port, token = live_run.dashboard_port, _token(live_run)
+    with pytest.raises(InvalidStatus) as refused:  # the token does not help a foreign page
+        connect(f"ws://127.0.0.1:{port}/ws?token={token}", origin=origin, open_timeout=30)  # type: ignore[arg-type]
+    assert refused.value.response.status_code == 403
+    assert b"another origin" in refused.value.response.body
+    with connect(f"ws://127.0.0.1:{port}/ws?token={token}", origin=f"http://localhost:{port}",  # type: ignore[arg-type]
+                 open_timeout=30) as ws:  # its own page goes through
+        assert json.loads(ws.recv(timeout=30))["op"] == "state"
+
+
+def test_a_request_naming_another_host_is_refused(live_run: Run) -> None:
+    port, token = live_run.dashboard_port, _token(live_run)
+    for path, extra in [("/api/state", {}), ("/api/image?topic=camera/image&", {}), ("/ws", UPGRADE), ("/", {})]:
+        where = f"{path}{'' if path.endswith('&') else '?'}token={token}"
+        status, _r, body = _get(port, where, {"Host": f"evil.example:{port}", **extra})  # a DNS rebinding
+        assert status == 421 and f"127.0.0.1:{port}".encode() in body, (path, status, body)
+        assert _get(port, where, {"Host": f"127.0.0.1:{port + 1}", **extra})[0] == 421  # another port
+    assert _get(port, f"/api/state?token={token}", {"Host": f"localhost:{port}"})[0] == 200
+
+
+def test_without_the_token_or_with_a_wrong_one_is_refused(live_run: Run) -> None:
+    port = live_run.dashboard_port
+    for path, headers in [("/api/state", {}), ("/api/state?token=wrong", {}), ("/api/image?topic=camera/image", {}),
+                          ("/api/state", {"Cookie": f"embagents_dashboard_{port}=wrong"}),
+                          ("/api/state", {"Authorization": "Bearer wrong"}), ("/ws", UPGRADE),
+                          ("/ws?token=wrong", UPGRADE), ("/", {})]:
+        status, _r, body = _get(port, path, {"Host": f"127.0.0.1:{port}", **headers})
+        assert status == 403 and b"printed" in body, (path, headers, status, body)
+    with pytest.raises(InvalidStatus) as refused:
+        connect(f"ws://127.0.0.1:{port}/ws", open_timeout=30)
+    assert refused.value.response.status_code == 403
+
+
+def test_the_printed_url_keeps_its_token_in_a_cookie_that_opens_the_websocket(live_run: Run) -> None:
+    port, url = live_run.dashboard_port, urlsplit(live_run.dashboard_url)
+    assert url.netloc == f"127.0.0.1:{port}" and url.path == "/"
+    status, r, _body = _get(port, f"/?{url.query}", {"Host": url.netloc})
+    cookie = r.getheader("Set-Cookie") or ""
+    assert status == 303 and r.getheader("Location") == "/"  # the token leaves the address bar
+    assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
+    jar = {"Cookie": cookie.split(";")[0]}
+    status, _r, page = _get(port, "/", {"Host": url.netloc, **jar})
+    assert status == 200 and b"<title>embagents dashboard</title>" in page
+    assert _get(port, "/api/image?topic=camera/image", {"Host": url.netloc, **jar})[0] == 200
+    with connect(f"ws://127.0.0.1:{port}/ws", origin=f"http://127.0.0.1:{port}",  # type: ignore[arg-type]
+                 additional_headers=jar, open_timeout=30) as ws:
+        assert json.loads(ws.recv(timeout=30))["op"] == "state"
+
+
+STREAMER = textwrap.dedent('''
+    from embagents import Component, StreamingString, System, Topic
+
+
+    class Streamer(Component):
+        """Streams "hello streamed world" in three chunks and an empty last one, twice a second."""
+
+        def _execution_step(self, **_):
+            self.n = getattr(self, "n", 0) + 1
+            for part in ("hello", " streamed", " world"):
+                self.publish("answer", StreamingString(data=part, stream_id=f"s{self.n}"))
+            self.publish("answer", StreamingString(data="", done=True, stream_id=f"s{self.n}"))
+
+
+    system = System([Streamer(name="streamer", outputs=[Topic("answer", StreamingString)], trigger=2.0)],
+                    name="dash_stream_test")
+''')
+
+
+def test_on_every_address_it_warns_shows_streams_whole_and_a_vanished_client_is_no_error(tmp_path: Path) -> None:
+    path, log = tmp_path / "system.py", tmp_path / "root.log"
+    path.write_text(STREAMER)
+    port = free_port()
+    with open(log, "wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path), "-v", "--dashboard",
+                                 "--dashboard-host", "0.0.0.0", "--dashboard-port", str(port)],
+                                stdout=out, stderr=subprocess.STDOUT)
+    try:
+        wait_until(lambda: "?token=" in log.read_text(errors="replace"), 90, "the dashboard")
+        said = log.read_text(errors="replace")
+        assert "warning: the dashboard listens on 0.0.0.0" in said and "--dashboard-host 127.0.0.1" in said
+        token = parse_qs(urlsplit(dashboard_url(log)).query)["token"][0]
+
+        def text() -> str | None:  # an IP address is no DNS rebinding: on 0.0.0.0 it is let in
+            status, _r, body = _get(port, f"/api/state?token={token}", {"Host": f"127.0.0.2:{port}"})
+            assert status == 200, body
+            return json.loads(body)["texts"].get("answer")
+
+        wait_until(lambda: text() == "hello streamed world", 60, "the whole stream as the latest text")
+
+        with socket.create_connection(("127.0.0.1", port), timeout=30) as raw:  # a client that vanishes
+            raw.sendall((f"GET /ws?token={token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+                         + "".join(f"{k}: {v}\r\n" for k, v in UPGRADE.items()) + "\r\n").encode())
+            assert raw.recv(4096).startswith(b"HTTP/1.1 101")
+            raw.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")  # RST
+        wait_until(lambda: "dashboard client" in log.read_text(errors="replace"), 30, "the client's leaving, logged")
+        said = log.read_text(errors="replace")
+        assert "connection handler failed" not in said and "Traceback" not in said, said[-3000:]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0

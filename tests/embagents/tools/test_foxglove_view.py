@@ -61,3 +61,55 @@ def test_a_taken_port_says_which_and_how_to_choose_another(live_run: Run) -> Non
     assert out.returncode == 1
     assert f"127.0.0.1:{port}" in out.stderr and "choose another with --port" in out.stderr
     assert isinstance(out, subprocess.CompletedProcess)
+
+
+async def _handshake(port: int, origin: str | None, path: str = "/") -> int:
+    """The HTTP status of a Foxglove WebSocket handshake with this ``Origin`` (101: it went through)."""
+    try:
+        async with websockets.connect(f"ws://127.0.0.1:{port}{path}", origin=origin,  # type: ignore[arg-type]
+                                      subprotocols=[SUBPROTOCOL]) as ws:  # type: ignore[list-item]
+            assert json.loads(await asyncio.wait_for(ws.recv(), 20))["op"] == "serverInfo"
+            return 101
+    except websockets.InvalidStatus as exc:
+        return exc.response.status_code
+
+
+def test_a_page_of_a_foreign_origin_is_refused_and_the_app_or_an_allowed_one_is_not(live_run: Run) -> None:
+    port = free_port()
+    view = live_run.popen("view", "--port", str(port), "--duration", "60", "--allow-origin", "http://localhost:8080")
+    try:
+        assert view.stdout is not None
+        said = view.stdout.readline() + view.stdout.readline()
+        token_url = said.split("pages of origins other than ", 1)[1].split(": ", 1)[1].strip()
+        assert token_url.startswith(f"ws://127.0.0.1:{port}/?token=")
+        assert asyncio.run(_handshake(port, "http://evil.example")) == 403
+        assert asyncio.run(_handshake(port, "null")) == 403
+        assert asyncio.run(_handshake(port, "http://evil.example", "/?token=wrong")) == 403
+        assert asyncio.run(_handshake(port, None)) == 101  # the desktop app sends no Origin
+        assert asyncio.run(_handshake(port, "https://app.foxglove.dev")) == 101
+        assert asyncio.run(_handshake(port, "http://localhost:8080")) == 101  # --allow-origin
+        assert asyncio.run(_handshake(port, "http://evil.example", token_url[len(f"ws://127.0.0.1:{port}"):])) == 101
+        with socket.create_connection(("127.0.0.1", port), timeout=20) as raw:  # a client still there at the end
+            raw.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                        f"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Key: MDEyMzQ1Njc4OWFiY2RlZg==\r\n"
+                        f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n".encode())
+            assert raw.recv(4096).startswith(b"HTTP/1.1 101")
+            view.terminate()
+            assert view.wait(20) == 0
+            while raw.recv(1 << 16):  # the view closed it on its way out
+                pass
+    finally:
+        view.terminate()
+        assert view.wait(20) == 0
+    assert view.stderr is not None
+    refused = view.stderr.read()
+    assert refused.count("refused a page of origin http://evil.example") == 1 and "--allow-origin ORIGIN" in refused
+
+
+def test_on_every_address_it_warns_and_a_bad_origin_is_named(live_run: Run) -> None:
+    port = free_port()
+    out = live_run.cli("view", "--host", "0.0.0.0", "--port", str(port), "--duration", "0.5")
+    assert out.returncode == 0, out.stderr
+    assert "warning: embagents view listens on 0.0.0.0" in out.stderr and "--host 127.0.0.1" in out.stderr
+    bad = live_run.cli("view", "--port", str(port), "--allow-origin", "app.foxglove.dev", "--duration", "0.5")
+    assert bad.returncode == 1 and "--allow-origin 'app.foxglove.dev' is not an origin" in bad.stderr
