@@ -64,7 +64,7 @@ if TYPE_CHECKING:
     from actors.loop import Loop
     from actors.runtime import Runtime
 
-__all__ = ["Publisher", "Subscription", "topic_dir"]
+__all__ = ["Publisher", "Subscription", "subscriber_pids", "topic_dir"]
 
 log = logging.getLogger("actors.topics")
 #: A ``keep="all"`` subscription's id ends with this: publishers PUSH to it instead of publishing.
@@ -84,6 +84,21 @@ _local: weakref.WeakValueDictionary[str, Subscription] = weakref.WeakValueDictio
 
 def topic_dir(run_dir: str, topic: str) -> str:
     return os.path.join(run_dir, "topics", topic)
+
+
+def subscriber_pids(run_dir: str, topic: str) -> set[int]:
+    """The processes with a subscription to ``topic`` now: a publisher that publishes from now on reaches them.
+
+    Each subscription's mark in the topic's folder is named ``<pid>-<n>``
+    (``-all`` for keep-all): a publisher connects to it before its next send;
+    a keep-all one queues at once, a keep-latest one waits for the
+    subscription to arrive (see :meth:`Publisher._await_subscriptions`).
+    """
+    try:
+        names = os.listdir(topic_dir(run_dir, topic.replace("/", ".")))
+    except FileNotFoundError:
+        return set()
+    return {int(pid) for pid, _, _ in (n.partition("-") for n in names) if pid.isdigit()}
 
 
 class _Ring:

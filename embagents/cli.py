@@ -142,6 +142,11 @@ def _supervise_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dashboard", action="store_true", help="serve the dashboard page and its JSON/WebSocket API")
     parser.add_argument("--dashboard-host", default="127.0.0.1", help="the dashboard's address (default: this machine only)")
     parser.add_argument("--dashboard-port", type=int, default=8420, help="the dashboard's port (default 8420)")
+    parser.add_argument("--ready-file", metavar="PATH",
+                        help="write PATH once every component is active (removed first, and at the end of the run)")
+    parser.add_argument("--wait-subscribers", type=float, default=30.0, metavar="SECONDS",
+                        help="the longest a component waits for the subscribers of its outputs before it is "
+                             "activated anyway, with a warning (default 30)")
 
 
 def _bench_arguments(parser: argparse.ArgumentParser) -> None:
@@ -172,6 +177,11 @@ def _control(cmd: str) -> Command:
         _run_arguments(parser)
         if cmd == "status":
             parser.add_argument("--json", action="store_true", help="print the status as JSON")
+            parser.add_argument(
+                "--wait-ready", nargs="?", type=float, const=60.0, metavar="TIMEOUT",
+                help="first wait until the run is ready, every component active (at most TIMEOUT s, default 60; "
+                     "a run not started yet is waited for too); exit 1 if it is not",
+            )
         if cmd == "restart":
             parser.add_argument("name", help="the actor to restart")
 
@@ -179,7 +189,7 @@ def _control(cmd: str) -> Command:
         from supervisor.client import control
 
         return control(cmd, run=args.run, timeout=args.timeout, as_json=getattr(args, "json", False),
-                       name=getattr(args, "name", None))
+                       name=getattr(args, "name", None), wait_ready_s=getattr(args, "wait_ready", None))
 
     helps = {
         "status": "a table of the running system: name, pid, state, restarts, uptime, CPU, memory, mailbox",

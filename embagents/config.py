@@ -155,6 +155,12 @@ class BaseComponentConfig:
       received (a frozen camera must not feed a stale frame); ``None``: no limit.
     - ``log_level``: one of debug, info, warning, error: the level of the
       component's logger (``embagents.component.<name>``).
+    - ``wait_for_subscribers``: under ``embagents supervise``, the component is
+      activated (its steps start) only once the subscribers the System declares
+      for its outputs are connected and active, so nothing it publishes at
+      startup is lost, whatever the list order; ``False``: at once, in list
+      order (a camera that must not wait; what it publishes before its
+      subscribers are up is lost).
 
     >>> BaseComponentConfig(loop_rate_hz=2).loop_rate_hz
     2.0
@@ -164,6 +170,7 @@ class BaseComponentConfig:
     step_timeout_s: float | None = field(default=None, converter=optional_positive_float)
     input_max_age_s: float | None = field(default=None, converter=optional_positive_float)
     log_level: str = field(default="info", converter=_log_level)
+    wait_for_subscribers: bool = field(default=True, converter=to_bool)
 
 
 def config_fields(config_or_class: object) -> list[str]:

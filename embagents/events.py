@@ -483,6 +483,16 @@ class Fallback:
     >>> fb = Fallback(on_algorithm_fail=[switch_model_client("backup"), restart()], max_retries=2)
     >>> [fb.decide("ALGORITHM_FAILURE", "llm").kind for _ in range(3)]
     ['switch_model_client', 'restart', 'give_up']
+
+    Under the runtime a failure is one failing *sender* (``incarnation``: its
+    process start and model client switches, see :class:`~embagents.msgs.Health`),
+    not one report: a component failing at 30 Hz until its restart takes
+    effect is restarted once. Reports from a sender already acted on, or an
+    older one, are ignored (``None``):
+
+    >>> fb = Fallback(on_algorithm_fail=restart(), max_retries=1)
+    >>> [getattr(fb.decide("ALGORITHM_FAILURE", "cam", incarnation=i), "kind", None) for i in (1, 1, 2, 1)]
+    ['restart', None, 'give_up', None]
     """
 
     def __init__(
@@ -502,6 +512,7 @@ class Fallback:
         }
         self.max_retries = max_retries
         self._counts: dict[str, int] = {}
+        self._acted_on: Any = None  # the last sender an action was decided for
 
     @property
     def actions(self) -> tuple[Action, ...]:
@@ -512,13 +523,17 @@ class Fallback:
         """Forget the failure counts."""
         self._counts.clear()
 
-    def decide(self, status: object, component: str | None = None) -> Action | None:
-        """The action for one failure report (``None``: healthy, or no rule for it).
+    def decide(self, status: object, component: str | None = None, incarnation: Any = None) -> Action | None:
+        """The action for one failure report (``None``: healthy, no rule for it, or already acted on).
 
         ``status`` is a ``HealthStatus`` (or its name or value); ``component``
-        fills actions declared without one.
+        fills actions declared without one. ``incarnation`` (comparable, growing:
+        an int or ``(incarnation, switches)``) names the report's sender; ``None``
+        counts every report.
         """
         status = HealthStatus.parse(status)
+        if incarnation is not None and self._acted_on is not None and incarnation <= self._acted_on:
+            return None  # its restart or switch is pending: it was acted on once
         if status is HealthStatus.HEALTHY:
             self.reset()
             return None
@@ -527,6 +542,8 @@ class Fallback:
             return None
         count = self._counts.get(status.name, 0) + 1
         self._counts[status.name] = count
+        if incarnation is not None:
+            self._acted_on = incarnation
         action = give_up() if count > self.max_retries else steps[min(count, len(steps)) - 1]
         if action.component is None and component is not None:
             action = attrs.evolve(action, component=component)

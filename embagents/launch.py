@@ -6,33 +6,49 @@ actor and each component a component actor, started in order. Ctrl-C,
 SIGTERM, ``embagents stop``, or any message published on the
 ``system_stop`` topic stops everything in reverse order; the exit code is 0.
 
+Ready before publishing: a component with subscribers declared for its
+outputs (:func:`embagents.supervision.wiring`) starts inactive. Once the
+tree has started, :class:`Activation` activates each when those subscribers
+are connected (their subscription is in the topic's folder, so its first
+publish reaches them) and active, subscribers first, so a keep-all topic
+loses nothing at startup whatever the list order. A subscriber that is not
+there after ``--wait-subscribers`` seconds is warned about by name and the
+component is activated anyway. Then the run is ready: the announcement line
+says so, ``--ready-file PATH`` is written, and ``embagents status
+--wait-ready`` returns.
+
 Example::
 
-    $ embagents supervise examples/chat.py
+    $ embagents supervise examples/chat.py --ready-file /tmp/chat.ready &
+    $ embagents status --wait-ready 60
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import logging
 import os
 import sys
+import tempfile
 import threading
+import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 from actors.child import add_log_file, configure_logging
-from actors.topics import Subscription
+from actors.topics import Subscription, subscriber_pids
 from embagents.call import call_command
 from embagents.models import models_of
 from embagents.publish import publish_command
 from embagents.runtime.component_actor import remember_system
 from embagents.runtime.requests import SUPERVISOR_REQUESTS, SupervisorRequest
-from embagents.supervision import build_spec
+from embagents.supervision import build_spec, wiring
 from embagents.tools.root import install as install_tools
 
-__all__ = ["SYSTEM_STOP", "Interrupted", "run", "run_system"]
+__all__ = ["SUBSCRIBER_WAIT_S", "SYSTEM_STOP", "Activation", "Interrupted", "run", "run_system"]
 
 log = logging.getLogger("embagents.supervise")
 
@@ -40,6 +56,8 @@ log = logging.getLogger("embagents.supervise")
 SYSTEM_STOP = "system_stop"
 #: An import of system.py still running after this many seconds is said on stderr (it may never return).
 IMPORT_NOTICE_S = 1.5
+#: The longest a component waits for its subscribers before it is activated anyway (with a warning).
+SUBSCRIBER_WAIT_S = 30.0
 
 
 class Interrupted(Exception):
@@ -82,12 +100,15 @@ def _load(path: str, quiet: bool) -> Any:
 
 
 def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bool = False,
-               early: _EarlyLines | None = None) -> int:
+               early: _EarlyLines | None = None, ready_file: str | None = None,
+               wait_subscribers: float = SUBSCRIBER_WAIT_S) -> int:
     """Run the system in ``path`` under supervision until a stop; return the exit code.
 
     ``dashboard``: ``(host, port)`` to serve the dashboard on (:mod:`embagents.tools.dashboard`).
     ``quiet``: only warnings and errors on stderr (the actors' log files keep every line).
     ``early``: the root's log lines so far, written into ``logs/root.log`` once the run has its folder.
+    ``ready_file``: written once every component is active (removed first, and when the run ends).
+    ``wait_subscribers``: see :class:`Activation`.
     """
     from actors import ActorSystem
     from embagents.check import check_system, errors
@@ -108,13 +129,19 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bo
             return 1
         remember_system(path, system)  # forked actor processes find it in memory
         resolved = {m.name: m.resolve() for m in models_of(system)}  # downloads (with progress) happen here, once
-        spec = build_spec(system, path, resolved)
+        waits = wiring(system)  # these start inactive: Activation activates them once their subscribers are up
+        spec = build_spec(system, path, resolved, activate_later=waits)
     except KeyboardInterrupt:
         raise Interrupted("stopped (Ctrl-C) while checking the system and preparing its models; "
                           "nothing was started") from None
+    if ready_file:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(ready_file)  # a script waiting on it must not see an earlier run's
+    activations: list[Activation] = []
 
     def on_ready(sup: Any, control: Any) -> None:
         asys = sup.system
+        control.hold_ready()  # ready once every component is active (Activation)
         requests = _SupervisorRequests(sup)
 
         def stop_requested(_msg: Any) -> None:
@@ -133,25 +160,191 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bo
         if dashboard is not None:
             dashboards.append(_start_dashboard(sup, control, system, topics, dashboard))
         running = (f"system {system.name!r} running ({counted(len(system.components), 'component')}, "
-                   f"{managers}{counted(len(resolved), 'model')}); Ctrl-C or `embagents stop` stops it")
+                   f"{managers}{counted(len(resolved), 'model')})")
         held = early.take() if early is not None else []  # the start-up lines, logged before the folder existed
+        handler: logging.Handler | None = None
         with contextlib.suppress(OSError):  # a log file is a help, not a condition to run
             handler = add_log_file(asys.run_dir, "root")  # `embagents logs root`
             for record in held:
                 handler.handle(record)
-            handler.handle(log.makeRecord(log.name, logging.INFO, __file__, 0, running, (), None))  # the file only
-        if not quiet:
-            print(f"embagents: {running}", file=sys.stderr, flush=True)
+            handler.handle(log.makeRecord(log.name, logging.INFO, __file__, 0, running + "; activating", (), None))
+
+        def ready() -> None:
+            if ready_file:
+                _write_ready_file(ready_file, asys, system.name)
+            control.mark_ready()
+            line = f"{running}, ready; Ctrl-C or `embagents stop` stops it"
+            if handler is not None:
+                handler.handle(log.makeRecord(log.name, logging.INFO, __file__, 0, line, (), None))  # the file only
+            if not quiet:
+                print(f"embagents: {line}", file=sys.stderr, flush=True)
+
+        activations.append(Activation(sup, system, waits, wait_subscribers, ready).start())
 
     dashboards: list[Any] = []
     actors = ActorSystem(stderr_level=logging.WARNING if quiet else logging.NOTSET)
     try:
         return serve(spec, system_name=system.name, on_ready=on_ready, system=actors)
     finally:
+        for a in activations:
+            a.stop()
         for d in dashboards:
             if d is not None:
                 d.stop()
         actors.shutdown()
+        if ready_file and activations and activations[0].done:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(ready_file)
+
+
+def _write_ready_file(path: str, asys: Any, name: str) -> None:
+    """Write ``path`` at once (a reader never sees half of it): the run's id, folder, system and pid."""
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".ready-", dir=folder)
+    with os.fdopen(fd, "w") as f:
+        json.dump({"run_id": asys.run_id, "run_dir": asys.run_dir, "system": name, "pid": os.getpid(),
+                   "ready_at": time.time()}, f)
+    os.replace(tmp, path)
+
+
+class Activation:
+    """Activates the components that wait for their subscribers, then calls ``on_ready`` (its own thread).
+
+    ``waits`` is :func:`embagents.supervision.wiring`: component -> {output
+    topic: declared subscribers}. A component is activated once each of its
+    subscribers runs, has its subscription in the topic's folder
+    (:func:`actors.topics.subscriber_pids`: the component's first publish
+    reaches it) and, if it is a component, is active itself, unless it feeds
+    the waiting one back (a cycle: then being subscribed is enough). Every
+    child subscribes in ``on_start``, before the tree goes on, so after the
+    start this normally holds at once, subscribers first. The thread wakes on
+    the supervisor's started/restarted events (and at most every 0.5 s while
+    something is missing: a subscription made later); after ``timeout`` s it
+    activates the component anyway with a warning naming what is missing.
+    A failed activation (``on_activate`` raised) stops the run, as a failed
+    start does.
+    """
+
+    def __init__(self, sup: Any, system: Any, waits: dict[str, dict[str, tuple[str, ...]]], timeout: float,
+                 on_ready: Callable[[], None]) -> None:
+        self.sup, self.asys, self.waits, self.timeout, self.on_ready = sup, sup.system, waits, timeout, on_ready
+        self.components = {str(c.name) for c in system.components}
+        self.pending = [str(c.name) for c in system.components if str(c.name) in waits]  # list order
+        self.reach = _reach({c: {s for who in t.values() for s in who if s in waits} for c, t in waits.items()})
+        self.changed = threading.Event()
+        self.stopped = False
+        self.done = False
+        self._thread = threading.Thread(target=self._run, name="embagents-activate", daemon=True)
+
+    def start(self) -> Activation:
+        from supervisor import Tree
+        from supervisor.rootio import on_root
+
+        events = Tree.of(self.asys).events
+        on_root(self.asys, lambda: events.listeners.append(self._on_event))
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self.stopped = True
+        self.changed.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(5)
+
+    def _on_event(self, rec: dict[str, Any]) -> None:
+        if rec.get("event") in ("started", "restarted"):
+            self.changed.set()
+
+    def _states(self) -> tuple[dict[str, Any], dict[str, int]]:
+        """Each child's pid (an int when it runs) and each component's lifecycle state (its journal)."""
+        from supervisor import Tree
+        from supervisor.rootio import on_root
+
+        tree = Tree.of(self.asys)
+        pids = {c.id: c.pid for c in self.sup.which_children()}
+        names = [n for n in self.components if n in pids]
+        return pids, on_root(self.asys, lambda: {n: tree.journal(n).state() for n in names})
+
+    def _missing(self, name: str, pids: dict[str, Any], states: dict[str, int]) -> list[str]:
+        from supervisor.lifecycle import ACTIVE
+
+        missing = []
+        for topic, subscribers in self.waits[name].items():
+            there = subscriber_pids(self.asys.run_dir, topic)
+            for s in subscribers:
+                pid = pids.get(s)
+                if not isinstance(pid, int):
+                    missing.append(f"{s!r} (not running)")
+                elif pid not in there:
+                    missing.append(f"{s!r} (not subscribed to {topic!r})")
+                elif s in self.components and states.get(s) != ACTIVE and name not in self.reach.get(s, ()):
+                    missing.append(f"{s!r} (not active)")
+        return list(dict.fromkeys(missing))
+
+    def _run(self) -> None:
+        from supervisor.lifecycle import ACTIVE, transition
+
+        deadline = time.monotonic() + self.timeout
+        try:
+            while self.pending and not self.stopped:
+                self.changed.clear()
+                pids, states = self._states()
+                progress = False
+                for name in list(self.pending):
+                    if not isinstance(pids.get(name), int):
+                        continue  # itself restarting: it comes back inactive, and is activated then
+                    if states.get(name) == ACTIVE:
+                        self.pending.remove(name)  # activated meanwhile (the dashboard, `embagents` tools)
+                        continue
+                    missing = self._missing(name, pids, states)
+                    if missing and time.monotonic() < deadline:
+                        continue
+                    if missing:
+                        log.warning("component %r: activated without waiting longer than %g s for %s: what it "
+                                    "publishes before they are up is lost", name, self.timeout, ", ".join(missing))
+                    try:
+                        transition(self.asys, name, "activate", timeout=60.0)
+                    except Exception as exc:
+                        if self.stopped or not self.sup.running:
+                            return
+                        if not isinstance(self._states()[0].get(name), int):
+                            continue  # it died meanwhile: its restart comes back inactive
+                        log.error("component %r could not be activated: %s; the run stops", name, exc)
+                        self.sup.stop()
+                        return
+                    self.pending.remove(name)
+                    states[name] = ACTIVE
+                    progress = True
+                    log.info("activated %s: %s", name, "; ".join(
+                        f"{', '.join(who)} subscribed to {topic}" for topic, who in self.waits[name].items()))
+                if self.pending and not progress:
+                    self.changed.wait(max(0.01, min(0.5, deadline - time.monotonic())))
+        except Exception:
+            if self.stopped or not self.sup.running:
+                return  # the run is stopping under us
+            raise
+        if not self.stopped:
+            self.done = True
+            self.on_ready()
+
+
+def _reach(edges: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Every node each node leads to (directly or not) along ``edges``.
+
+    >>> _reach({"a": {"b"}, "b": {"a"}, "c": {"a"}})["c"] == {"a", "b"}
+    True
+    """
+    out: dict[str, set[str]] = {}
+    for start in edges:
+        seen: set[str] = set()
+        todo = list(edges[start])
+        while todo:
+            n = todo.pop()
+            if n not in seen:
+                seen.add(n)
+                todo.extend(edges.get(n, ()))
+        out[start] = seen
+    return out
 
 
 def _start_dashboard(sup: Any, control: Any, system: Any, topics: Any, where: tuple[str, int]) -> Any:
@@ -204,7 +397,9 @@ def run(args: argparse.Namespace) -> int:
     logging.getLogger().addHandler(early)
     try:
         dashboard = (args.dashboard_host, args.dashboard_port) if getattr(args, "dashboard", False) else None
-        return run_system(args.system, dashboard, quiet=quiet, early=early)
+        return run_system(args.system, dashboard, quiet=quiet, early=early,
+                          ready_file=getattr(args, "ready_file", None),
+                          wait_subscribers=getattr(args, "wait_subscribers", SUBSCRIBER_WAIT_S))
     except Interrupted as exc:
         print(f"embagents supervise: {exc}", file=sys.stderr)
         return 130

@@ -302,12 +302,19 @@ class HealthStatus(enum.IntEnum):
 @message("embagents/Health")
 @attrs.define
 class Health:
-    """A component's health report (published by the runtime, read by fallbacks)."""
+    """A component's health report (published by the runtime, read by fallbacks).
+
+    ``incarnation`` (1, 2, ... per process start; 0 outside a supervised run) and
+    ``switches`` (model client switches that incarnation made) say who sent it: a
+    fallback acts once per failing sender, however many reports it sent.
+    """
 
     component: str = ""
     status: HealthStatus = attrs.field(default=HealthStatus.HEALTHY, converter=HealthStatus.parse)
     text: str = ""
     stamp: float = 0.0
+    incarnation: int = 0
+    switches: int = 0
 
 
 

@@ -15,6 +15,7 @@ Example::
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import Any
 
 from embagents.models import models_of
@@ -23,7 +24,7 @@ from embagents.runtime.events_actor import EventsActor
 from embagents.runtime.model_actor import ModelActor
 from embagents.runtime.requests import EVENTS_ACTOR
 
-__all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec"]
+__all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec", "uses_events_actor", "wiring"]
 
 #: The events actor's name.
 EVENTS_NAME = EVENTS_ACTOR
@@ -32,10 +33,62 @@ HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0
 
 
-def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -> Any:
+def uses_events_actor(system: Any) -> bool:
+    """Whether the system runs the events actor (events, fallbacks, LLM tools, route actions)."""
+    from embagents.llm_tools import uses_events_actor as needs_it
+
+    return bool(system.events) or any(getattr(c, "fallback", None) or needs_it(c) for c in system.components)
+
+
+def wiring(system: Any) -> dict[str, dict[str, tuple[str, ...]]]:
+    """The components that wait for their subscribers: name -> {output topic: the children declared to subscribe}.
+
+    Subscribers are the other components and managers that read the topic, the
+    events actor for event topics and the ROS bridge for RosOutputs. A
+    component with none, or with ``config.wait_for_subscribers`` false, is not
+    listed: it is activated as it starts, in list order. The others start
+    inactive, and ``embagents supervise`` activates each once its subscribers
+    are connected and active (see :mod:`embagents.launch`).
+    """
+    subs: dict[str, list[str]] = {}
+
+    def add(topic: str, child: str) -> None:
+        subs.setdefault(topic, []).append(child)
+
+    for c in system.components:
+        for t in c.subscriptions:
+            add(t.name, str(c.name))
+    for m in getattr(system, "managers", ()):
+        for node in m.nodes:
+            for t in node.subscriptions:
+                add(t.name, m.name)
+    if system.events:
+        for event, _ in system.events:
+            for t in event.topics:
+                add(t.name, EVENTS_NAME)
+    for d in system.ros:
+        if type(d).__name__ == "RosOutput" and isinstance(getattr(d, "topic", None), str):
+            from embagents.ros.bridge_actor import BRIDGE_NAME
+
+            add(d.topic, BRIDGE_NAME)
+    out: dict[str, dict[str, tuple[str, ...]]] = {}
+    for c in system.components:
+        if not getattr(c.config, "wait_for_subscribers", True):
+            continue
+        waits = {t.name: tuple(dict.fromkeys(s for s in subs.get(t.name, ()) if s != c.name)) for t in c.outputs}
+        waits = {topic: who for topic, who in waits.items() if who}
+        if waits:
+            out[str(c.name)] = waits
+    return out
+
+
+def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None, *,
+               activate_later: Collection[str] = ()) -> Any:
     """The supervision tree of a System: model actors, the ROS bridge, components, events.
 
     ``resolved`` maps each model's name to its local file (``Model.resolve()``).
+    ``activate_later``: components that start inactive, for the caller to activate
+    (``embagents supervise`` passes :func:`wiring`'s; the others start active).
     Without it (``embagents check``) each model's name stands in for its file:
     the tree is built, so every rule of ``supervisor.spec`` is applied, and
     nothing is downloaded. Raises ``ValueError`` / ``TypeError`` naming the rule.
@@ -57,7 +110,8 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         # config.step_timeout_s is the component's hang deadline: a longer step gets it killed and restarted.
         heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S
         children.append(ChildSpec(str(c.name), (ComponentActor, (path, str(c.name))), heartbeat=heartbeat,
-                                  lifecycle="active", snapshot_interval=0.5, start_timeout=120,
+                                  lifecycle="inactive" if str(c.name) in activate_later else "active",
+                                  snapshot_interval=0.5, start_timeout=120,
                                   standby=getattr(c, "standby", False), start_method=getattr(c, "start_method", "fork")))
     for mgr in getattr(system, "managers", ()):
         from embagents.runtime.agent_actor import AgentActor
@@ -71,10 +125,8 @@ def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -
         # The loop beats every tick: a tick longer than hang_timeout is a hang. Snapshots after each changed tick.
         children.append(ChildSpec(mgr.name, (ManagerActor, (path, mgr.name)), heartbeat=mgr.hang_timeout,
                                   lifecycle="active", snapshot_interval=0.0, start_timeout=120))
-    from embagents.llm_tools import uses_events_actor
-
     # The events actor also carries LLM tool calls and route actions across processes.
-    if system.events or any(getattr(c, "fallback", None) or uses_events_actor(c) for c in system.components):
+    if uses_events_actor(system):
         children.append(ChildSpec(EVENTS_NAME, (EventsActor, (path,)), heartbeat=HEARTBEAT_S))
     sup = system.supervision
     return SupervisorSpec(strategy=sup["strategy"], intensity=sup["intensity"], period=sup["period"], children=children)

@@ -44,7 +44,7 @@ from actors.app import app_name
 from supervisor.control import control_endpoint, runs_dir
 
 __all__ = ["ControlClient", "ControlError", "control", "find_runs", "format_status_table", "main", "pick_run",
-           "request"]
+           "request", "wait_ready"]
 
 
 class ControlError(RuntimeError):
@@ -178,6 +178,35 @@ def request(run_dir: str, msg: dict[str, Any], timeout: float = 5.0) -> dict[str
         return client.request(msg)
 
 
+#: How often :func:`wait_ready` looks for a run that has not announced itself yet.
+_LOOK_EVERY_S = 0.1
+
+
+def wait_ready(run: str | None = None, timeout: float = 60.0) -> dict[str, Any]:
+    """Block until the run (see :func:`pick_run`) is ready; returns its announcement.
+
+    A run that has not announced itself yet is looked for every 0.1 s; once
+    found, one ``wait_ready`` request blocks until the run answers it.
+    Raises :class:`ControlError` after ``timeout`` seconds.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            picked = pick_run(run)
+            break
+        except ControlError as exc:
+            if "several live runs" in str(exc) or time.monotonic() + _LOOK_EVERY_S > deadline:
+                raise
+            time.sleep(_LOOK_EVERY_S)
+    try:
+        request(picked["run_dir"], {"cmd": "wait_ready"}, max(0.001, deadline - time.monotonic()))
+    except ControlError as exc:
+        if "no answer" in str(exc) or "not ready yet" in str(exc):
+            raise ControlError(f"run {picked['run_id']} ({picked.get('system')}) was not ready within {timeout:g} s") from None
+        raise
+    return picked
+
+
 def _duration(s: float | None) -> str:
     if not s:
         return "-"
@@ -226,21 +255,24 @@ def format_status_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def control(cmd: str, *, run: str | None = None, timeout: float = 5.0, as_json: bool = False,
-            name: str | None = None) -> int:
+            name: str | None = None, wait_ready_s: float | None = None) -> int:
     """Run ``status`` (``as_json``: raw), ``restart`` (child ``name``) or ``stop`` against a live run.
 
     ``run`` picks the run (run id, system name or pid; default: the only
-    live one). Prints the outcome; returns the exit status (1 on error, with
-    a JSON error object on stdout too when ``as_json``).
+    live one). ``wait_ready_s``: ``status`` first waits (up to that many
+    seconds) until the run is ready (see :func:`wait_ready`). Prints the
+    outcome; returns the exit status (1 on error, with a JSON error object
+    on stdout too when ``as_json``).
     """
     try:
-        picked = pick_run(run)
+        picked = wait_ready(run, wait_ready_s) if wait_ready_s is not None and cmd == "status" else pick_run(run)
         if cmd == "status":
             reply = request(picked["run_dir"], {"cmd": "status"}, timeout)
             if as_json:
                 print(json.dumps(reply, indent=2))
             else:
-                print(f"{reply['system']}  run {reply['run_id']}  pid {reply['pid']}  up {_duration(reply['uptime'])}")
+                ready = "ready" if reply.get("ready") else "not ready yet"
+                print(f"{reply['system']}  run {reply['run_id']}  pid {reply['pid']}  up {_duration(reply['uptime'])}  {ready}")
                 print(format_status_table(reply["rows"]))
         elif cmd == "restart":
             reply = request(picked["run_dir"], {"cmd": "restart", "name": name}, timeout)

@@ -16,6 +16,12 @@ answers one dict each (``ok`` true or false, ``error`` text when false):
   now (``Supervisor.bounce``); ``{"ok", "pid"}``.
 - ``{"cmd": "stop"}`` -> answers, then stops the run cleanly (children in
   reverse order).
+- ``{"cmd": "wait_ready"}`` -> ``{"ok", "ready": true}``, answered once the run
+  is ready (at once if it is; an error if the run ends first): a blocking
+  request, no polling. The run is ready when the layer above says so
+  (:meth:`ControlServer.mark_ready`), or, unless it
+  :meth:`~ControlServer.hold_ready`, once the tree has started. ``status``
+  answers ``ready`` too.
 - any command the layer above adds with :meth:`ControlServer.add_command`
   (``embagents supervise`` adds ``publish``: a message on a topic of the system).
 
@@ -34,8 +40,8 @@ While the endpoint is up, ``<private>/runs/<run_id>.json`` (``<private>`` is
 :func:`actors.private_dir`: ``$XDG_RUNTIME_DIR/embagents`` or
 ``/tmp/embagents-<uid>``, checked at every use; ``$EMBAGENTS_RUNS_DIR`` (``$<APP>_RUNS_DIR``, :mod:`actors.app`)
 overrides the folder, checked the same way) holds ``run_id``,
-``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint`` and
-``started``; it is removed on close.
+``run_dir``, ``pid``, ``system`` (the system's name), ``endpoint``,
+``started`` and ``ready`` (rewritten when the run becomes ready); it is removed on close.
 
 Example::
 
@@ -133,6 +139,9 @@ class ControlServer:
         os.set_blocking(self._wake_r, False)
         self._wake_lock = threading.Lock()  # the pipe is closed once, never written after
         self._in_flight = 0
+        self.ready = False
+        self.ready_held = False
+        self._ready_or_closed = threading.Event()  # wait_ready requests wait on it
         self.endpoint = control_endpoint(system.run_dir)
         self.sock = system.rt.ctx.socket(zmq.ROUTER)
         self.sock.setsockopt(zmq.LINGER, 200)
@@ -150,11 +159,35 @@ class ControlServer:
             "system": self.name,
             "endpoint": self.endpoint,
             "started": self.started,
+            "ready": self.ready,
         }
         fd, tmp = tempfile.mkstemp(prefix=".announce-", dir=runs_dir())  # a reader never sees half a file
         with os.fdopen(fd, "w") as f:
             json.dump(info, f)
         os.replace(tmp, self.discovery)
+
+    def hold_ready(self) -> None:
+        """The layer above says when the run is ready (:meth:`mark_ready`); call it before :func:`~supervisor.run.serve` would."""
+        self.ready_held = True
+
+    def mark_ready(self) -> None:
+        """The run is ready: answer the ``wait_ready`` requests and say so in the announcement (any thread)."""
+        if self.ready:
+            return
+        self.ready = True
+        with contextlib.suppress(OSError):
+            self._announce()
+        self._ready_or_closed.set()
+
+    def _wait_ready(self, msg: dict[str, Any]) -> dict[str, Any]:
+        """Answer once the run is ready, or ends, or the request's deadline passed (its worker thread waits)."""
+        deadline = msg.get("deadline")
+        self._ready_or_closed.wait(None if deadline is None else max(0.0, deadline - time.monotonic()))
+        if self.ready:
+            return {"ok": True, "ready": True}
+        if self._closed.is_set():
+            return {"ok": False, "error": "the run stopped before it was ready"}
+        return {"ok": False, "ready": False, "error": "the run is not ready yet"}
 
     # -- serving (its own thread: it receives and answers; commands run on worker threads) ----
     def _serve(self) -> None:
@@ -242,7 +275,7 @@ class ControlServer:
         that would start after it should not start. An exception in ``handler``
         is answered as ``{"ok": False, "error": ...}``.
         """
-        if cmd in ("status", "restart", "stop") or cmd in self._commands:
+        if cmd in ("status", "restart", "stop", "wait_ready") or cmd in self._commands:
             raise ValueError(f"control command {cmd!r} is already served")
         self._commands[cmd] = handler
 
@@ -255,8 +288,11 @@ class ControlServer:
                 "run_id": self.system.run_id,
                 "pid": os.getpid(),
                 "uptime": round(time.monotonic() - self._t0, 1),
+                "ready": self.ready,
                 "rows": self.rows(),
             }
+        if cmd == "wait_ready":
+            return self._wait_ready(msg)
         if cmd == "restart":
             name = msg.get("name")
             if not isinstance(name, str):
@@ -276,7 +312,7 @@ class ControlServer:
             return {"ok": True, "stopping": True}
         if isinstance(cmd, str) and cmd in self._commands:
             return self._commands[cmd](msg)
-        known = ", ".join(["status", "restart", "stop", *self._commands])
+        known = ", ".join(["status", "restart", "stop", "wait_ready", *self._commands])
         return {"ok": False, "error": f"unknown command {cmd!r}; one of: {known}"}
 
     def _locate(self, name: str) -> Any:
@@ -332,6 +368,7 @@ class ControlServer:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(self.discovery)
         self._closed.set()
+        self._ready_or_closed.set()  # held wait_ready requests answer (if the control thread still sends)
         with self._wake_lock:
             if self._wake_w >= 0:
                 os.write(self._wake_w, b"\0")  # the control thread sees _closed and ends

@@ -74,6 +74,8 @@ def serve(
         log.info("supervising %s (run %s, %s)", system_name, system.run_id, system.run_dir)
         if on_ready is not None:
             on_ready(sup, control)
+        if not control.ready_held:  # else on_ready's layer says when (ControlServer.mark_ready)
+            control.mark_ready()
         while not stop.wait(1.0):  # a timeout keeps Ctrl-C responsive on every platform
             pass
         gave_up = not requested.is_set()

@@ -84,9 +84,12 @@ def test_chat_memory_survives_a_sigkill_of_the_llm(tmp_path: Path) -> None:
     # The supervisor saw exactly the one SIGKILL the demo sent, and restarted that llm.
     crashes = [x for x in out.stderr.splitlines() if "crashed root/llm" in x]
     assert len(crashes) == 1 and f"pid={killed[1]}" in crashes[0] and "reason=killed" in crashes[0], out.stderr
-    # A fresh start says so; only the restart restored a lifecycle state.
+    # A fresh start says so; only the restart restored a lifecycle state. Each starts configured and is
+    # activated by the root once the other, which reads what it publishes, is up (ready before publishing).
     said = [x.split("supervisor.lifecycle: ")[1] for x in out.stderr.splitlines() if "supervisor.lifecycle: " in x]
-    assert said == ["[llm] activated", "[demo] activated", "[llm] lifecycle restored to active"], out.stderr
+    assert said == ["[llm] configured", "[demo] configured", "[llm] lifecycle restored to active"], out.stderr
+    assert "activated llm: demo subscribed to text_out" in out.stderr, out.stderr
+    assert "activated demo: llm subscribed to text_in" in out.stderr, out.stderr
 
 
 def test_vision_example_finds_the_face_and_writes_the_image_and_clips(tmp_path: Path) -> None:

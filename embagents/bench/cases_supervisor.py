@@ -7,6 +7,11 @@
   ~364 ms to start here; Sugarcoat respawns through a ROS launch process).
 - hang_detect: an actor holds the GIL in a C call; time from the moment its
   heartbeat deadline passed until the supervisor killed it. Bar: <= 100 ms.
+- fallback_once: 10 failure episodes of a component fed at 200 Hz whose
+  replacement takes 3 s in ``on_configure`` (:mod:`embagents.bench.episodes`).
+  Bars: restarts per episode == 1 (the worst episode), recovery p50 <= 3.5 s.
+- startup_loss: 20 starts of a system whose keep-all source is listed first
+  and publishes at 1 kHz from its first step. Bar: lost == 0.
 - standby_takeover: a component whose on_configure takes 5 s (a CUDA model's
   start: 6.7 s measured on an H200) is SIGKILLed 10 times while numbers are
   told to it at 200/s; time until it answers again, with ``standby=True`` and
@@ -51,6 +56,34 @@ def hang_detect(opts: BenchOptions) -> dict[str, Any]:
     deadline = 0.5
     late = [t - deadline for t in measure_hang_detect(deadline, 3 if opts.quick else 8)]
     return _row(late, f"time past a {deadline} s heartbeat deadline until the hung actor was killed; bar <= 100 ms")
+
+
+@case("fallback_once", transport="embagents", kind="supervision")
+def fallback_once(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.bench.episodes import measure_fallback_once
+
+    episodes, configure_s = (2, 1.0) if opts.quick else (10, 3.0)
+    res = measure_fallback_once(episodes, configure_s=configure_s)
+    row = _row(res["recovery_s"], f"{episodes} failure episodes of a worker fed at 200 Hz, {configure_s:g} s "
+                                  "on_configure: first failure -> the replacement's first healthy step; bars: "
+                                  "restarts per episode == 1 (worst), recovery p50 <= 3.5 s (with 3 s)")
+    recovery = sorted(res["recovery_s"])
+    row.update(restarts_per_episode=max(res["restarts"]), restarts=res["restarts"], episodes=episodes,
+               recovery_s=round(float(np.percentile(recovery, 50)), 3), recovery_max_s=round(recovery[-1], 3))
+    return row
+
+
+@case("startup_loss", transport="embagents", kind="supervision")
+def startup_loss(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.bench.episodes import measure_startup_loss
+
+    starts = 3 if opts.quick else 20
+    res = measure_startup_loss(starts)
+    row = _row(res["ready_s"], f"{starts} starts: a source listed first publishes a keep-all topic at 1 kHz from "
+                               "its first step, its subscriber listed last; p50/p99: launch -> ready file; "
+                               "bar: lost == 0")
+    row.update(lost=sum(res["lost"]), lost_per_start=res["lost"], starts=starts)
+    return row
 
 
 @case("standby_takeover", transport="embagents", kind="supervision")

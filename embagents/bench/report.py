@@ -63,7 +63,8 @@ def annotate(rows: list[Row]) -> None:
 
 
 def _bar(name: str, value: float | None, op: str, target: float, unit: str) -> dict[str, Any]:
-    ok = None if value is None else (value <= target if op == "<=" else value >= target if op == ">=" else value < target)
+    ok = None if value is None else (value <= target if op == "<=" else value >= target if op == ">="
+                                     else value == target if op == "==" else value < target)
     return {"name": name, "value": value, "op": op, "target": target, "unit": unit, "pass": ok}
 
 
@@ -137,6 +138,12 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("record_overhead", "keep-all messages missing from the recording", "missing", "<=", 0, "msgs", 1.0),
         ("echo_backpressure", "longest publish call, a paused `topic echo` subscribed", "publisher_stall_ms", "<=", 5.0,
          "ms", 1.0),
+        ("fallback_once", "fallback: restarts per failure episode (worst of 10)", "restarts_per_episode", "==", 1,
+         "restarts", 1.0),
+        ("fallback_once", "fallback: failure -> replacement serving p50 (3 s on_configure)", "recovery_s", "<=", 3.5,
+         "s", 1.0),
+        ("startup_loss", "keep-all messages lost at startup, source listed first (20 starts)", "lost", "<=", 0, "msgs",
+         1.0),
     ):
         if name in by_name:
             bars.append(_bar(title, named(name, key, scale), op, target, unit))

@@ -194,6 +194,11 @@ class Component:
         self._fresh: set[str] = set()
         self._health = Health(component=str(name))
         self._health_set_in_step = False
+        self._health_reported = False
+        #: Which start of the component's process this is (set by the runtime; health reports carry it).
+        self.incarnation = 0
+        #: Model client switches this incarnation made (health reports carry it).
+        self.client_switches = 0
         self._missing_module: str | None = None  # set when a step found a module missing
         self.problems: list[ComponentProblem] = self.validate()
         self._required_inputs: list[Topic] = (
@@ -357,12 +362,14 @@ class Component:
     # --- runtime: inputs, steps, publishing -----------------------------------------------------
 
     def attach(self, publisher: Publisher, on_health: Callable[[Health], None] | None = None,
-               call_later: Callable[[float, Callable[[], None]], object] | None = None) -> None:
+               call_later: Callable[[float, Callable[[], None]], object] | None = None, incarnation: int = 0) -> None:
         """Give the component its way out: ``publisher(topic_name, msg)``; ``on_health(Health)``;
-        ``call_later(delay_s, fn)``: run ``fn`` on the component's thread later (see :meth:`call_later`)."""
+        ``call_later(delay_s, fn)``: run ``fn`` on the component's thread later (see :meth:`call_later`);
+        ``incarnation``: which start of its process this is (its health reports say so)."""
         self._publisher = publisher
         self._on_health = on_health
         self._call_later = call_later
+        self.incarnation = incarnation
 
     def call_later(self, delay: float, fn: Callable[[], None]) -> None:
         """Run ``fn`` on this component's thread after ``delay`` seconds, between messages and actions.
@@ -498,10 +505,13 @@ class Component:
 
     def _set_health(self, status: HealthStatus, text: str) -> None:
         changed = status != self._health.status or text != self._health.text
-        self._health = Health(component=str(self.name), status=status, text=text, stamp=time.time())
+        self._health = Health(component=str(self.name), status=status, text=text, stamp=time.time(),
+                              incarnation=self.incarnation, switches=self.client_switches)
         self._health_set_in_step = True
-        # Every failure is reported (fallbacks count them); recovery only once.
-        if self._on_health is not None and (status != HealthStatus.HEALTHY or changed):
+        # Every failure is reported (fallbacks act once per sender); recovery once, and an incarnation's
+        # first status always (a healthy replacement ends its failure episode: the fallback's counts reset).
+        if self._on_health is not None and (status != HealthStatus.HEALTHY or changed or not self._health_reported):
+            self._health_reported = True
             self._on_health(self._health)
 
     def set_healthy(self) -> None:

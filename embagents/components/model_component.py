@@ -116,6 +116,7 @@ class ModelComponent(Component):
             if self.clients.setdefault(key, name_or_client) is not name_or_client:
                 raise ValueError(f"{self._label()} already has a different model client named {key!r}")
         previous, self.client_name, self.model_client = self.client_name, key, self.clients[key]
+        self.client_switches += 1  # reports from now on are told apart from those before the switch
         self.logger.info("%s: model client %s -> %s", self._label(), previous, key)
         return previous
 

@@ -58,7 +58,7 @@ class ComponentActor(Actor):
         self._timer: int | None = None
         ctx = self.context
         comp.attach(lambda topic, msg: ctx.publish(topic, msg), lambda h: ctx.publish("_health", h),
-                    lambda delay, fn: ctx.call_later(delay, self._guarded(fn)))
+                    lambda delay, fn: ctx.call_later(delay, self._guarded(fn)), incarnation=ctx.incarnation)
         for t in comp.subscriptions:
             ctx.subscribe(
                 t.name,

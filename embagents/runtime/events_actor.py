@@ -12,6 +12,12 @@ action runs:
   :class:`~embagents.runtime.requests.SupervisorRequest` on the
   ``_supervisor_requests`` topic, carried out by the root's supervisor.
 
+A fallback acts once per failing incarnation: a health report carries its
+sender's incarnation (and model client switches), and reports from a sender
+already acted on (its restart or switch pending) or from an older one are
+ignored, so a component failing at 30 Hz while its replacement loads is
+restarted once.
+
 It also runs an LLM's tool calls (:class:`~embagents.runtime.requests.ToolCall`,
 see :mod:`embagents.llm_tools`): the arguments are checked against the method's
 signature here, then the component's actor is asked and its result answered;
@@ -20,6 +26,7 @@ and a router's route actions (:class:`~embagents.runtime.requests.RouteFired`).
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections import defaultdict
 from typing import Any
@@ -56,7 +63,9 @@ class EventsActor(Actor):
         system = loaded_system(self.system_path)
         self.system = system
         self.events = system.events
-        self.fallbacks = {c.name: c.fallback for c in system.components if getattr(c, "fallback", None)}
+        # One Fallback per component: one object given to two components must not share their counts.
+        self.fallbacks = {c.name: copy.deepcopy(c.fallback) for c in system.components if getattr(c, "fallback", None)}
+        self.ignored: dict[str, int] = defaultdict(int)  # reports from senders already acted on, per component
         self.fired: list[dict[str, Any]] = []
         by_topic: dict[str, list[tuple[Any, Any]]] = defaultdict(list)
         for event, actions in self.events:
@@ -77,7 +86,11 @@ class EventsActor(Actor):
         fallback = self.fallbacks.get(health.component)
         if fallback is None:
             return
-        action = fallback.decide(health.status, health.component)
+        # Outside a supervised run (incarnation 0) every report counts.
+        sender = (health.incarnation, health.switches) if health.incarnation else None
+        action = fallback.decide(health.status, health.component, sender)
+        if action is None and sender is not None and health.status and fallback.rules[health.status.name]:
+            self.ignored[health.component] += 1  # its restart or switch is pending
         if action is not None:
             self.run_action(action, because=f"{health.component} reported {health.status.name}: {health.text}")
 
@@ -136,4 +149,6 @@ class EventsActor(Actor):
             return self.route_fired(message)
         if message == "fired":
             return list(self.fired)
-        raise UnknownMessage("the events actor", message, "it answers 'fired'")
+        if message == "ignored":
+            return dict(self.ignored)
+        raise UnknownMessage("the events actor", message, "it answers 'fired' and 'ignored'")

@@ -189,7 +189,7 @@ class ManagerActor(Actor):
             return
         self._health = (status, text)
         self.context.publish(HEALTH_TOPIC, Health(component=self.manager.name, status=status, text=text,
-                                                  stamp=time.time()))
+                                                  stamp=time.time(), incarnation=self.context.incarnation))
 
     # -- requests --------------------------------------------------------------------
     def status(self) -> dict[str, Any]:

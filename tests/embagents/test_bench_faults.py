@@ -22,6 +22,18 @@ def test_hang_detect() -> None:
     assert len(xs) == 2 and all(0.3 <= x < 0.3 + 1.0 for x in xs)
 
 
+def test_fallback_once_restarts_once_per_episode() -> None:
+    from embagents.bench.episodes import measure_fallback_once
+
+    res = measure_fallback_once(2, configure_s=1.0)
+    assert res["restarts"] == [1, 1] and all(1.0 <= r < 10.0 for r in res["recovery_s"])
+
+
+def test_startup_loss_loses_nothing_with_a_source_listed_first() -> None:
+    from embagents.bench.episodes import measure_startup_loss
+
+    res = measure_startup_loss(1)
+    assert res["lost"] == [0] and res["ready_s"][0] > 0
 def test_standby_takeover_serves_again_before_a_5_s_configure_could_and_loses_nothing() -> None:
     from embagents.bench.faults import measure_standby_takeover
 

@@ -198,6 +198,22 @@ def test_fallback_steps_then_give_up_then_reset_on_healthy():
     assert fb.decide(1, "llm") == switch_model_client("backup", "llm")
 
 
+def test_fallback_acts_once_per_failing_sender_and_a_switch_makes_a_new_one():
+    fb = Fallback(on_algorithm_fail=[switch_model_client("backup"), restart()], max_retries=2)
+
+    def kinds(*senders):
+        return [getattr(fb.decide(HealthStatus.ALGORITHM_FAILURE, "llm", s), "kind", None) for s in senders]
+
+    # Incarnation 1 fails at 30 Hz: switched once; after the switch (1, 1) it fails again: restarted once.
+    assert kinds((1, 0), (1, 0), (1, 0), (1, 1), (1, 1), (1, 0)) == ["switch_model_client", None, None, "restart", None, None]
+    assert kinds((2, 0), (2, 0)) == ["give_up", None]  # the third failing sender; max_retries=2
+    fb = Fallback(on_algorithm_fail=restart(), max_retries=1)
+    assert kinds((1, 0)) == ["restart"]
+    assert fb.decide("HEALTHY", "llm", (1, 0)) is None and kinds((1, 0)) == [None]  # stale: ignored
+    assert fb.decide("HEALTHY", "llm", (2, 0)) is None  # the replacement is well: the episode is over
+    assert kinds((3, 0)) == ["restart"]
+
+
 def test_fallback_counts_each_status_separately_and_no_rule_is_none():
     fb = Fallback(on_component_fail=restart(), on_system_fail=give_up(), max_retries=1)
     assert fb.decide("ALGORITHM_FAILURE") is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +71,7 @@ def test_a_command_added_by_the_layer_above_is_served_and_listed(system: ActorSy
     try:
         control.add_command("echo", lambda msg: {"ok": True, "said": msg["text"]})
         assert request(system.run_dir, {"cmd": "echo", "text": "hi"})["said"] == "hi"
-        assert "one of: status, restart, stop, echo" in request_error(system, {"cmd": "dance"})
+        assert "one of: status, restart, stop, wait_ready, echo" in request_error(system, {"cmd": "dance"})
         assert "KeyError" in request_error(system, {"cmd": "echo"})  # a failing handler is an answer
         with pytest.raises(ValueError, match="already served"):
             control.add_command("status", lambda msg: {"ok": True})
@@ -135,6 +136,29 @@ def test_garbage_on_the_control_socket_is_answered_and_the_root_goes_on(system: 
         assert request(system.run_dir, {"cmd": "status"})["ok"]
     finally:
         sock.close()
+        control.close()
+
+
+def test_wait_ready_is_answered_when_the_run_is_ready_and_status_keeps_being_served(system: ActorSystem) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    try:
+        control.hold_ready()
+        answers: list[dict] = []
+        waiter = threading.Thread(target=lambda: answers.append(request(system.run_dir, {"cmd": "wait_ready"}, 30)))
+        waiter.start()
+        # The held request blocks neither the endpoint nor the other requests.
+        assert request(system.run_dir, {"cmd": "status"})["ready"] is False
+        with open(control.discovery) as f:
+            assert json.load(f)["ready"] is False
+        assert answers == []
+        control.mark_ready()
+        waiter.join(10)
+        assert [(a["ok"], a["ready"]) for a in answers] == [(True, True)]
+        with open(control.discovery) as f:
+            assert json.load(f)["ready"] is True
+        assert request(system.run_dir, {"cmd": "wait_ready"})["ready"] is True  # at once now
+    finally:
         control.close()
 
 
@@ -222,6 +246,18 @@ def test_a_restart_whose_deadline_passes_behind_a_slow_restart_is_not_carried_ou
         assert {r["name"]: r for r in request(system.run_dir, {"cmd": "status"})["rows"]}["a"]["restarts"] == 0
     finally:
         control.close()
+
+
+def test_wait_ready_is_told_when_the_run_ends_before_it_was_ready(system: ActorSystem) -> None:
+    tree(system)
+    control = ControlServer(system, "demo")
+    control.hold_ready()
+    try:
+        assert control.handle({"cmd": "wait_ready", "deadline": time.monotonic() + 0.05}) == {
+            "ok": False, "ready": False, "error": "the run is not ready yet"}  # its deadline passed
+    finally:
+        control.close()
+    assert control.handle({"cmd": "wait_ready"}) == {"ok": False, "error": "the run stopped before it was ready"}
 
 
 def test_requests_beyond_the_limit_are_refused_at_once(system: ActorSystem, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -415,3 +415,16 @@ def test_warmup_sends_one_tiny_request_on_configure():
     assert client.calls == []
     ModelComponent(name="m", model_client=client, warmup=True).on_configure()
     assert len(client.calls) == 1 and client.calls[0][1] == {"max_tokens": 1}
+
+
+def test_health_reports_name_their_sender_and_a_fresh_incarnation_reports_its_first_status():
+    mc = ModelComponent(name="m", model_client=Client("main"), extra_clients=[Client("backup")], trigger=1.0)
+    reports: list[Health] = []
+    mc.attach(lambda t, m: None, on_health=reports.append, incarnation=4)
+    mc.set_healthy()  # unchanged, but the first status of this incarnation: a replacement says it is well
+    mc.set_healthy()
+    mc.set_algorithm_failure("bad answer")
+    mc.change_model_client("backup")
+    mc.set_algorithm_failure("bad answer")
+    assert [(r.status, r.incarnation, r.switches) for r in reports] == [
+        (HealthStatus.HEALTHY, 4, 0), (HealthStatus.ALGORITHM_FAILURE, 4, 0), (HealthStatus.ALGORITHM_FAILURE, 4, 1)]
