@@ -257,8 +257,10 @@ def test_a_string_on_a_task_input_starts_that_task() -> None:
               config=VLAConfig(joint_names_map={"j": "panda_joint1"}, urdf="franka_panda/panda.urdf", max_steps=7))
     assert not vla.running
     vla.on_message(task.name, String("wave"))
-    assert vla.status() == {"task": "wave", "step": 0, "max_steps": 7, "running": True, "outcome": "running",
-                            "clipped": {"panda_joint1": 0}}
+    status = vla.status()
+    assert {k: status[k] for k in ("task", "step", "max_steps", "running", "outcome", "clipped")} == {
+        "task": "wave", "step": 0, "max_steps": 7, "running": True, "outcome": "running", "clipped": {"panda_joint1": 0}}
+    assert status["chunks"] == status["queue_empty"] == 0 and status["policy_latency_ms"] is None
 
 
 def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_running_one(policies: ActorSystem) -> None:

@@ -1,0 +1,286 @@
+"""A policy served over openpi's WebSocket protocol (:mod:`embagents.models.openpi`), so openpi's clients drive it.
+
+:class:`OpenPIServer` serves any ``policy(observation, task) -> (T, N)``
+function: one thread per connection, the metadata first, then one action
+map per observation map, ``server_timing`` in each; a failure is answered
+as openpi does (the traceback as a text frame, then close code 1011) and
+logged; ``GET /healthz`` answers 200. Observation keys are taken in either
+naming: nested maps are flattened and ``/`` read as ``.``
+(``observation/state`` and ``{"observation": {"state": ...}}`` both reach
+the policy as ``observation.state``); ``prompt`` is the task.
+
+Who may connect: a handshake with an ``Origin`` header (a browser page) is
+refused; with ``api_key`` set, ``Authorization: Api-Key KEY`` must match it
+(compared in constant time; openpi's own server takes any key). Beyond
+loopback :func:`check_bind` wants ``wss://`` (a certificate) or a key.
+
+:class:`PolicyServerActor` is the model actor that ``embagents serve-policy``
+supervises: it loads the policy (an ONNX policy on onnxruntime) and serves
+it on its bind address.
+
+Example::
+
+    >>> server = OpenPIServer(lambda obs, task: np.zeros((4, 2), np.float32), {"policy": "zeros"})
+    >>> port = server.start("127.0.0.1", 0)         # doctest: +SKIP
+    >>> server.stop()                               # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import http
+import logging
+import os
+import threading
+import time
+import traceback
+from collections.abc import Callable, Mapping
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from embagents.models.actor import ModelActor
+from embagents.models.openpi import MAX_MESSAGE_BYTES, normalize_key, packb, unpackb
+
+__all__ = ["OpenPIServer", "PolicyServerActor", "check_bind", "flatten", "read_api_key"]
+
+log = logging.getLogger("embagents.openpi_server")
+
+Policy = Callable[[Mapping[str, np.ndarray], str], np.ndarray]
+
+
+def check_bind(bind: str, *, api_key: bool, tls: bool) -> tuple[str, str, int]:
+    """``(scheme, host, port)`` of ``ws://HOST:PORT`` / ``wss://HOST:PORT``; ``ValueError`` naming the fix.
+
+    >>> check_bind("ws://127.0.0.1:8000", api_key=False, tls=False)
+    ('ws', '127.0.0.1', 8000)
+    >>> check_bind("ws://0.0.0.0:8000", api_key=False, tls=False)
+    Traceback (most recent call last):
+    ...
+    ValueError: ws://0.0.0.0:8000 reaches beyond this machine with neither TLS nor a key: anyone on the network could drive the policy; pass --api-key-file FILE (clients send Authorization: Api-Key ...) and/or bind wss:// with --tls-cert CERT.pem --tls-key KEY.pem, or bind ws://127.0.0.1:PORT
+    """
+    from embagents.tools.webguard import is_loopback
+
+    parts = urlsplit(bind)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("ws", "wss") or parts.hostname is None or port is None:
+        raise ValueError(f"--bind {bind!r}: expected ws://HOST:PORT or wss://HOST:PORT (e.g. ws://127.0.0.1:8000)")
+    if parts.scheme == "wss" and not tls:
+        raise ValueError(f"{bind} is wss:// (TLS): pass --tls-cert CERT.pem and --tls-key KEY.pem")
+    if parts.scheme == "ws" and tls:
+        raise ValueError(f"{bind}: --tls-cert/--tls-key are given but the bind is ws://; bind wss://{parts.netloc}")
+    if not is_loopback(parts.hostname) and parts.scheme == "ws" and not api_key:
+        raise ValueError(f"{bind} reaches beyond this machine with neither TLS nor a key: anyone on the network could "
+                         "drive the policy; pass --api-key-file FILE (clients send Authorization: Api-Key ...) and/or "
+                         "bind wss:// with --tls-cert CERT.pem --tls-key KEY.pem, or bind ws://127.0.0.1:PORT")
+    return parts.scheme, parts.hostname, port
+
+
+def read_api_key(path: str) -> str:
+    """The key in ``path`` (its first line), refused when others may read the file."""
+    try:
+        st = os.stat(path)
+        with open(path, encoding="utf-8") as f:
+            key = f.readline().strip()
+    except OSError as exc:
+        raise ValueError(f"cannot read --api-key-file {path!r} ({exc.strerror})") from None
+    if st.st_mode & 0o077:
+        raise ValueError(f"--api-key-file {path!r} is readable by others (mode {st.st_mode & 0o777:o}); "
+                         f"chmod 600 {path}")
+    if len(key) < 16:
+        raise ValueError(f"--api-key-file {path!r} holds a key of {len(key)} characters; use at least 16 "
+                         "(python -c 'import secrets; print(secrets.token_urlsafe(32))')")
+    return key
+
+
+def flatten(observation: Mapping[Any, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested maps as one level of ``.``-joined keys, ``/`` read as ``.``.
+
+    >>> sorted(flatten({"observation/state": 1, "images": {"front": 2}}))
+    ['images.front', 'observation.state']
+    """
+    out: dict[str, Any] = {}
+    for key, value in observation.items():
+        name = prefix + normalize_key(key.decode() if isinstance(key, bytes) else str(key))
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+class OpenPIServer:
+    """openpi's protocol for one ``policy`` (see the module docstring); ``delay_s`` is added to each inference."""
+
+    def __init__(self, policy: Policy, metadata: Mapping[str, Any], *, api_key: str | None = None,
+                 delay_s: float = 0.0, name: str = "policy") -> None:
+        self.policy, self.metadata, self.api_key = policy, dict(metadata), api_key
+        self.delay_s, self.name = float(delay_s), name
+        self.served = self.failed = self.refused = 0
+        self._server: Any = None
+        self._thread: threading.Thread | None = None
+
+    # -- the handshake ------------------------------------------------------------------------------------------
+    def _process_request(self, connection: Any, request: Any) -> Any:
+        if urlsplit(request.path).path == "/healthz":
+            return connection.respond(http.HTTPStatus.OK, "OK\n")
+        if request.headers.get("Origin") is not None:
+            self.refused += 1
+            log.warning("refused a handshake from a browser page (Origin %s)", request.headers.get("Origin"))
+            return connection.respond(http.HTTPStatus.FORBIDDEN, "browser pages may not drive a policy\n")
+        if self.api_key is not None:
+            from embagents.tools.webguard import same_token
+
+            scheme, _, given = (request.headers.get("Authorization") or "").partition(" ")
+            if scheme.lower() != "api-key" or not same_token(given.strip(), self.api_key):
+                self.refused += 1
+                log.warning("refused a client without the right API key (%s)", connection.remote_address)
+                return connection.respond(http.HTTPStatus.UNAUTHORIZED, "send Authorization: Api-Key <key>\n")
+        return None
+
+    # -- a connection -------------------------------------------------------------------------------------------
+    def _handle(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+        from websockets.frames import CloseCode
+
+        log.info("client %s connected", ws.remote_address)
+        prev_total: float | None = None
+        try:
+            ws.send(packb(self.metadata))
+            while True:
+                message = ws.recv()
+                start = time.monotonic()
+                try:
+                    if isinstance(message, str):
+                        raise ValueError("expected a binary msgpack observation, got a text frame")
+                    actions = self._infer(message)
+                    infer_ms = (time.monotonic() - start) * 1000.0
+                    timing = {"infer_ms": infer_ms, **({"prev_total_ms": prev_total} if prev_total is not None else {})}
+                    answer = packb({"actions": actions, "server_timing": timing})
+                except Exception:
+                    self.failed += 1
+                    text = traceback.format_exc()
+                    log.warning("inference failed; the client gets the traceback and close 1011:\n%s", text)
+                    ws.send(text)
+                    ws.close(CloseCode.INTERNAL_ERROR, "Internal server error. Traceback included in previous frame.")
+                    return
+                ws.send(answer)
+                self.served += 1
+                prev_total = (time.monotonic() - start) * 1000.0
+        except ConnectionClosed:
+            log.info("client %s disconnected", ws.remote_address)
+
+    def _infer(self, message: bytes) -> np.ndarray:
+        raw = unpackb(message)
+        if not isinstance(raw, dict):
+            raise ValueError(f"expected an observation map, got a {type(raw).__name__}")
+        observation = flatten(raw)
+        task = observation.pop("prompt", "")
+        if not isinstance(task, str):
+            raise ValueError(f"'prompt' must be text, got {type(task).__name__}")
+        observation = {k: v for k, v in observation.items() if isinstance(v, np.ndarray)}
+        actions = np.asarray(self.policy(observation, task), np.float32)
+        if self.delay_s:
+            time.sleep(self.delay_s)
+        return actions
+
+    # -- lifecycle ----------------------------------------------------------------------------------------------
+    def start(self, host: str, port: int, ssl_context: Any = None) -> int:
+        """Listen on ``host:port`` (0: any free port) in a thread; returns the port."""
+        from websockets.sync.server import serve
+
+        logging.getLogger("websockets.server").setLevel(logging.WARNING)  # a line per connection is ours to log
+        try:
+            self._server = serve(self._handle, host, port, ssl=ssl_context, compression=None,
+                                 max_size=MAX_MESSAGE_BYTES, process_request=self._process_request,
+                                 ping_interval=None, server_header=None)
+        except OSError as exc:
+            raise ValueError(f"cannot listen on {host}:{port} ({exc.strerror or exc}); is something else serving "
+                             "there? pick another --bind port") from None
+        bound = int(self._server.socket.getsockname()[1])
+        self._thread = threading.Thread(target=self._server.serve_forever, name="openpi-server", daemon=True)
+        self._thread.start()
+        return bound
+
+    def stop(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            server.shutdown()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+
+def serving_policy(serving: Any) -> tuple[Policy, dict[str, Any]]:
+    """A policy serving (:class:`~embagents.models.policy.PolicyServing`) as a function, and the metadata it offers.
+
+    The metadata names the observation keys it needs with their shapes, and the chunk's shape
+    (from one run on zeros): what a client checks its key mapping against.
+    """
+    def policy(observation: Mapping[str, np.ndarray], task: str) -> np.ndarray:
+        inputs = {"observation": dict(observation)}
+        serving.check("act", inputs, {})  # BadRequest names a missing key or a wrong shape
+        return np.asarray(next(iter(serving.run("act", inputs, {})))["actions"], np.float32)
+
+    expected = getattr(serving, "expected", {})
+    zeros = {k: np.zeros([d if isinstance(d, int) else 1 for d in shape[1:]], dtype)
+             for k, (shape, dtype) in expected.items()}
+    chunk = policy(zeros, "")
+    metadata = {
+        "server": "embagents serve-policy",
+        "observation_keys": list(expected),
+        "observation_shapes": {k: [d if isinstance(d, int) else None for d in shape[1:]]
+                               for k, (shape, _) in expected.items()},
+        "action_key": "actions",
+        "actions_per_chunk": int(chunk.shape[0]),
+        "action_dim": int(chunk.shape[1]) if chunk.ndim == 2 else None,
+    }
+    return policy, metadata
+
+
+class PolicyServerActor(ModelActor):
+    """A policy model actor that also serves openpi's protocol on ``bind`` (``embagents serve-policy``).
+
+    Args are plain data: the API key is read from ``api_key_file`` and TLS from its files at every
+    start, so no secret crosses a socket.
+    """
+
+    def __init__(self, kind: str, path: str, options: dict[str, Any] | None = None, warmup: bool = True,
+                 bind: str = "ws://127.0.0.1:8000", api_key_file: str | None = None, tls_cert: str | None = None,
+                 tls_key: str | None = None, delay_ms: float = 0.0) -> None:
+        super().__init__(kind, path, options, warmup)
+        self.bind, self.api_key_file, self.tls = bind, api_key_file, (tls_cert, tls_key)
+        self.delay_ms = float(delay_ms)
+        check_bind(bind, api_key=bool(api_key_file), tls=bool(tls_cert))
+
+    def on_start(self) -> None:
+        super().on_start()  # loads the policy (and serves it to this host's clients as any model actor)
+        scheme, host, port = check_bind(self.bind, api_key=bool(self.api_key_file), tls=bool(self.tls[0]))
+        ssl_context = None
+        if scheme == "wss":
+            import ssl
+
+            ssl_context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+            ssl_context.load_cert_chain(self.tls[0], self.tls[1])  # type: ignore[arg-type]
+        api_key = read_api_key(self.api_key_file) if self.api_key_file else None
+        policy, metadata = serving_policy(self.serving)
+        self.openpi = OpenPIServer(policy, metadata, api_key=api_key, delay_s=self.delay_ms / 1000.0, name=self.name)
+        bound = self.openpi.start(host, port, ssl_context)
+        log.info("serving policy %s over openpi's protocol on %s://%s:%d%s", self.name, scheme, host, bound,
+                 " (API key required)" if api_key else "")
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "stats":
+            server = getattr(self, "openpi", None)
+            extra = {} if server is None else {"openpi_served": server.served, "openpi_failed": server.failed,
+                                               "openpi_refused": server.refused}
+            return {**super().on_receive(message), **extra}
+        return super().on_receive(message)
+
+    def on_stop(self) -> None:
+        server = getattr(self, "openpi", None)
+        if server is not None:
+            server.stop()
+        super().on_stop()
