@@ -33,6 +33,7 @@ Example::
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 from collections.abc import Mapping, Sequence
@@ -211,9 +212,11 @@ class OpenPIPolicyClient:
             import ssl
 
             ssl_ctx = ssl.create_default_context(cafile=self.tls_ca) if self.tls_ca else ssl.create_default_context()
+        # websockets >= 17.1 wants legacy=True for a connection held outside a with block (ours lives on)
+        legacy = {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
         try:
             ws = connect(self.url, additional_headers=headers, compression=None, max_size=MAX_MESSAGE_BYTES,
-                         open_timeout=timeout, ssl=ssl_ctx, proxy=None, ping_interval=None)
+                         open_timeout=timeout, ssl=ssl_ctx, proxy=None, ping_interval=None, **legacy)
         except InvalidStatus as exc:
             status = exc.response.status_code
             body = exc.response.body.decode(errors="replace").strip() if exc.response.body else ""
