@@ -146,7 +146,8 @@ class OpenPIServer:
         from websockets.exceptions import ConnectionClosed
         from websockets.frames import CloseCode
 
-        log.info("client %s connected", ws.remote_address)
+        peer = ws.remote_address  # read now: a closed socket no longer knows it
+        log.info("client %s connected", peer)
         prev_total: float | None = None
         try:
             ws.send(packb(self.metadata))
@@ -171,7 +172,7 @@ class OpenPIServer:
                 self.served += 1
                 prev_total = (time.monotonic() - start) * 1000.0
         except ConnectionClosed:
-            log.info("client %s disconnected", ws.remote_address)
+            log.info("client %s disconnected", peer)
 
     def _infer(self, message: bytes) -> np.ndarray:
         raw = unpackb(message)
