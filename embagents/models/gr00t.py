@@ -127,9 +127,9 @@ class Gr00tPolicyClient:
         self.time_dim = bool(time_dim)
         self.resets = 0
         self._sock: zmq.Socket | None = None
-        from embagents.tools.webguard import is_loopback
+        from embagents.models.lerobot import is_loopback
 
-        if not is_loopback(parts.hostname):
+        if not is_loopback(parts.netloc):
             log.warning("%s: GR00T's protocol to %s is plaintext ZeroMQ%s: anyone on that network can read the "
                         "observations; keep the server on this machine or reach it through a tunnel you trust "
                         "(ssh -L, WireGuard)", name, endpoint, " and the token travels in the clear" if api_token else "")

@@ -136,9 +136,9 @@ def default_key(key: str) -> str:
 
 
 def _loopback(host: str) -> bool:
-    from embagents.tools.webguard import is_loopback
+    from embagents.models.lerobot import is_loopback
 
-    return is_loopback(host)
+    return is_loopback(f"[{host}]:0" if ":" in host else f"{host}:0")
 
 
 class OpenPIPolicyClient:

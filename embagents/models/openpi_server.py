@@ -27,6 +27,7 @@ Example::
 
 from __future__ import annotations
 
+import hmac
 import http
 import logging
 import os
@@ -59,7 +60,7 @@ def check_bind(bind: str, *, api_key: bool, tls: bool) -> tuple[str, str, int]:
     ...
     ValueError: ws://0.0.0.0:8000 reaches beyond this machine with neither TLS nor a key: anyone on the network could drive the policy; pass --api-key-file FILE (clients send Authorization: Api-Key ...) and/or bind wss:// with --tls-cert CERT.pem --tls-key KEY.pem, or bind ws://127.0.0.1:PORT
     """
-    from embagents.tools.webguard import is_loopback
+    from embagents.models.lerobot import is_loopback
 
     parts = urlsplit(bind)
     try:
@@ -72,7 +73,7 @@ def check_bind(bind: str, *, api_key: bool, tls: bool) -> tuple[str, str, int]:
         raise ValueError(f"{bind} is wss:// (TLS): pass --tls-cert CERT.pem and --tls-key KEY.pem")
     if parts.scheme == "ws" and tls:
         raise ValueError(f"{bind}: --tls-cert/--tls-key are given but the bind is ws://; bind wss://{parts.netloc}")
-    if not is_loopback(parts.hostname) and parts.scheme == "ws" and not api_key:
+    if not is_loopback(parts.netloc) and parts.scheme == "ws" and not api_key:
         raise ValueError(f"{bind} reaches beyond this machine with neither TLS nor a key: anyone on the network could "
                          "drive the policy; pass --api-key-file FILE (clients send Authorization: Api-Key ...) and/or "
                          "bind wss:// with --tls-cert CERT.pem --tls-key KEY.pem, or bind ws://127.0.0.1:PORT")
@@ -132,10 +133,9 @@ class OpenPIServer:
             log.warning("refused a handshake from a browser page (Origin %s)", request.headers.get("Origin"))
             return connection.respond(http.HTTPStatus.FORBIDDEN, "browser pages may not drive a policy\n")
         if self.api_key is not None:
-            from embagents.tools.webguard import same_token
-
             scheme, _, given = (request.headers.get("Authorization") or "").partition(" ")
-            if scheme.lower() != "api-key" or not same_token(given.strip(), self.api_key):
+            # constant time: a wrong guess says nothing about the right key
+            if scheme.lower() != "api-key" or not hmac.compare_digest(given.strip().encode(), self.api_key.encode()):
                 self.refused += 1
                 log.warning("refused a client without the right API key (%s)", connection.remote_address)
                 return connection.respond(http.HTTPStatus.UNAUTHORIZED, "send Authorization: Api-Key <key>\n")
