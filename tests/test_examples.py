@@ -245,6 +245,22 @@ def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
     assert "task 'reach the target pose' started" in out.stderr  # the event called manipulate in the VLA's process
 
 
+def test_arm_example_reaches_its_target_with_its_policy_behind_openpis_websocket(tmp_path: Path) -> None:
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "cv2", "websockets"):
+        pytest.importorskip(module, reason="the example's openpi mode needs the sim and vla extras")
+    from tests.helpers import free_port
+
+    env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache"),
+           "EMBAGENTS_POLICY": "openpi", "EMBAGENTS_POLICY_PORT": str(free_port())}
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
+                         capture_output=True, text=True, timeout=180,
+                         env=as_installed("arm.py", tmp_path, env, extras=["sim", "vla"]))  # as its docstring says
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    assert out.stdout.splitlines()[-1] == "done: reached the target"
+    assert "serving policy reach over openpi's protocol on ws://127.0.0.1:" in out.stderr
+    assert "reach: connected to ws://127.0.0.1:" in out.stderr  # the VLA's OpenPIPolicyClient, not a local client
+
+
 def test_arm_example_describes_its_camera_with_a_vlm_when_one_is_present(tmp_path: Path) -> None:
     for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "llama_cpp", "gguf"):
         pytest.importorskip(module, reason="the example needs the sim and llm extras")

@@ -3,8 +3,8 @@
 - ``policy_openpi``: the 50 Hz loop of ``vla_control_loop`` (Sim -> VLA ->
   policy -> clipped command, a chunk of 10 every 5 ticks) twice in one run:
   its ONNX policy in a local model actor, then the same policy behind
-  ``embagents serve-policy`` (openpi's WebSocket protocol on loopback, the
-  :class:`~embagents.models.openpi_server.PolicyServerActor`) reached by
+  ``embagents serve-policy`` (openpi's WebSocket protocol on loopback: the
+  policy's model actor with serve-policy's options) reached by
   :class:`~embagents.models.openpi.OpenPIPolicyClient`. ``p99_jitter_ms``: of
   the command period at the Sim, over WebSocket; ``chunk_ratio``: p50 of
   observation sent -> chunk received (the VLA's ``policy_latency_ms``), over
@@ -54,9 +54,9 @@ def _loop(path: str, seconds: float, serve: tuple[str, tuple[Any, ...]]) -> tupl
 
             asys.spawn(ModelActor, "bench_reach", *args, wait=60, heartbeat=None)
         else:
-            from embagents.models.openpi_server import PolicyServerActor
+            from embagents.runtime.model_actor import ModelActor
 
-            asys.spawn(PolicyServerActor, "bench_openpi_server", *args, wait=60, heartbeat=None)
+            asys.spawn(ModelActor, "bench_openpi_server", *args, wait=60, heartbeat=None)
         sim = asys.spawn(ComponentActor, "bench_sim", path, "bench_sim", wait=60, heartbeat=None)
         vla = asys.spawn(ComponentActor, "bench_vla", path, "bench_vla", wait=60, heartbeat=None)
         time.sleep(0.5)  # subscriptions connected, first joint states in
@@ -74,8 +74,8 @@ def _loop(path: str, seconds: float, serve: tuple[str, tuple[Any, ...]]) -> tupl
 
 
 def _server_args(policy: str, port: int, delay_ms: float = 0.0) -> tuple[str, tuple[Any, ...]]:
-    return ("openpi", ("policy", policy, {"threads": 1, "realtime": True}, True, f"ws://127.0.0.1:{port}", None, None,
-                       None, delay_ms))
+    openpi = {"bind": f"ws://127.0.0.1:{port}", "delay_ms": delay_ms}  # what serve-policy's model actor gets
+    return ("openpi", ("policy", policy, {"threads": 1, "realtime": True, "openpi": openpi}, True))
 
 
 @case("policy_openpi", transport="embagents", kind="arm", needs="websockets")

@@ -14,9 +14,10 @@ refused; with ``api_key`` set, ``Authorization: Api-Key KEY`` must match it
 (compared in constant time; openpi's own server takes any key). Beyond
 loopback :func:`check_bind` wants ``wss://`` (a certificate) or a key.
 
-:class:`PolicyServerActor` is the model actor that ``embagents serve-policy``
-supervises: it loads the policy (an ONNX policy on onnxruntime) and serves
-it on its bind address.
+:func:`start_openpi` serves a loaded ONNX policy (a
+:class:`~embagents.models.policy.PolicyServing`) this way: its model actor
+does so when its options hold ``{"openpi": {"bind": ...}}``, as under
+``embagents serve-policy`` or for a ``PolicyModel(openpi_bind=...)`` of a run.
 
 Example::
 
@@ -40,10 +41,9 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from embagents.models.actor import ModelActor
 from embagents.models.openpi import MAX_MESSAGE_BYTES, normalize_key, packb, unpackb
 
-__all__ = ["OpenPIServer", "PolicyServerActor", "check_bind", "flatten", "read_api_key"]
+__all__ = ["OpenPIServer", "check_bind", "flatten", "read_api_key", "serving_policy", "start_openpi"]
 
 log = logging.getLogger("embagents.openpi_server")
 
@@ -241,47 +241,25 @@ def serving_policy(serving: Any) -> tuple[Policy, dict[str, Any]]:
     return policy, metadata
 
 
-class PolicyServerActor(ModelActor):
-    """A policy model actor that also serves openpi's protocol on ``bind`` (``embagents serve-policy``).
+def start_openpi(serving: Any, name: str, bind: str, api_key_file: str | None = None, tls_cert: str | None = None,
+                 tls_key: str | None = None, delay_ms: float = 0.0) -> OpenPIServer:
+    """Serve a loaded policy ``serving`` over openpi's protocol on ``bind`` (what a policy model actor does when its
+    options hold ``{"openpi": {...}}``: ``embagents serve-policy``, or a ``PolicyModel(openpi_bind=...)`` of a run).
 
-    Args are plain data: the API key is read from ``api_key_file`` and TLS from its files at every
-    start, so no secret crosses a socket.
+    The API key is read from ``api_key_file`` and TLS from its files here, in the serving
+    process: no secret crosses a socket.
     """
+    scheme, host, port = check_bind(bind, api_key=bool(api_key_file), tls=bool(tls_cert))
+    ssl_context = None
+    if scheme == "wss":
+        import ssl
 
-    def __init__(self, kind: str, path: str, options: dict[str, Any] | None = None, warmup: bool = True,
-                 bind: str = "ws://127.0.0.1:8000", api_key_file: str | None = None, tls_cert: str | None = None,
-                 tls_key: str | None = None, delay_ms: float = 0.0) -> None:
-        super().__init__(kind, path, options, warmup)
-        self.bind, self.api_key_file, self.tls = bind, api_key_file, (tls_cert, tls_key)
-        self.delay_ms = float(delay_ms)
-        check_bind(bind, api_key=bool(api_key_file), tls=bool(tls_cert))
-
-    def on_start(self) -> None:
-        super().on_start()  # loads the policy (and serves it to this host's clients as any model actor)
-        scheme, host, port = check_bind(self.bind, api_key=bool(self.api_key_file), tls=bool(self.tls[0]))
-        ssl_context = None
-        if scheme == "wss":
-            import ssl
-
-            ssl_context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-            ssl_context.load_cert_chain(self.tls[0], self.tls[1])  # type: ignore[arg-type]
-        api_key = read_api_key(self.api_key_file) if self.api_key_file else None
-        policy, metadata = serving_policy(self.serving)
-        self.openpi = OpenPIServer(policy, metadata, api_key=api_key, delay_s=self.delay_ms / 1000.0, name=self.name)
-        bound = self.openpi.start(host, port, ssl_context)
-        log.info("serving policy %s over openpi's protocol on %s://%s:%d%s", self.name, scheme, host, bound,
-                 " (API key required)" if api_key else "")
-
-    def on_receive(self, message: Any) -> Any:
-        if message == "stats":
-            server = getattr(self, "openpi", None)
-            extra = {} if server is None else {"openpi_served": server.served, "openpi_failed": server.failed,
-                                               "openpi_refused": server.refused}
-            return {**super().on_receive(message), **extra}
-        return super().on_receive(message)
-
-    def on_stop(self) -> None:
-        server = getattr(self, "openpi", None)
-        if server is not None:
-            server.stop()
-        super().on_stop()
+        ssl_context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        ssl_context.load_cert_chain(tls_cert, tls_key)  # type: ignore[arg-type]
+    api_key = read_api_key(api_key_file) if api_key_file else None
+    policy, metadata = serving_policy(serving)
+    server = OpenPIServer(policy, metadata, api_key=api_key, delay_s=float(delay_ms) / 1000.0, name=name)
+    bound = server.start(host, port, ssl_context)
+    log.info("serving policy %s over openpi's protocol on %s://%s:%d%s", name, scheme, host, bound,
+             " (API key required)" if api_key else "")
+    return server

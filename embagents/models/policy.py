@@ -23,6 +23,7 @@ Example::
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Mapping
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
@@ -73,7 +74,10 @@ class PolicyModel(Model):
     ``threads``: intra-op threads (policies are small: 1 keeps latency steady);
     ``providers``: execution providers (None: TensorRT or CUDA when present, else CPU);
     ``realtime``: its actor's process at a control loop's priority (:func:`~embagents.priority.raise_priority`),
-    as a VLA with ``realtime=True`` waits on it.
+    as a VLA with ``realtime=True`` waits on it;
+    ``openpi_bind``: its model actor also serves it over openpi's WebSocket protocol there
+    (``ws://127.0.0.1:PORT``; beyond loopback with ``openpi_api_key_file``), for
+    :class:`~embagents.models.openpi.OpenPIPolicyClient` and openpi's own clients.
     """
 
     kind: ClassVar[str] = "policy"
@@ -81,6 +85,14 @@ class PolicyModel(Model):
     threads: int | None = 1
     providers: list[str] | None = None
     realtime: bool = False
+    openpi_bind: str | None = None
+    openpi_api_key_file: str | None = None
+
+    def __attrs_post_init__(self) -> None:
+        if self.openpi_bind is not None:
+            from embagents.models.openpi_server import check_bind
+
+            check_bind(self.openpi_bind, api_key=bool(self.openpi_api_key_file), tls=False)
 
     def resolve(self) -> str:
         from embagents.modelfiles import resolve_model_path
@@ -102,7 +114,9 @@ class PolicyModel(Model):
         return problem
 
     def options(self) -> dict[str, Any]:
-        return {"threads": self.threads, "providers": self.providers, "realtime": self.realtime}
+        openpi = {"openpi": {"bind": self.openpi_bind, "api_key_file": self.openpi_api_key_file, "name": self.name}} \
+            if self.openpi_bind else {}
+        return {"threads": self.threads, "providers": self.providers, "realtime": self.realtime, **openpi}
 
 
 class PolicyServing:
@@ -117,6 +131,9 @@ class PolicyServing:
         self.session = OnnxSession(path, threads=options.get("threads"), providers=options.get("providers"))
         self.realtime = bool(options.get("realtime"))
         self.expected = {i.name: (list(i.shape), self._NP.get(i.type, np.float32)) for i in self.session.inputs}
+        self.openpi_options: dict[str, Any] | None = options.get("openpi")
+        self.openpi: Any = None
+        self.name = os.path.splitext(os.path.basename(path))[0]
 
     def load(self) -> None:
         if self.realtime:  # the session (and its threads) exist: the whole process
@@ -125,6 +142,11 @@ class PolicyServing:
             from embagents.priority import raise_priority
 
             logging.getLogger("embagents.model").info("serving at %s", raise_priority(whole_process=True))
+        if self.openpi_options:  # after the priority: its threads inherit it
+            from embagents.models.openpi_server import start_openpi
+
+            options = dict(self.openpi_options)
+            self.openpi = start_openpi(self, str(options.pop("name", self.name)), **options)
 
     def warmup(self) -> None:
         obs = {k: np.zeros([d if isinstance(d, int) else 1 for d in shape[1:]], dtype) for k, (shape, dtype)
@@ -164,7 +186,9 @@ class PolicyServing:
         raise NotImplementedError("a policy serves one observation at a time")
 
     def close(self) -> None:
-        pass
+        server, self.openpi = self.openpi, None
+        if server is not None:
+            server.stop()
 
 
 class LocalPolicyClient:

@@ -1,8 +1,9 @@
 """``embagents serve-policy POLICY --bind ws://HOST:PORT``: a policy over openpi's WebSocket protocol.
 
-Runs one supervised :class:`~embagents.models.openpi_server.PolicyServerActor`
-(restarted by the supervisor as ``embagents supervise`` does; ``embagents
-status`` and ``stop`` reach it) that loads POLICY and answers openpi clients
+Runs one supervised policy model actor (restarted by the supervisor as
+``embagents supervise`` does; ``embagents status`` and ``stop`` reach it)
+that loads POLICY and answers openpi clients
+(:func:`~embagents.models.openpi_server.start_openpi`)
 (``openpi_client.websocket_client_policy``, starVLA, IsaacLab-Arena, our
 :class:`~embagents.models.openpi.OpenPIPolicyClient`). POLICY is:
 
@@ -58,13 +59,16 @@ def policy_of(spec: str) -> Any:
 def serve_policy_spec(model: Any, path: str, bind: str, *, api_key_file: str | None = None,
                       tls_cert: str | None = None, tls_key: str | None = None, delay_ms: float = 0.0) -> Any:
     """The supervision tree: one policy server actor serving ``model``'s file at ``path`` on ``bind``."""
-    from embagents.models.openpi_server import PolicyServerActor, check_bind
+    from embagents.models.actor import ModelActor
+    from embagents.models.openpi_server import check_bind
     from embagents.supervision import MODEL_HEARTBEAT_S
     from supervisor import ChildSpec, SupervisorSpec
 
     check_bind(bind, api_key=bool(api_key_file), tls=bool(tls_cert))
-    args = (model.kind, path, model.options(), model.warmup, bind, api_key_file, tls_cert, tls_key, float(delay_ms))
-    child = ChildSpec(model.name, (PolicyServerActor, args), heartbeat=MODEL_HEARTBEAT_S, start_timeout=600)
+    openpi = {"bind": bind, "api_key_file": api_key_file, "tls_cert": tls_cert, "tls_key": tls_key,
+              "delay_ms": float(delay_ms), "name": model.name}
+    args = (model.kind, path, {**model.options(), "openpi": openpi}, model.warmup)
+    child = ChildSpec(model.name, (ModelActor, args), heartbeat=MODEL_HEARTBEAT_S, start_timeout=600)
     return SupervisorSpec(children=[child], intensity=5, period=30.0)
 
 
