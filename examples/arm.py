@@ -35,7 +35,13 @@ from embagents.components import VLA, VLM, Component, Sim, SimConfig, VLAConfig,
 from embagents.components.sim import PANDA_READY
 from embagents.events import Event, call, on, publish
 from embagents.launch import SYSTEM_STOP
-from embagents.models import LocalModelClient, LocalPolicyClient, OpenPIPolicyClient, PolicyModel, VLMModel
+from embagents.models import (
+    LocalModelClient,
+    LocalPolicyClient,
+    OpenPIPolicyClient,
+    PolicyModel,
+    VLMModel,
+)
 from embagents.msgs import Image, JointState, String, TaskFeedback
 from embagents.system import System
 from embagents.topic import Topic

@@ -42,8 +42,9 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from embagents.models.openpi import MAX_MESSAGE_BYTES, normalize_key, packb, unpackb
+from embagents.models.policy import PolicyServing
 
-__all__ = ["OpenPIServer", "check_bind", "flatten", "read_api_key", "serving_policy", "start_openpi"]
+__all__ = ["OpenPIPolicyServing", "OpenPIServer", "check_bind", "flatten", "read_api_key", "serving_policy", "start_openpi"]
 
 log = logging.getLogger("embagents.openpi_server")
 
@@ -263,3 +264,28 @@ def start_openpi(serving: Any, name: str, bind: str, api_key_file: str | None = 
     log.info("serving policy %s over openpi's protocol on %s://%s:%d%s", name, scheme, host, bound,
              " (API key required)" if api_key else "")
     return server
+
+
+class OpenPIPolicyServing(PolicyServing):
+    """An ONNX policy's serving that also serves it over openpi's protocol (options ``{"openpi": {"bind", ...}}``).
+
+    A model actor of kind ``policy`` gets it for such options: ``embagents serve-policy``, or a
+    ``PolicyModel(openpi_bind=...)`` in a system. The server starts once the policy is loaded
+    (after the process's priority is raised: its threads inherit it) and stops with it.
+    """
+
+    def __init__(self, path: str, options: dict[str, Any]) -> None:
+        super().__init__(path, options)
+        self.openpi_options = dict(options["openpi"])
+        self.openpi_name = str(self.openpi_options.pop("name", "") or os.path.splitext(os.path.basename(path))[0])
+        self.openpi: OpenPIServer | None = None
+
+    def load(self) -> None:
+        super().load()
+        self.openpi = start_openpi(self, self.openpi_name, **self.openpi_options)
+
+    def close(self) -> None:
+        server, self.openpi = self.openpi, None
+        if server is not None:
+            server.stop()
+        super().close()

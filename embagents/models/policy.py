@@ -23,7 +23,6 @@ Example::
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator, Mapping
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
@@ -89,10 +88,10 @@ class PolicyModel(Model):
     openpi_api_key_file: str | None = None
 
     def __attrs_post_init__(self) -> None:
-        if self.openpi_bind is not None:
-            from embagents.models.openpi_server import check_bind
-
-            check_bind(self.openpi_bind, api_key=bool(self.openpi_api_key_file), tls=False)
+        if self.openpi_bind is not None and not self.openpi_bind.startswith("ws://"):
+            # (who may listen where is checked when its model actor binds: loopback, else a key)
+            raise ValueError(f"policy {self.name!r}: openpi_bind {self.openpi_bind!r} must be ws://HOST:PORT; for "
+                             "wss:// serve it with embagents serve-policy --tls-cert/--tls-key")
 
     def resolve(self) -> str:
         from embagents.modelfiles import resolve_model_path
@@ -131,9 +130,6 @@ class PolicyServing:
         self.session = OnnxSession(path, threads=options.get("threads"), providers=options.get("providers"))
         self.realtime = bool(options.get("realtime"))
         self.expected = {i.name: (list(i.shape), self._NP.get(i.type, np.float32)) for i in self.session.inputs}
-        self.openpi_options: dict[str, Any] | None = options.get("openpi")
-        self.openpi: Any = None
-        self.name = os.path.splitext(os.path.basename(path))[0]
 
     def load(self) -> None:
         if self.realtime:  # the session (and its threads) exist: the whole process
@@ -142,11 +138,6 @@ class PolicyServing:
             from embagents.priority import raise_priority
 
             logging.getLogger("embagents.model").info("serving at %s", raise_priority(whole_process=True))
-        if self.openpi_options:  # after the priority: its threads inherit it
-            from embagents.models.openpi_server import start_openpi
-
-            options = dict(self.openpi_options)
-            self.openpi = start_openpi(self, str(options.pop("name", self.name)), **options)
 
     def warmup(self) -> None:
         obs = {k: np.zeros([d if isinstance(d, int) else 1 for d in shape[1:]], dtype) for k, (shape, dtype)
@@ -186,9 +177,7 @@ class PolicyServing:
         raise NotImplementedError("a policy serves one observation at a time")
 
     def close(self) -> None:
-        server, self.openpi = self.openpi, None
-        if server is not None:
-            server.stop()
+        pass
 
 
 class LocalPolicyClient:
