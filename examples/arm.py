@@ -17,6 +17,9 @@ With ``EMBAGENTS_POLICY=openpi`` (``pip install -e ".[sim,vla]"``) the same poli
 WebSocket protocol, as a policy server on a GPU box would: its model actor serves it on
 ``ws://127.0.0.1:$EMBAGENTS_POLICY_PORT`` (default 8765), as ``embagents serve-policy`` does, and the VLA
 reaches it with an ``OpenPIPolicyClient``, asking on a worker thread (``async_inference``) so no tick waits.
+With ``EMBAGENTS_ARM_DATASET=DIR`` (``pip install -e ".[sim,dataset]"``) a ``DatasetRecorder`` records the
+reach as a LeRobot dataset (v3 layout: joint states, commands as actions, the camera as a video) in DIR,
+replacing it; ``embagents call recorder start_episode "another"`` / ``end_episode`` record more.
 With a VLM (``pip install -e ".[sim,llm]"``; ``EMBAGENTS_VLM_MODEL``, ``EMBAGENTS_VLM_PROJECTOR``,
 ``EMBAGENTS_VLM_HANDLER`` as in examples/vlm.py) an event asks the VLM on its question topic when the first camera
 frame comes (the VLM answers about its latest frame, holding the question until it has one)
@@ -31,7 +34,17 @@ from typing import Any
 
 import numpy as np
 
-from embagents.components import VLA, VLM, Component, Sim, SimConfig, VLAConfig, VLMConfig
+from embagents.components import (
+    VLA,
+    VLM,
+    Component,
+    DatasetRecorder,
+    DatasetRecorderConfig,
+    Sim,
+    SimConfig,
+    VLAConfig,
+    VLMConfig,
+)
 from embagents.components.sim import PANDA_READY
 from embagents.events import Event, call, on, publish
 from embagents.launch import SYSTEM_STOP
@@ -54,6 +67,7 @@ TOLERANCE = 0.01  # rad
 GIVE_UP_S = 60.0
 VLM_FILE = os.environ.get("EMBAGENTS_VLM_MODEL")  # a VLM's language model (its projector beside it, or named)
 DESCRIBE_WAIT_S = 120.0  # after the reach, wait at most this long for the VLM's answer
+DATASET = os.environ.get("EMBAGENTS_ARM_DATASET")  # a directory: the reach recorded as a LeRobot dataset
 POLICY = os.environ.get("EMBAGENTS_POLICY", "local")  # local: a model actor of this run; openpi: over WebSocket
 if POLICY not in ("local", "openpi"):
     raise ValueError(f"EMBAGENTS_POLICY={POLICY!r}: use 'local' (a model actor) or 'openpi' (openpi's WebSocket)")
@@ -172,11 +186,21 @@ if VLM_FILE:  # a describe of the camera by a vision-language model (examples/vl
     events[Event("first_frame", on(image).field("stamp") >= 0, once=True)] = publish(
         question, String(data="Describe what you see."))
 
+recording: list[Component] = []
+if DATASET:  # joint states, commands and the camera, 10 frames a second, from the first joint state on
+    recorder = DatasetRecorder(name="recorder", inputs=[joint_states, command, image], trigger=10.0,
+                               config=DatasetRecorderConfig(root=DATASET, fps=10.0, camera_inputs_map={"front": image.name},
+                                                            overwrite=True, robot_type="franka_panda"))
+    recording = [recorder]
+    events[Event("record_ready", on(joint_states).field("stamp") > 0, once=True)] = call(
+        recorder, "start_episode", "reach the target pose")
+
 system = System(
     [
         Sim(name="sim", inputs=[command], outputs=[joint_states, image], config=SimConfig(camera_hz=5.0), trigger=240.0),
         vla,
         *seeing,
+        *recording,
         Report(name="report", inputs=[joint_states, image, feedback, said], outputs=[stop], trigger=1.0),
     ],
     events=events,
