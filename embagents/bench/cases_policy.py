@@ -22,12 +22,11 @@ from __future__ import annotations
 
 import os
 import tempfile
-import time
 from typing import Any
 
 import numpy as np
 
-from embagents.bench.cases_arm import _p99, _system_file
+from embagents.bench.cases_arm import _p99, _system_file, arm_loop
 from embagents.bench.registry import BenchOptions, case
 
 __all__: list[str] = []
@@ -41,41 +40,9 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _loop(path: str, seconds: float, serve: tuple[str, tuple[Any, ...]]) -> tuple[list[float], dict[str, Any]]:
-    """Spawn the policy's actor and the system at ``path``; run a task for ``seconds``; command arrivals and status."""
-    from actors import ActorSystem
-    from embagents.runtime.component_actor import ComponentActor
-    from embagents.runtime.requests import Call
-
-    actor, args = serve
-    with ActorSystem() as asys:
-        if actor == "model":
-            from embagents.runtime.model_actor import ModelActor
-
-            asys.spawn(ModelActor, "bench_reach", *args, wait=60, heartbeat=None)
-        else:
-            from embagents.runtime.model_actor import ModelActor
-
-            asys.spawn(ModelActor, "bench_openpi_server", *args, wait=60, heartbeat=None)
-        sim = asys.spawn(ComponentActor, "bench_sim", path, "bench_sim", wait=60, heartbeat=None)
-        vla = asys.spawn(ComponentActor, "bench_vla", path, "bench_vla", wait=60, heartbeat=None)
-        time.sleep(0.5)  # subscriptions connected, first joint states in
-        vla.ask(Call("manipulate", ["bench", 10**9]), timeout=10).get()
-        time.sleep(0.5)  # warm: the first chunks are in
-        sim.ask(Call("arrivals"), timeout=10).get()
-        before = vla.ask(Call("status"), timeout=10).get()
-        time.sleep(seconds)
-        stamps = sim.ask(Call("arrivals"), timeout=10).get()
-        status = vla.ask(Call("status"), timeout=10).get()
-        vla.ask(Call("stop"), timeout=10).get()
-    status["queue_empty"] -= before["queue_empty"]  # counted over the measurement only
-    status["chunks"] -= before["chunks"]
-    return stamps, status
-
-
-def _server_args(policy: str, port: int, delay_ms: float = 0.0) -> tuple[str, tuple[Any, ...]]:
+def _server_args(policy: str, port: int, delay_ms: float = 0.0) -> tuple[Any, ...]:
     openpi = {"bind": f"ws://127.0.0.1:{port}", "delay_ms": delay_ms}  # what serve-policy's model actor gets
-    return ("openpi", ("policy", policy, {"threads": 1, "realtime": True, "openpi": openpi}, True))
+    return ("policy", policy, {"threads": 1, "realtime": True, "openpi": openpi}, True)
 
 
 @case("policy_openpi", transport="embagents", kind="arm", needs="websockets")
@@ -86,11 +53,11 @@ def policy_openpi(opts: BenchOptions) -> dict[str, Any]:
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
         policy = write_reach_policy(os.path.join(tmp, "reach.onnx"), TARGET, gain=0.02, chunk=10)
-        local, local_status = _loop(_system_file(tmp, "vla_system", repr(policy)), seconds,
-                                    ("model", ("policy", policy, {"threads": 1, "realtime": True}, True)))
+        local, local_status = arm_loop(_system_file(tmp, "vla_system", repr(policy)), seconds,
+                                    ("policy", policy, {"threads": 1, "realtime": True}, True))
         port = _free_port()
         path = _system_file(tmp, "vla_openpi_system", repr(f"ws://127.0.0.1:{port}"))
-        ws, ws_status = _loop(path, seconds, _server_args(policy, port))
+        ws, ws_status = arm_loop(path, seconds, _server_args(policy, port))
     p99, local_p99 = _p99(jitter_ms(ws, 0.02)), _p99(jitter_ms(local, 0.02))
     ws_ms, local_ms = ws_status["policy_latency_ms"], local_status["policy_latency_ms"]
     ratio = round(ws_ms / local_ms, 3) if ws_ms and local_ms else None
@@ -125,7 +92,7 @@ def policy_openpi_async(opts: BenchOptions) -> dict[str, Any]:
             args = f"{f'ws://127.0.0.1:{port}'!r}, chunk=50, observation_rate_hz={rate}, async_inference={is_async}, " \
                    "policy_timeout_s=0.5"
             path = _system_file(tmp, "vla_openpi_system", args)
-            runs[mode] = _loop(path, seconds, _server_args(policy, port, delay_ms=100.0))
+            runs[mode] = arm_loop(path, seconds, _server_args(policy, port, delay_ms=100.0))
     (a_stamps, a_status), (s_stamps, s_status) = runs["async"], runs["sync"]
     a_jitter = jitter_ms(a_stamps, 0.02)
     return {

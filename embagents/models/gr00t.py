@@ -41,7 +41,7 @@ import msgpack
 import numpy as np
 import zmq
 
-from embagents.models.lerobot import PolicyError, PolicyUnavailable
+from embagents.models.lerobot import PolicyError, PolicyUnavailable, check_chunk
 from embagents.models.policy import STATE_KEY, PolicyLate
 from embagents.models.protocol import BadRequest
 
@@ -229,19 +229,12 @@ class Gr00tPolicyClient:
             a = answer[k]
             a = a[0] if a.ndim == 3 and a.shape[0] == 1 else a  # a batch of one
             parts.append(a[:, None] if a.ndim == 1 else a)
-        state = observation.get(STATE_KEY)
-        joints = int(np.size(state)) if state is not None else None
         lengths = {p.shape[0] for p in parts}
         if len(lengths) != 1 or any(p.ndim != 2 for p in parts):
             raise PolicyError(f"GR00T server {self.endpoint} answered parts of shapes "
                               f"{[tuple(p.shape) for p in parts]} for {keys}: not one chunk")
-        chunk = np.concatenate(parts, axis=1)
-        length = self.actions_per_chunk
-        if (length is not None and chunk.shape[0] != length) or (joints is not None and chunk.shape[1] != joints):
-            want = f"({length if length is not None else 'T'}, {joints if joints is not None else 'n_joints'})"
-            raise PolicyError(f"GR00T server {self.endpoint} sent a chunk of shape {tuple(chunk.shape)} (from {keys}); "
-                              f"expected {want} = (actions_per_chunk, n_joints)")
-        return np.ascontiguousarray(chunk, np.float32)
+        return check_chunk(np.concatenate(parts, axis=1), observation, self.actions_per_chunk,
+                           f"GR00T server {self.endpoint} (from {', '.join(keys)})")
 
     def close(self) -> None:
         """Close the socket (a later call opens a new one)."""

@@ -43,8 +43,8 @@ from urllib.parse import urlsplit
 import msgpack
 import numpy as np
 
-from embagents.models.lerobot import PolicyError, PolicyUnavailable
-from embagents.models.policy import STATE_KEY, PolicyLate
+from embagents.models.lerobot import PolicyError, PolicyUnavailable, check_chunk
+from embagents.models.policy import PolicyLate
 from embagents.models.protocol import BadRequest
 
 log = logging.getLogger("embagents.models.openpi")
@@ -368,18 +368,10 @@ class OpenPIPolicyClient:
                               f"{', '.join(map(str, answer))}); set action_key= to the key holding the chunk")
         if self.action_dims is not None and actions.ndim == 2:
             actions = actions[:, : self.action_dims]
-        state = observation.get(STATE_KEY)
-        joints = int(np.size(state)) if state is not None else None
         length = self.actions_per_chunk
         if length is None and isinstance((self.metadata or {}).get("actions_per_chunk"), int):
             length = int((self.metadata or {})["actions_per_chunk"])
-        bad = actions.ndim != 2 or actions.shape[0] < 1 or (length is not None and actions.shape[0] != length) or (
-            joints is not None and actions.shape[1] != joints)
-        if bad or actions.dtype.kind not in "iuf":
-            want = f"({length if length is not None else 'T'}, {joints if joints is not None else 'n_joints'})"
-            raise PolicyError(f"policy server {self.url} sent a chunk of shape {tuple(actions.shape)} dtype "
-                              f"{actions.dtype}; expected {want} = (actions_per_chunk, n_joints) numbers")
-        return np.ascontiguousarray(actions, np.float32)
+        return check_chunk(actions, observation, length, f"policy server {self.url}")
 
     def close(self) -> None:
         """Close the connection (a later call opens a new one)."""
