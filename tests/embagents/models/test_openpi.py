@@ -332,3 +332,70 @@ def test_a_vla_shows_the_servers_traceback_once_in_its_health_and_holds(six_join
         assert lp.vla.step == 0 and client.connects == 1  # held, and asked the server once
     finally:
         lp.close()
+
+
+def test_a_vla_surfaces_the_servers_timing_in_its_status_and_on_a_metrics_topic(server: str) -> None:
+    import json
+
+    from embagents.components import VLA, VLAConfig
+    from embagents.msgs import Image, JointState, String
+    from embagents.topic import Topic
+
+    states, command, camera, metrics = (Topic("joints", JointState), Topic("command", JointState),
+                                        Topic("camera", Image), Topic("vla/metrics", String))
+    joints = [f"j{i}" for i in range(7)]
+    vla = VLA(name="vla", inputs=[states, camera], outputs=[command, metrics],
+              policy=OpenPIPolicyClient(server), trigger=50.0,
+              config=VLAConfig(joint_names_map={j: j for j in joints}, camera_inputs_map={"front": camera.name},
+                               joint_limits={j: {"lower": -3.0, "upper": 3.0, "velocity": 2.0} for j in joints},
+                               actions_per_chunk=CHUNK))
+    sent: list[tuple[str, object]] = []
+    vla.attach(lambda topic, msg: sent.append((topic, msg)))
+    try:
+        vla.manipulate("reach", 100)
+        for _ in range(6):
+            vla.on_message(states.name, JointState(name=joints, position=np.zeros(7)))
+            vla.on_message(camera.name, Image(data=CAMERA))
+            vla.execute()
+        status = vla.status()
+        assert status["step"] == 6 and status["chunks"] >= 2 and status["policy_latency_ms"] > 0
+        assert status["server_timing"]["infer_ms"] > 0 and "prev_total_ms" in status["server_timing"]
+        said = [json.loads(m.data) for t, m in sent if t == metrics.name]  # type: ignore[attr-defined]
+        assert len(said) == status["chunks"] and said[-1]["server_timing"] == status["server_timing"]
+        assert said[-1]["policy"] == "openpi" and said[-1]["last_latency_ms"] > 0
+    finally:
+        vla.on_shutdown()
+
+
+@pytest.fixture(scope="module")
+def tls_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """A self-signed certificate for 127.0.0.1 and its key."""
+    folder = tmp_path_factory.mktemp("tls")
+    cert, key = folder / "cert.pem", folder / "key.pem"
+    out = subprocess.run(["openssl", "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1",
+                          "-nodes", "-keyout", str(key), "-out", str(cert), "-days", "1", "-subj", "/CN=127.0.0.1",
+                          "-addext", "subjectAltName=IP:127.0.0.1"], capture_output=True, text=True, timeout=60)
+    if out.returncode != 0:
+        pytest.skip(f"openssl could not make a test certificate: {out.stderr.strip()[-200:]}")
+    return {"cert": str(cert), "key": str(key)}
+
+
+def test_over_wss_the_client_checks_the_servers_certificate(policy: str, tls_files: dict[str, str]) -> None:
+    port = free_port()
+    log = Path(policy).parent / f"wss-{port}.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "embagents.cli", "serve-policy", policy, "--bind",
+                                 f"wss://127.0.0.1:{port}", "--tls-cert", tls_files["cert"], "--tls-key",
+                                 tls_files["key"]], stdout=out, stderr=subprocess.STDOUT)
+    try:
+        wait_until(lambda: "serving policy" in log.read_text() or proc.poll() is not None, 60.0, "serve-policy up")
+        assert proc.poll() is None, log.read_text()
+        obs = {"observation.state": STATE, "observation.images.front": CAMERA}
+        client = OpenPIPolicyClient(f"wss://127.0.0.1:{port}", tls_ca=tls_files["cert"])
+        assert client.infer(obs, "reach", 5.0).shape == (CHUNK, 7)
+        client.close()
+        with pytest.raises(PolicyUnavailable, match="CERTIFICATE_VERIFY_FAILED|certificate"):
+            OpenPIPolicyClient(f"wss://127.0.0.1:{port}").infer(obs, "reach", 5.0)  # not trusted: refused
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
