@@ -399,3 +399,19 @@ def test_over_wss_the_client_checks_the_servers_certificate(policy: str, tls_fil
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+def test_serve_policy_serves_a_policy_model_that_a_system_declares(policy: str, tmp_path: Path) -> None:
+    from embagents.tools.serve_policy_cli import policy_of
+
+    system = tmp_path / "robot.py"
+    system.write_text("from embagents.models import LlamaModel, PolicyModel\nfrom embagents.system import System\n"
+                      f"reach = PolicyModel(name='reach', local_model_path={policy!r})\n"
+                      "chat = LlamaModel(name='chat', local_model_path='chat.gguf')\n"
+                      "system = System([], models=[reach, chat])\n")
+    with pytest.raises(ValueError, match="is a llama model, not a policy"):
+        policy_of(f"{system}:chat")
+    with serve_policy(f"{system}:reach", free_port()) as url:
+        client = OpenPIPolicyClient(url)
+        assert client.infer({"observation.state": STATE, "observation.images.front": CAMERA}, "x", 5.0).shape == (CHUNK, 7)
+        client.close()
