@@ -123,10 +123,11 @@ class _Video:
         os.makedirs(os.path.dirname(path), exist_ok=True)
         self.path = path
         self.container = av.open(path, "w")
-        self.stream = self.container.add_stream(codec, rate=Fraction(fps).limit_denominator(1000),
+        stream: Any = self.container.add_stream(codec, rate=Fraction(fps).limit_denominator(1000),
                                                 options={"crf": str(crf)} if codec in ("libx264", "libsvtav1") else {})
         self.height, self.width = int(first.shape[0]), int(first.shape[1])
-        self.stream.width, self.stream.height, self.stream.pix_fmt = self.width, self.height, "yuv420p"
+        stream.width, stream.height, stream.pix_fmt = self.width, self.height, "yuv420p"
+        self.stream = stream
         self.frames = 0
         self.sums = np.zeros(3)  # per-channel sums for the stats, in [0, 1], on a subsampled grid
         self.squares = np.zeros(3)
@@ -333,11 +334,13 @@ class DatasetRecorder(Component):
                 self._waiting = str(missing)
             return
         self._waiting = ""
+        assert state is not None and action is not None  # (none is missing)
         joints = self.config.joint_names or list(action.name)  # the joints commanded (a gripper's fingers may not be)
         self.config.joint_names = joints
         self._frames["observation.state"].append(self._vector(state, joints, "position", state_topic))
         self._frames["action"].append(self._vector(action, joints, "position", action_topic))
         for cam, img in images.items():
+            assert img is not None
             key = f"observation.images.{cam}"
             video = self._videos.get(key)
             if video is None:

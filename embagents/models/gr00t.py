@@ -139,7 +139,7 @@ class Gr00tPolicyClient:
 
     def _socket(self) -> zmq.Socket:
         if self._sock is None:
-            sock = zmq.Context.instance().socket(zmq.REQ)
+            sock: Any = zmq.Context.instance().socket(zmq.REQ)
             sock.setsockopt(zmq.LINGER, 0)
             sock.connect(self.endpoint)
             self._sock = sock

@@ -213,7 +213,7 @@ class OpenPIPolicyClient:
 
             ssl_ctx = ssl.create_default_context(cafile=self.tls_ca) if self.tls_ca else ssl.create_default_context()
         # websockets >= 17.1 wants legacy=True for a connection held outside a with block (ours lives on)
-        legacy = {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
+        legacy: dict[str, Any] = {"legacy": True} if "legacy" in inspect.signature(connect).parameters else {}
         try:
             ws = connect(self.url, additional_headers=headers, compression=None, max_size=MAX_MESSAGE_BYTES,
                          open_timeout=timeout, ssl=ssl_ctx, proxy=None, ping_interval=None, **legacy)
