@@ -420,8 +420,15 @@ class DatasetRecorder(Component):
         os.makedirs(os.path.dirname(episodes), exist_ok=True)
         keys = sorted({k for row in self.episodes for k in row})
         pq.write_table(pa.Table.from_pylist([{k: row.get(k) for k in keys} for row in self.episodes]), episodes)
-        pq.write_table(pa.table({"task_index": pa.array(list(self.tasks.values()), pa.int64()),
-                                 "task": pa.array(list(self.tasks))}), os.path.join(root, "meta", "tasks.parquet"))
+        tasks = pa.table({"task_index": pa.array(list(self.tasks.values()), pa.int64()), "task": pa.array(list(self.tasks))})
+        # LeRobot reads this file with pandas, the task text as its index: say so as pandas itself would
+        pandas = {"index_columns": ["task"], "column_indexes": [], "creator": {"library": "pyarrow", "version": pa.__version__},
+                  "columns": [{"name": "task_index", "field_name": "task_index", "pandas_type": "int64",
+                               "numpy_type": "int64", "metadata": None},
+                              {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object",
+                               "metadata": None}], "pandas_version": "2.2.0"}
+        pq.write_table(tasks.replace_schema_metadata({b"pandas": json.dumps(pandas).encode()}),
+                       os.path.join(root, "meta", "tasks.parquet"))
         joints = self.config.joint_names
         features: dict[str, Any] = {
             "observation.state": {"dtype": "float32", "shape": self.shapes.get("observation.state", [len(joints)]),
