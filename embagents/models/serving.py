@@ -170,6 +170,10 @@ def _tts(path: str, options: dict[str, Any]) -> Any:
 
 
 def _policy(path: str, options: dict[str, Any]) -> Any:
+    if options.get("openpi"):  # also served over openpi's WebSocket protocol (embagents serve-policy)
+        from embagents.models.openpi_server import OpenPIPolicyServing
+
+        return OpenPIPolicyServing(path, options)
     from embagents.models.policy import PolicyServing
 
     return PolicyServing(path, options)
