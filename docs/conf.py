@@ -22,11 +22,11 @@ copyright = "the embagents authors, MIT licence"
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
-    "sphinx.ext.autosummary",
     "benchpage",  # docs/_ext/benchpage.py: the benchmark page from docs/bench/*.json
+    "apipages",  # docs/_ext/apipages.py: one API page per package, every module on it
 ]
 
-source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+source_suffix = {".md": "markdown"}
 exclude_patterns = ["_build", "bench", "speech_vad.py"]
 root_doc = "index"
 
@@ -35,8 +35,6 @@ myst_heading_anchors = 4
 myst_enable_extensions = ["colon_fence"]
 
 # The API reference: every public module's docstrings, members in source order.
-autosummary_generate = True
-autosummary_imported_members = False
 # A package's __init__ re-exports its modules' names: each is documented once, in its own module.
 autodoc_default_options = {"members": True, "show-inheritance": True, "member-order": "bysource",
                            "ignore-module-all": True}
