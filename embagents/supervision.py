@@ -15,13 +15,16 @@ Example::
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from embagents.models import models_of
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
 from embagents.runtime.model_actor import ModelActor
 from embagents.runtime.requests import EVENTS_ACTOR
+
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
 
 __all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec"]
 
@@ -32,7 +35,7 @@ HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0
 
 
-def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None) -> Any:
+def build_spec(system: System, path: str, resolved: dict[str, str] | None = None) -> Any:
     """The supervision tree of a System: model actors, the ROS bridge, components, events.
 
     ``resolved`` maps each model's name to its local file (``Model.resolve()``).

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -43,7 +44,7 @@ def code_blocks(lang: str) -> list[tuple[str, str | None, str]]:
 
 def _sphinx(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "sphinx", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=600, env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+                          timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +128,7 @@ def test_the_marked_python_blocks_run(tmp_path: Path) -> None:
         argv = ["-m", "embagents.cli", "check", str(script)] if marker == "embagents check" else [str(script)]
         assert marker in ("python", "embagents check"), f"{page}: unknown marker {marker!r}"
         proc = subprocess.run([sys.executable, *argv], cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                              env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
         assert proc.returncode == 0, f"{page}: the block marked {marker!r} failed:\n{code}\n{proc.stdout}{proc.stderr}"
 
 
@@ -160,7 +161,7 @@ def test_every_command_the_docs_name_exists_and_has_help() -> None:
               "        bad.append(cmd)\n"
               "print(bad)\nsys.exit(1 if bad else 0)\n")
     proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=120,
-                          env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 0, f"`embagents COMMAND --help` failed for {proc.stdout.strip()}\n{proc.stderr[-3000:]}"
 
 
@@ -173,3 +174,10 @@ def test_the_readme_is_a_front_door() -> None:
     assert 'python -m pip install -e ".[all]" && python -m pytest' in readme
     for link in re.findall(r"\]\((docs/[^)#]+)", readme):
         assert (ROOT / link).exists(), f"README.md links {link}, which is not there"
+
+
+def test_the_docs_extensions_doctests_pass() -> None:
+    proc = subprocess.run([sys.executable, "-m", "pytest", "--doctest-modules", "-q", "-p", "no:cacheprovider",
+                           "docs/_ext/benchpage.py", "docs/_ext/apipages.py"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 0, proc.stdout[-3000:]

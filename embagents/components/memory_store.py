@@ -8,7 +8,7 @@ Durability: WAL mode with ``synchronous=NORMAL`` (default) makes every
 committed item survive a SIGKILL of the process: a commit has written the
 item to the WAL file (the OS keeps it, whatever happens to the process);
 only a power loss can lose the last commits. ``durability="full"`` adds an
-fsync per commit for that too (slower, see the README's numbers).
+fsync per commit for that too (slower: the numbers are in docs/guides/memory-router.md).
 
 Semantic search runs in RAM over the unit float32 vectors (read back from
 the file on open: 150 MB per 100,000 items of 384 dimensions): exact
