@@ -284,7 +284,8 @@ class MemoryStore:
 
     def between(self, t0: float, t1: float, layer: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
         """Items stored in the time window [t0, t1], oldest first."""
-        sql, args = f"SELECT {self._COLS} FROM items i WHERE i.t BETWEEN ? AND ?", [float(t0), float(t1)]
+        sql = f"SELECT {self._COLS} FROM items i WHERE i.t BETWEEN ? AND ?"
+        args: list[object] = [float(t0), float(t1)]
         if layer is not None:
             sql += " AND i.layer = ?"
             args.append(layer)

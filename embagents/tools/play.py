@@ -97,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
         known = {r["name"] for r in rows}
         stopped: list[Stopped] = []
         publishers: dict[str, Publisher] = {}
-        count, start, last = 0, [], None
+        start: list[float] = []  # the first message's (wall clock, log time): set by _pace
+        count, last = 0, None
         with Attached(found) as seat:
             for path in args.files:
                 for topic, log_time, msg in read_messages(path, stopped):
