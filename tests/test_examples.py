@@ -57,7 +57,7 @@ def test_each_example_names_its_extras_and_the_readme_names_the_same() -> None:
     assert {n for n, _ in said} >= {"chat.py", "listen.py", "voice.py", "vision.py", "arm.py", "memory.py",
                                     "ros_chat.py"}, said
     for name, extras in said:
-        assert sorted(extras.split(",")) == sorted(documented_extras(name)), (
+        assert sorted(extras.split(",") if extras else []) == sorted(documented_extras(name)), (
             f"the README installs {extras!r} for examples/{name}; its docstring: {documented_extras(name)}")
 
 

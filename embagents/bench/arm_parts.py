@@ -38,7 +38,7 @@ TARGET = [2.0, 1.0, 2.0, -0.5, 2.0, 3.0, 2.0]
 
 
 def jitter_ms(stamps: list[float], period_s: float) -> list[float]:
-    """|interval - period| in ms for each pair of consecutive ``stamps`` (seconds)."""
+    """``|interval - period|`` in ms for each pair of consecutive ``stamps`` (seconds)."""
     return [round(abs(b - a - period_s) * 1000.0, 6) for a, b in zip(stamps, stamps[1:], strict=False)]
 
 

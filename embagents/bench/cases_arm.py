@@ -4,7 +4,7 @@
   (:func:`embagents.bench.arm_parts.vla_system`): joint states from the Sim's
   process -> the VLA's process -> the ONNX policy's model actor (a chunk of 10
   every 5 ticks) -> a clipped command -> the Sim, at 50 Hz. ``p99_jitter_ms``
-  = p99 of |period - 20 ms| between command arrivals at the Sim;
+  = p99 of ``|period - 20 ms|`` between command arrivals at the Sim;
   ``inprocess_p99_jitter_ms``: the same physics, policy and clipping in one
   process, one loop. Bar: p99 jitter <= 2 ms, and <= in-process + 1 ms.
 - ``gil_isolation``: a 100 Hz control component's tick jitter (how late each

@@ -69,7 +69,7 @@ def _bar(name: str, value: float | None, op: str, target: float, unit: str) -> d
 
 
 def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
-    """The issue's bars, each with its measured value and ``pass`` (None if not measured or not ``grade``d)."""
+    """The issue's bars, each with its measured value and ``pass`` (None if not measured, or with ``grade=False``)."""
     bars = []
     for size in SIZES:
         ours, raw = _find(rows, "embagents", "ask", size), _find(rows, "pyzmq", "ask", size)

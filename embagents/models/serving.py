@@ -239,4 +239,4 @@ def make_serving(kind: str, path: str, options: dict[str, Any]) -> Serving:
         factory = _KINDS[kind]
     except KeyError:
         raise ValueError(f"no backend serves model kind {kind!r}; known: {', '.join(serving_kinds())}") from None
-    return factory(path, options)  # type: ignore[no-any-return]
+    return factory(path, options)
