@@ -62,7 +62,7 @@ class RosBridgeActor(Actor):
         self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
     def _declarations(self) -> tuple[list[Any], list[Any]]:
-        from embagents.ros.spec import QoS, RosInput, RosOutput
+        from embagents.ros.spec import DEFAULT_ROS_TYPE, QoS, RosInput, RosOutput
 
         if self.system_path is not None:
             from embagents.runtime.component_actor import loaded_system
@@ -71,7 +71,12 @@ class RosBridgeActor(Actor):
             ins = [d for d in system.ros if isinstance(d, RosInput)]
             outs = [d for d in system.ros if isinstance(d, RosOutput)]
             topics = system.topics
-            outs = [o.resolved(topics[o.topic].msg_type) if o.ros_type is None and o.topic in topics else o for o in outs]
+            outs = [
+                o.resolved(topics[o.topic].msg_type)
+                if o.ros_type is None and o.topic in topics and topics[o.topic].msg_type in DEFAULT_ROS_TYPE
+                else o
+                for o in outs
+            ]
             return ins, outs
 
         def build(cls: type, d: dict[str, Any]) -> Any:

@@ -39,10 +39,10 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from actors import private_file
-from embagents.msgs import StreamingString
+from embagents.msgs import RosMessage, StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
-from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, ros_type_for
+from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, normalize_ros_type, ros_type_for
 
 __all__ = ["RosBridgeCore", "configure_fastdds_shm", "qos_profile"]
 
@@ -238,6 +238,8 @@ class RosBridgeCore:
         if out is None:
             declared = ", ".join(sorted(self._outputs)) or "none"
             raise ValueError(f"no RosOutput is declared for internal topic {internal_topic!r}; declared: {declared}")
+        if out.ros_type is None and isinstance(msg, RosMessage) and msg.ros_type:
+            out = attrs.evolve(out, ros_type=normalize_ros_type(msg.ros_type))
         ros_type = out.ros_type or self._ros_type_of(out, msg)
         accepted = out.accepts if out.ros_type else (type(msg),)
         if type(msg) not in accepted:
@@ -254,7 +256,7 @@ class RosBridgeCore:
                 raise RuntimeError(f"cannot publish on {internal_topic!r}: RosBridgeCore is not started")
             pub = run.publishers.get(internal_topic)
             if pub is None:  # output declared without ros_type: its first message fixes the type
-                out = self._outputs[internal_topic] = out.resolved(type(msg))
+                out = self._outputs[internal_topic] = out if out.ros_type else out.resolved(type(msg))
                 pub = run.publishers[internal_topic] = _create_publisher(run.node, out, run.on_matched)
             pub.publish(ros_msg)
         self.counts[internal_topic].published += 1

@@ -65,6 +65,7 @@ quotes this layout.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import re
 
 import attrs
@@ -73,9 +74,18 @@ from embagents.msgs import (
     CompressedImage,
     Detections,
     Image,
+    Imu,
     JointState,
+    JointTrajectory,
+    LaserScan,
     OccupancyGrid,
     Odometry,
+    Point,
+    PointCloud2,
+    Pose,
+    PoseStamped,
+    Quaternion,
+    RosMessage,
     StreamingString,
     String,
     Twist,
@@ -90,9 +100,12 @@ __all__ = [
     "RosOutput",
     "SUPPORTED",
     "check_bridge",
+    "msg_class_for",
     "normalize_ros_type",
     "ros_available",
+    "ros_interface_class",
     "ros_type_for",
+    "wheel_for",
 ]
 
 #: ROS type (``pkg/msg/Name``) -> our message class, both directions.
@@ -105,11 +118,19 @@ SUPPORTED: dict[str, type] = {
     "nav_msgs/msg/OccupancyGrid": OccupancyGrid,
     "sensor_msgs/msg/JointState": JointState,
     "sensor_msgs/msg/PointCloud": Detections,
+    "geometry_msgs/msg/Point": Point,
+    "geometry_msgs/msg/Quaternion": Quaternion,
+    "geometry_msgs/msg/Pose": Pose,
+    "geometry_msgs/msg/PoseStamped": PoseStamped,
+    "sensor_msgs/msg/Imu": Imu,
+    "sensor_msgs/msg/LaserScan": LaserScan,
+    "sensor_msgs/msg/PointCloud2": PointCloud2,
+    "trajectory_msgs/msg/JointTrajectory": JointTrajectory,
 }
 
-#: ROS type -> our classes accepted on a RosOutput of that type.
-OUTGOING: dict[str, tuple[type, ...]] = {k: (v,) for k, v in SUPPORTED.items()}
-OUTGOING["std_msgs/msg/String"] = (String, StreamingString)
+#: ROS type -> our classes accepted on a RosOutput of that type (a RosMessage of that type always is).
+OUTGOING: dict[str, tuple[type, ...]] = {k: (v, RosMessage) for k, v in SUPPORTED.items()}
+OUTGOING["std_msgs/msg/String"] = (String, StreamingString, RosMessage)
 
 #: Our class -> the ROS type used when a RosOutput gives none.
 DEFAULT_ROS_TYPE: dict[type, str] = {v: k for k, v in SUPPORTED.items()}
@@ -122,33 +143,71 @@ _DURABILITY = ("volatile", "transient_local")
 # ROS 2 topic names: tokens of [A-Za-z0-9_] not starting with a digit, joined by '/'.
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 _ROS_NAME = re.compile(rf"^/?{_TOKEN}(/{_TOKEN})*$")
-_ROS_TYPE = re.compile(rf"^({_TOKEN})/(?:msg/)?({_TOKEN})$")
+_ROS_TYPE = re.compile(rf"^({_TOKEN})/(?:(msg|srv|action)/)?({_TOKEN})$")
 
 
-def _supported_text() -> str:
-    return ", ".join(sorted(SUPPORTED))
+def wheel_for(package: str) -> str:
+    """The PyPI wheel that installs ROS package ``package``.
+
+    >>> wheel_for("vision_msgs")
+    'ros-vision-msgs'
+    """
+    return "ros-" + package.replace("_", "-")
 
 
-def normalize_ros_type(ros_type: str) -> str:
+def normalize_ros_type(ros_type: str, kind: str = "msg") -> str:
     """``"std_msgs/String"`` or ``"std_msgs/msg/String"`` -> ``"std_msgs/msg/String"``.
 
-    Raises ValueError for a malformed or unsupported type, naming the supported ones.
+    ``kind`` is ``msg``, ``srv`` or ``action``. A type with a class of its own
+    (:data:`SUPPORTED`) is accepted without ROS installed; any other must be
+    installed (its Python module is imported, not rclpy). Raises ValueError
+    for a malformed type, a package that is not installed (naming the wheel)
+    or a name the package does not define (naming the ones it does).
 
     >>> normalize_ros_type("geometry_msgs/Twist")
     'geometry_msgs/msg/Twist'
     """
     if not isinstance(ros_type, str):
-        raise TypeError(f"ros_type must be a str like 'std_msgs/msg/String', got {ros_type!r}")
+        raise TypeError(f"ros_type must be a str like 'std_msgs/{kind}/Name', got {ros_type!r}")
     m = _ROS_TYPE.match(ros_type.strip())
-    if m is None:
-        raise ValueError(
-            f"malformed ROS type {ros_type!r}: write 'package/msg/Name' or 'package/Name'; "
-            f"supported: {_supported_text()}"
-        )
-    full = f"{m.group(1)}/msg/{m.group(2)}"
+    if m is None or (m.group(2) not in (None, kind)):
+        raise ValueError(f"malformed ROS {kind} type {ros_type!r}: write 'package/{kind}/Name' or 'package/Name'")
+    full = f"{m.group(1)}/{kind}/{m.group(3)}"
     if full not in SUPPORTED:
-        raise ValueError(f"unsupported ROS type {ros_type!r}; supported: {_supported_text()}")
+        ros_interface_class(full)  # raises the errors above
     return full
+
+
+def ros_interface_class(full: str) -> type:
+    """The Python class of an installed ROS interface ``pkg/(msg|srv|action)/Name`` (imports no rclpy)."""
+    pkg, kind, name = full.split("/")
+    try:
+        spec = importlib.util.find_spec(pkg)
+    except (ImportError, ValueError):
+        spec = None
+    if spec is None:
+        raise ValueError(
+            f"ROS type {full!r}: package {pkg!r} is not installed; pip install {wheel_for(pkg)} "
+            f"(types with a class of their own need no install: {', '.join(sorted(SUPPORTED))})"
+        )
+    try:
+        module = importlib.import_module(f"{pkg}.{kind}")
+    except ImportError as e:
+        raise ValueError(f"ROS type {full!r}: package {pkg!r} has no {kind} types ({e})") from None
+    cls = getattr(module, name, None)
+    if not isinstance(cls, type):
+        have = ", ".join(sorted(n for n, v in vars(module).items() if isinstance(v, type) and not n.startswith("_")))
+        raise ValueError(f"ROS type {full!r}: {pkg} has no {kind} {name!r}; it has: {have or 'none'}")
+    return cls
+
+
+def msg_class_for(ros_type: str) -> type:
+    """Our message class carrying ROS type ``ros_type`` (a :class:`~embagents.msgs.RosMessage` if none is mapped).
+
+    >>> msg_class_for("sensor_msgs/msg/Imu").__name__
+    'Imu'
+    """
+    return SUPPORTED.get(ros_type, RosMessage)
 
 
 def ros_type_for(msg_class: type) -> str:
@@ -237,7 +296,7 @@ class RosInput:
     @property
     def msg_type(self) -> type:
         """Our message class published on the internal topic."""
-        return SUPPORTED[self.ros_type]
+        return msg_class_for(self.ros_type)
 
 
 @attrs.define(frozen=True)
@@ -249,7 +308,7 @@ class RosOutput:
     call :meth:`resolved`) to have the publisher discoverable from the start.
 
     >>> RosOutput("answer", ros_type="std_msgs/String").accepts
-    (<class 'embagents.msgs.String'>, <class 'embagents.msgs.StreamingString'>)
+    (<class 'embagents.msgs.String'>, <class 'embagents.msgs.StreamingString'>, <class 'embagents.msgs.RosMessage'>)
     """
 
     topic: str
@@ -277,15 +336,17 @@ class RosOutput:
         """Our message classes this output publishes (all mapped ones while ros_type is unset)."""
         if self.ros_type is None:
             return tuple(DEFAULT_ROS_TYPE)
-        return OUTGOING[self.ros_type]
+        return OUTGOING.get(self.ros_type, (RosMessage,))
 
     def resolved(self, msg_class: type) -> RosOutput:
         """This output with ``ros_type`` filled in from the internal topic's message class."""
+        if self.ros_type is not None and msg_class is RosMessage:
+            return self
         ros_type = ros_type_for(msg_class)
-        if self.ros_type is not None and msg_class not in OUTGOING[self.ros_type]:
+        if self.ros_type is not None and msg_class not in self.accepts:
             raise TypeError(
                 f"RosOutput({self.topic!r}) is declared as {self.ros_type}, which carries "
-                f"{', '.join(c.__name__ for c in OUTGOING[self.ros_type])}, but the topic "
+                f"{', '.join(c.__name__ for c in self.accepts)}, but the topic "
                 f"carries {msg_class.__name__}"
             )
         return attrs.evolve(self, ros_type=self.ros_type or ros_type)
