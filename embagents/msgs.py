@@ -318,15 +318,22 @@ class Health:
     stamp: float = 0.0
 
 
+# Converters of nested fields: the class itself, a tuple, or a dict of its fields (JSON, YAML).
 def _point(v: object) -> Point:
+    if isinstance(v, dict):
+        return Point(**v)
     return v if isinstance(v, Point) else Point(*_vec3(v))
 
 
 def _quaternion(v: object) -> Quaternion:
+    if isinstance(v, dict):
+        return Quaternion(**v)
     return v if isinstance(v, Quaternion) else Quaternion(*_quat(v))
 
 
 def _pose(v: object) -> Pose:
+    if isinstance(v, dict):
+        return Pose(**v)
     if isinstance(v, Pose):
         return v
     position, orientation = v  # type: ignore[misc]

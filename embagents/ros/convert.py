@@ -69,7 +69,13 @@ from embagents.msgs import (
     Twist,
 )
 from embagents.ros.generic import generic_from_ros, generic_to_ros
-from embagents.ros.spec import DEFAULT_ROS_TYPE, OUTGOING, SUPPORTED, normalize_ros_type, ros_interface_class
+from embagents.ros.spec import (
+    DEFAULT_ROS_TYPE,
+    OUTGOING,
+    SUPPORTED,
+    normalize_ros_type,
+    ros_interface_class,
+)
 
 __all__ = [
     "ENCODINGS",

@@ -42,7 +42,14 @@ from actors import private_file
 from embagents.msgs import RosMessage, StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
-from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, normalize_ros_type, ros_type_for
+from embagents.ros.spec import (
+    QoS,
+    RosInput,
+    RosOutput,
+    check_bridge,
+    normalize_ros_type,
+    ros_type_for,
+)
 
 __all__ = ["RosBridgeCore", "configure_fastdds_shm", "qos_profile"]
 

@@ -467,7 +467,7 @@ def test_generic_bad_fields_are_named():
     with pytest.raises(ValueError, match="field 'status.status'"):
         to_ros(RosMessage("sensor_msgs/msg/NavSatFix", {"status": {"status": "fixed"}}))
     with pytest.raises(AttributeError, match="NavSatFix has no field 'lat'; its fields: latitude"):
-        RosMessage("sensor_msgs/msg/NavSatFix", {"latitude": 1.0}).lat
+        _ = RosMessage("sensor_msgs/msg/NavSatFix", {"latitude": 1.0}).lat
 
 
 def test_generic_messages_cross_processes_through_the_codec():
