@@ -23,10 +23,12 @@ participant gets a new immediate answer), up to ``REDISCOVER_TRIES`` times.
 
 from __future__ import annotations
 
+import json
 import logging
+import time
 from typing import Any
 
-from actors import Actor
+from actors import Actor, ActorRef
 from actors.errors import UnknownMessage
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
 
@@ -52,17 +54,19 @@ class RosBridgeActor(Actor):
         node_name: str = "embagents_bridge",
         inputs: list[dict[str, Any]] | None = None,
         outputs: list[dict[str, Any]] | None = None,
+        services: list[dict[str, Any]] | None = None,
     ) -> None:
         self.system_path = system_path
         self.node_name = node_name
         self.raw_inputs = inputs or []
         self.raw_outputs = outputs or []
+        self.raw_services = services or []
         # Set by restore() from the last incarnation's snapshot:
         self.peer_ros_topics: frozenset[str] = frozenset()
         self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
-    def _declarations(self) -> tuple[list[Any], list[Any]]:
-        from embagents.ros.spec import DEFAULT_ROS_TYPE, QoS, RosInput, RosOutput
+    def _declarations(self) -> tuple[list[Any], list[Any], list[Any]]:
+        from embagents.ros.spec import DEFAULT_ROS_TYPE, QoS, RosInput, RosOutput, RosService
 
         if self.system_path is not None:
             from embagents.runtime.component_actor import loaded_system
@@ -70,6 +74,7 @@ class RosBridgeActor(Actor):
             system = loaded_system(self.system_path)
             ins = [d for d in system.ros if isinstance(d, RosInput)]
             outs = [d for d in system.ros if isinstance(d, RosOutput)]
+            services = [d for d in system.ros if isinstance(d, RosService)]
             topics = system.topics
             outs = [
                 o.resolved(topics[o.topic].msg_type)
@@ -77,7 +82,7 @@ class RosBridgeActor(Actor):
                 else o
                 for o in outs
             ]
-            return ins, outs
+            return ins, outs, services
 
         def build(cls: type, d: dict[str, Any]) -> Any:
             d = dict(d)
@@ -85,7 +90,11 @@ class RosBridgeActor(Actor):
                 d["qos"] = QoS(**d["qos"])
             return cls(**d)
 
-        return [build(RosInput, d) for d in self.raw_inputs], [build(RosOutput, d) for d in self.raw_outputs]
+        return (
+            [build(RosInput, d) for d in self.raw_inputs],
+            [build(RosOutput, d) for d in self.raw_outputs],
+            [build(RosService, d) for d in self.raw_services],
+        )
 
     def on_start(self) -> None:
         from embagents.ros.node import RosBridgeCore
@@ -96,10 +105,11 @@ class RosBridgeActor(Actor):
             clean_zombie_fastdds_segments(min_age=0, names=self.predecessor_dds_files)
         self.dds_files: set[str] = set()
 
-        ins, outs = self._declarations()
+        ins, outs, services = self._declarations()
         self.forwarded_in = 0
         self.forwarded_out = 0
-        self.core = RosBridgeCore(ins, outs)
+        self.served = 0
+        self.core = RosBridgeCore(ins, outs, services, self._serve)
         ctx = self.context
         expected, self.peers = set(self.peer_ros_topics), set(self.peer_ros_topics)
 
@@ -171,10 +181,51 @@ class RosBridgeActor(Actor):
         except TypeError as exc:
             log.error("not sent to ROS: %s", exc)
 
+    def _serve(self, decl: Any, request: Any, response: Any) -> Any:
+        """One request of a RosService (the core's service thread): ask the component, fill the response."""
+        from embagents.msgs import RosMessage
+        from embagents.ros.generic import generic_from_ros, generic_to_ros
+        from embagents.runtime.requests import Call
+
+        names = response.get_fields_and_field_types()
+        status = "success" in names and "message" in names  # std_srvs/Trigger, SetBool and the like
+        where = f"ROS service {decl.ros_name} -> {decl.component}.{decl.method}"
+        try:
+            call = Call(decl.method, kwargs=generic_from_ros(request).fields, deadline=time.monotonic() + decl.timeout)
+            value = ActorRef(decl.component).ask(call, timeout=decl.timeout).get()
+        except Exception as exc:  # noqa: BLE001 - every failure is the caller's answer, not our crash
+            log.warning("%s failed: %s", where, exc)
+            if status:
+                response.success, response.message = False, f"{decl.component}.{decl.method}: {exc}"[:4000]
+            return response
+        self.served += 1
+        if isinstance(value, (dict, RosMessage)):
+            try:
+                return generic_to_ros(value, type(response))
+            except ValueError as exc:  # a type mismatch: the method's answer does not fit the response
+                log.error("%s: its answer does not fit %s: %s", where, decl.srv_type, exc)
+                if status:
+                    response.success, response.message = False, f"answer does not fit {decl.srv_type}: {exc}"
+                return response
+        if status:
+            response.success = value if isinstance(value, bool) else True
+            response.message = "" if value is None or isinstance(value, bool) else (
+                value if isinstance(value, str) else json.dumps(value, default=str))
+            return response
+        log.error("%s returned a %s; a %s response needs a dict of its fields (%s)",
+                  where, type(value).__name__, decl.srv_type, ", ".join(names))
+        return response
+
     def on_receive(self, message: Any) -> Any:
+        from embagents.ros.spec import RosCall
+
+        if isinstance(message, RosCall):
+            from embagents.ros.generic import generic_from_ros
+
+            return generic_from_ros(self.core.call(message.ros_name, message.srv_type, message.fields, message.timeout))
         if message == "stats":
-            return {"in": self.forwarded_in, "out": self.forwarded_out}
-        raise UnknownMessage("the ROS bridge", message, "it answers 'stats'")
+            return {"in": self.forwarded_in, "out": self.forwarded_out, "served": self.served}
+        raise UnknownMessage("the ROS bridge", message, "it answers 'stats' and RosCall")
 
     def on_stop(self) -> None:
         self.core.stop()

@@ -67,9 +67,11 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import re
+from typing import Any
 
 import attrs
 
+from actors.codec import message
 from embagents.msgs import (
     CompressedImage,
     Detections,
@@ -97,12 +99,15 @@ __all__ = [
     "QoS",
     "ROS_EXTRA_HINT",
     "RosInput",
+    "RosCall",
     "RosOutput",
+    "RosService",
     "SUPPORTED",
     "check_bridge",
     "msg_class_for",
     "normalize_ros_type",
     "ros_available",
+    "ros_call",
     "ros_interface_class",
     "ros_type_for",
     "wheel_for",
@@ -352,7 +357,89 @@ class RosOutput:
         return attrs.evolve(self, ros_type=self.ros_type or ros_type)
 
 
-def check_bridge(inputs: list[RosInput], outputs: list[RosOutput]) -> None:
+def _positive_seconds(_inst: object, attr: Any, value: object) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 3600:
+        raise ValueError(f"{attr.name} must be seconds > 0 (and < 3600), got {value!r}")
+
+
+def _srv_type(value: str) -> str:
+    return normalize_ros_type(value, "srv")
+
+
+@attrs.define(frozen=True)
+class RosService:
+    """Serve ``component.method`` as the ROS service ``ros_name`` of type ``srv_type``.
+
+    The request's fields are the method's keyword arguments. Its return value
+    fills the response: a dict (or RosMessage) of the response's fields; for a
+    response with ``success`` and ``message`` (``std_srvs/Trigger``,
+    ``SetBool``) any other value is the message text with ``success=True``, and
+    an exception (or no answer within ``timeout`` s) ``success=False`` with the
+    error as the message.
+
+    >>> RosService("/memory/locate", "std_srvs/Trigger", component="memory", method="locate").srv_type
+    'std_srvs/srv/Trigger'
+    """
+
+    ros_name: str
+    srv_type: str = attrs.field(converter=_srv_type)
+    component: str = attrs.field(kw_only=True)
+    method: str = attrs.field(kw_only=True)
+    timeout: float = attrs.field(default=10.0, kw_only=True, validator=_positive_seconds)
+
+    def __attrs_post_init__(self) -> None:
+        _check_ros_name("RosService", self.ros_name)
+        for what in ("component", "method"):
+            v = getattr(self, what)
+            if not isinstance(v, str) or not v.isidentifier() and what == "method" or not v:
+                raise ValueError(f"RosService({self.ros_name!r}): {what} must be a non-empty name, got {v!r}")
+
+
+@message("embagents/RosCall")
+@attrs.define
+class RosCall:
+    """A request to the bridge: call ROS service ``ros_name`` (see :func:`ros_call`)."""
+
+    ros_name: str
+    srv_type: str
+    fields: dict[str, Any] = attrs.field(factory=dict)
+    timeout: float = 5.0
+
+
+def ros_call(ros_name: str, srv_type: str, timeout: float = 5.0, **fields: Any) -> RosMessage:
+    """Call ROS service ``ros_name`` through the system's bridge; returns the response.
+
+    For a component method or an LLM tool of a system with a ROS bridge.
+    Request ``fields`` as keyword arguments (nested messages as dicts).
+    Raises TimeoutError when no server answers within ``timeout`` s (no
+    server, a server that vanished mid-call), ValueError for a type mismatch
+    or a field the request type lacks, RuntimeError without a bridge.
+
+    Example (in a component)::
+
+        reply = ros_call("/arm/home", "std_srvs/Trigger", timeout=10)
+        if not reply.success: ...
+    """
+    from actors import ActorRef
+    from actors.errors import RemoteError, Timeout
+    from embagents.ros.bridge_actor import BRIDGE_NAME
+
+    _check_ros_name("ros_call", ros_name)
+    full = normalize_ros_type(srv_type, "srv")
+    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or timeout <= 0:
+        raise ValueError(f"ros_call timeout must be seconds > 0, got {timeout!r}")
+    try:
+        return ActorRef(BRIDGE_NAME).ask(RosCall(ros_name, full, fields, float(timeout)), timeout=timeout + 5).get()
+    except Timeout:
+        raise TimeoutError(f"ros_call {ros_name}: the ROS bridge did not answer within {timeout + 5:.1f} s "
+                           "(does this system declare ros=[...]?)") from None
+    except RemoteError as e:  # the bridge's own error, without its traceback
+        kinds: dict[str, type[Exception]] = {"TimeoutError": TimeoutError, "ValueError": ValueError,
+                                             "TypeError": ValueError}
+        raise kinds.get(e.exc_type, RuntimeError)(e.remote_message) from None
+
+
+def check_bridge(inputs: list[RosInput], outputs: list[RosOutput], services: list[RosService] = ()) -> None:  # type: ignore[assignment]
     """Reject wiring the bridge cannot serve unambiguously (raises ValueError).
 
     - two outputs for one internal topic (which ROS topic would ``publish`` use?);
@@ -382,6 +469,14 @@ def check_bridge(inputs: list[RosInput], outputs: list[RosOutput]) -> None:
         other = ros_types.setdefault(key, d.ros_type)
         if other != d.ros_type:
             raise ValueError(f"ROS topic {key!r} is declared both as {other} and as {d.ros_type}")
+    names: dict[str, RosService] = {}
+    for sv in services:
+        if not isinstance(sv, RosService):
+            raise TypeError(f"services must be RosService, got {sv!r}")
+        key = "/" + sv.ros_name.lstrip("/")
+        if key in names:
+            raise ValueError(f"ROS service {key!r} is declared twice: {names[key]} and {sv}")
+        names[key] = sv
     for i in inputs:
         o = seen_out.get(i.topic)
         if o is not None and o.ros_topic.lstrip("/") == i.ros_topic.lstrip("/"):

@@ -1,0 +1,132 @@
+"""ROS services both ways through the bridge, against a plain rclpy peer in another process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
+pytest.importorskip("std_srvs", reason="needs the std_srvs wheel: pip install ros-std-srvs")
+
+DOMAIN_ID = 81 + os.getpid() % 60
+
+SYSTEM = '''
+from embagents import Component, String, System, Topic
+from embagents.ros import RosInput, RosOutput, RosService, ros_call
+
+go, homed = Topic("go", String), Topic("homed", String)
+
+
+class Memory(Component):
+    def locate(self):
+        return "the cup is on the kitchen table"
+
+    def fail(self):
+        raise RuntimeError("no map loaded")
+
+
+class Homer(Component):
+    allowed_inputs = {"Required": [String]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        reply = ros_call("/arm/home", "std_srvs/Trigger", timeout=5)
+        results = [f"{reply.success}:{reply.message}"]
+        for name, srv_type in (("/arm/missing", "std_srvs/Trigger"), ("/arm/home", "std_srvs/SetBool")):
+            try:
+                ros_call(name, srv_type, timeout=1)
+            except Exception as e:
+                results.append(f"{type(e).__name__}: {e}")
+        self.publish(homed, String(data=" | ".join(results)))
+
+
+system = System(
+    [Memory(name="memory", trigger=None), Homer(name="homer", inputs=[go], outputs=[homed], trigger=go)],
+    ros=[RosService("/memory/locate", "std_srvs/Trigger", component="memory", method="locate"),
+         RosService("/memory/fail", "std_srvs/Trigger", component="memory", method="fail"),
+         RosInput("/go", "std_msgs/String"), RosOutput("homed", ros_type="std_msgs/String")],
+)
+'''
+
+PEER = r"""
+import sys, time, rclpy
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+deadline = time.time() + float(sys.argv[1])
+rclpy.init()
+node = rclpy.create_node("arm_peer")
+def home(request, response):
+    response.success, response.message = True, "homed"
+    return response
+node.create_service(Trigger, "/arm/home", home)
+pub = node.create_publisher(String, "/go", 10)
+got = []
+node.create_subscription(String, "/homed", lambda m: got.append(m.data), 10)
+for name in ("/memory/locate", "/memory/fail"):
+    client = node.create_client(Trigger, name)
+    if not client.wait_for_service(timeout_sec=max(1.0, deadline - time.time())):
+        print("NO SERVICE", name, flush=True)
+        continue
+    future = client.call_async(Trigger.Request())
+    rclpy.spin_until_future_complete(node, future, timeout_sec=10)
+    r = future.result()
+    print("SERVED", name, r.success if r else None, r.message if r else None, flush=True)
+while not got and time.time() < deadline:
+    pub.publish(String(data="go"))
+    end = time.time() + 1.0
+    while not got and time.time() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+print("CALLED", got[0] if got else "nothing", flush=True)
+"""
+
+
+@pytest.fixture
+def ros_env(monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(DOMAIN_ID))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return dict(os.environ)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> str:
+    tmp_path = tmp_path_factory.mktemp("services")
+    env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN_ID), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(SYSTEM))
+    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        out = subprocess.run([sys.executable, "-c", PEER, "60"], capture_output=True, text=True, env=env, timeout=120)
+    finally:
+        sup.send_signal(signal.SIGTERM)
+        log, _ = sup.communicate(timeout=30)
+    assert sup.returncode == 0, log
+    return out.stdout + out.stderr + "\n--- supervisor log ---\n" + log
+
+
+def test_a_component_method_is_served_as_a_trigger_service(session: str) -> None:
+    assert "SERVED /memory/locate True the cup is on the kitchen table" in session, session
+
+
+def test_a_failing_method_answers_success_false_with_its_error(session: str) -> None:
+    assert "SERVED /memory/fail False memory.fail: " in session and "no map loaded" in session, session
+
+
+def test_a_component_calls_a_ros_service(session: str) -> None:
+    assert "CALLED True:homed | " in session, session
+
+
+def test_a_missing_service_is_a_timeout_naming_it(session: str) -> None:
+    assert "TimeoutError: ROS service /arm/missing did not answer within 1" in session, session
+    assert "no server for it is up" in session, session
+
+
+def test_a_type_mismatch_is_named(session: str) -> None:
+    assert "ValueError: ROS service /arm/home is a std_srvs/srv/Trigger, not a std_srvs/srv/SetBool (a type mismatch)" \
+        in session, session
