@@ -45,7 +45,7 @@ if kind == "imu":
     msg.linear_acceleration.z = 9.81
 else:
     pub = node.create_publisher(PointCloud2, "/bench_cloud", 2)
-    pts = np.random.default_rng(0).standard_normal((%d, 4)).astype(np.float32)
+    pts = np.random.default_rng(0).standard_normal((POINTS, 4)).astype(np.float32)
     msg = PointCloud2(height=1, width=len(pts), point_step=16, row_step=16 * len(pts), is_dense=True,
                       fields=[PointField(name=c, offset=4 * i, datatype=7, count=1) for i, c in enumerate("xyz") ]
                       + [PointField(name="intensity", offset=12, datatype=7, count=1)])
@@ -53,10 +53,10 @@ else:
 time.sleep(warm)  # discovery
 for i in range(n):
     t = time.monotonic_ns()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = t // 10**9, t %% 10**9
+    msg.header.stamp.sec, msg.header.stamp.nanosec = t // 10**9, t % 10**9
     pub.publish(msg)
     time.sleep(period)
-""" % POINTS
+""".replace("POINTS", str(POINTS))
 
 SUBSCRIBER = r"""
 import json, sys, time, rclpy
