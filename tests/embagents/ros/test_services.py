@@ -85,8 +85,6 @@ print("CALLED", got[0] if got else "nothing", flush=True)
 """
 
 
-@pytest.fixture
-
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> str:
     tmp_path = tmp_path_factory.mktemp("services")
