@@ -65,6 +65,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_remote,
     cases_ros_bridge,
     cases_ros_generic,
+    cases_ros_service,
     cases_ros_recovery,
     cases_speech,
     cases_supervisor,

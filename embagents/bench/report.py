@@ -118,6 +118,8 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("ros_bridge_image", "ROS bridge 6.2MB image p50 / plain rclpy", "ratio", "<=", 1.5, "x", 1.0),
         ("ros_generic", "ROS bridge Imu 200 Hz p50 / plain rclpy", "imu_ratio", "<=", 1.5, "x", 1.0),
         ("ros_generic", "ROS bridge PointCloud2 100k points p50 / plain rclpy", "cloud_ratio", "<=", 1.5, "x", 1.0),
+        ("ros_service", "ROS Trigger call to a component via the bridge p50 / plain rclpy", "ratio", "<=", 2.0, "x",
+         1.0),
         ("remote_model", "LLM tokens/s via TCP + CURVE / via ipc", "llm_ratio", ">=", 0.95, "x", 1.0),
         ("remote_model", "640x480 detection p50 via TCP + CURVE / via ipc", "detect_ratio", "<=", 1.5, "x", 1.0),
         ("ros_bridge_recovery", "ROS bridge SIGKILLed mid-stream: flow back (max)", "max_us", "<=", 2.0, "s", 1e-6),

@@ -194,9 +194,11 @@ class RosBridgeActor(Actor):
             call = Call(decl.method, kwargs=generic_from_ros(request).fields, deadline=time.monotonic() + decl.timeout)
             value = ActorRef(decl.component).ask(call, timeout=decl.timeout).get()
         except Exception as exc:  # noqa: BLE001 - every failure is the caller's answer, not our crash
-            log.warning("%s failed: %s", where, exc)
+            text = f"no answer within {decl.timeout} s" if "Timeout" in type(exc).__name__ else str(exc)
+            text = getattr(exc, "remote_message", text)  # a RemoteError: the method's own error, no traceback
+            log.warning("%s failed: %s", where, text)
             if status:
-                response.success, response.message = False, f"{decl.component}.{decl.method}: {exc}"[:4000]
+                response.success, response.message = False, f"{decl.component}.{decl.method}: {text}"[:4000]
             return response
         self.served += 1
         if isinstance(value, (dict, RosMessage)):
