@@ -99,7 +99,7 @@ def _ros_available_elsewhere() -> tuple[bool, str]:
 
 def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
     """(topics the bridge provides, RosOutputs, problems)."""
-    from embagents.ros.spec import RosInput, RosOutput, RosService, check_bridge
+    from embagents.ros.spec import RosInput, RosLifecycle, RosOutput, RosService, check_bridge
 
     provided, outs, problems = [], [], []
     ins = [d for d in system.ros if isinstance(d, RosInput)]
@@ -107,8 +107,14 @@ def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any]
     services = [d for d in system.ros if isinstance(d, RosService)]
     by_name = {str(c.name): c for c in system.components}
     for d in system.ros:
-        if not isinstance(d, (RosInput, RosOutput, RosService)):
-            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput, RosOutput or RosService"))
+        if not isinstance(d, (RosInput, RosOutput, RosService, RosLifecycle)):
+            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput, RosOutput, RosService "
+                                    "or RosLifecycle"))
+        elif isinstance(d, RosLifecycle):
+            for c in d.components or ():
+                if c not in by_name:
+                    problems.append(Problem(None, "ros", f"RosLifecycle names component {c!r}, which this system "
+                                            f"does not have; components: {', '.join(by_name) or 'none'}"))
     for sv in services:
         comp = by_name.get(sv.component)
         if comp is None:

@@ -102,6 +102,7 @@ class _Running:
     services_thread: threading.Thread | None = None
     wake_services: GuardCondition | None = None
     clients: dict[tuple[str, str], Any] = attrs.field(factory=dict)  # (service, type) -> rclpy Client
+    raw_publishers: dict[str, Any] = attrs.field(factory=dict)  # ROS topic -> publisher of publish_ros
 
 
 class _ServedElsewhere(ReentrantCallbackGroup):
@@ -395,6 +396,17 @@ class RosBridgeCore:
                 pub = run.publishers[internal_topic] = _create_publisher(run.node, out, run.on_matched)
             pub.publish(ros_msg)
         self.counts[internal_topic].published += 1
+
+    def publish_ros(self, ros_topic: str, ros_msg: Any, depth: int = 10) -> None:
+        """Publish a ROS message on ``ros_topic`` (a publisher of its type is made at first use; reliable)."""
+        with self._lock:
+            run = self._run
+            if run is None:
+                raise RuntimeError(f"cannot publish on {ros_topic}: RosBridgeCore is not started")
+            pub = run.raw_publishers.get(ros_topic)
+            if pub is None:
+                pub = run.raw_publishers[ros_topic] = run.node.create_publisher(type(ros_msg), ros_topic, depth)
+            pub.publish(ros_msg)
 
     def matched(self) -> dict[str, int]:
         """ROS topic (as declared) -> peers matched now: publishers of an input, subscriptions of an output.

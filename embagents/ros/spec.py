@@ -395,6 +395,31 @@ class RosService:
                 raise ValueError(f"RosService({self.ros_name!r}): {what} must be a non-empty name, got {v!r}")
 
 
+@attrs.define(frozen=True)
+class RosLifecycle:
+    """Components as ROS 2 managed nodes: ``ros2 lifecycle get/set /<component>`` drive our lifecycle.
+
+    For each component (``components``; default every one) the bridge serves
+    ``/<component>/get_state``, ``/<component>/change_state`` and
+    ``/<component>/get_available_transitions`` (``lifecycle_msgs``), runs a
+    requested transition through the supervisor's lifecycle (the hooks run in the
+    component's process), and publishes ``/<component>/transition_event``.
+    A transition not valid from the current state gets ``success=False``, as ROS's
+    own managed nodes answer.
+
+    >>> RosLifecycle(["llm"]).components
+    ('llm',)
+    """
+
+    components: tuple[str, ...] | None = attrs.field(
+        default=None, converter=lambda v: None if v is None else tuple(str(c) for c in v)
+    )
+
+    def __attrs_post_init__(self) -> None:
+        for c in self.components or ():
+            _check_ros_name(f"RosLifecycle component {c!r} (its ROS node name)", "/" + c)
+
+
 @message("embagents/RosCall")
 @attrs.define
 class RosCall:

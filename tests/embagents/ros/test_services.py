@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -17,7 +18,7 @@ DOMAIN_ID = 81 + os.getpid() % 60
 
 SYSTEM = '''
 from embagents import Component, String, System, Topic
-from embagents.ros import RosInput, RosOutput, RosService, ros_call
+from embagents.ros import RosInput, RosLifecycle, RosOutput, RosService, ros_call
 
 go, homed = Topic("go", String), Topic("homed", String)
 
@@ -49,7 +50,8 @@ system = System(
     [Memory(name="memory", trigger=None), Homer(name="homer", inputs=[go], outputs=[homed], trigger=go)],
     ros=[RosService("/memory/locate", "std_srvs/Trigger", component="memory", method="locate"),
          RosService("/memory/fail", "std_srvs/Trigger", component="memory", method="fail"),
-         RosInput("/go", "std_msgs/String"), RosOutput("homed", ros_type="std_msgs/String")],
+         RosInput("/go", "std_msgs/String"), RosOutput("homed", ros_type="std_msgs/String"),
+         RosLifecycle(["memory"])],
 )
 '''
 
@@ -82,6 +84,28 @@ while not got and time.time() < deadline:
     while not got and time.time() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
 print("CALLED", got[0] if got else "nothing", flush=True)
+
+from lifecycle_msgs.msg import Transition, TransitionEvent
+from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
+events = []
+node.create_subscription(TransitionEvent, "/memory/transition_event", events.append, 10)
+def call(srv_type, name, request):
+    client = node.create_client(srv_type, name)
+    client.wait_for_service(timeout_sec=10)
+    f = client.call_async(request)
+    rclpy.spin_until_future_complete(node, f, timeout_sec=10)
+    return f.result()
+print("STATE", call(GetState, "/memory/get_state", GetState.Request()).current_state.label, flush=True)
+avail = call(GetAvailableTransitions, "/memory/get_available_transitions", GetAvailableTransitions.Request())
+print("AVAILABLE", sorted(t.transition.label for t in avail.available_transitions), flush=True)
+print("DEACTIVATE", call(ChangeState, "/memory/change_state", ChangeState.Request(transition=Transition(id=4))).success)
+print("DEACTIVATE AGAIN", call(ChangeState, "/memory/change_state", ChangeState.Request(transition=Transition(id=4))).success)
+print("STATE", call(GetState, "/memory/get_state", GetState.Request()).current_state.label, flush=True)
+end = time.time() + 5
+while not events and time.time() < end:
+    rclpy.spin_once(node, timeout_sec=0.1)
+for e in events:
+    print("EVENT", e.transition.label, e.start_state.label, e.goal_state.label, flush=True)
 """
 
 
@@ -95,11 +119,15 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> str:
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
         out = subprocess.run([sys.executable, "-c", PEER, "60"], capture_output=True, text=True, env=env, timeout=120)
+        status = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--json", "--run", str(sup.pid)],
+                                capture_output=True, text=True, env=env, timeout=60)
     finally:
         sup.send_signal(signal.SIGTERM)
         log, _ = sup.communicate(timeout=30)
     assert sup.returncode == 0, log
-    return out.stdout + out.stderr + "\n--- supervisor log ---\n" + log
+    rows = {r["name"]: r for r in json.loads(status.stdout)["rows"]} if status.returncode == 0 else {}
+    lifecycle = rows.get("memory", {}).get("lifecycle")
+    return out.stdout + out.stderr + f"\nSTATUS memory {lifecycle}\n--- supervisor log ---\n" + log
 
 
 def test_a_component_method_is_served_as_a_trigger_service(session: str) -> None:
@@ -122,3 +150,14 @@ def test_a_missing_service_is_a_timeout_naming_it(session: str) -> None:
 def test_a_type_mismatch_is_named(session: str) -> None:
     assert "ValueError: ROS service /arm/home is a std_srvs/srv/Trigger, not a std_srvs/srv/SetBool (a type mismatch)" \
         in session, session
+
+
+def test_change_state_deactivates_a_component_and_status_shows_it(session: str) -> None:
+    assert "STATE active" in session and "AVAILABLE ['deactivate', 'shutdown']" in session, session
+    assert "DEACTIVATE True" in session and "STATE inactive" in session, session
+    assert "STATUS memory inactive" in session, session
+    assert "EVENT deactivate active inactive" in session, session
+
+
+def test_an_invalid_transition_gets_ros_failure_result(session: str) -> None:
+    assert "DEACTIVATE AGAIN False" in session, session
