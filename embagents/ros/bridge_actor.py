@@ -31,11 +31,11 @@ from typing import Any
 from actors import Actor, ActorRef
 from actors.errors import UnknownMessage
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
+from embagents.ros.spec import BRIDGE_NAME
 
 __all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActor", "lifecycle_services"]
 
 log = logging.getLogger("embagents.ros.bridge")
-BRIDGE_NAME = "_ros_bridge"
 REDISCOVER_AFTER = 0.3  # s; a live local peer matches within 0.01-0.15 s when no answer is lost
 REDISCOVER_TRIES = 5  # a lost answer is ~1 in 4-8 tries here: 5 in a row is rare
 

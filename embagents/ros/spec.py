@@ -142,6 +142,8 @@ DEFAULT_ROS_TYPE: dict[type, str] = {v: k for k, v in SUPPORTED.items()}
 DEFAULT_ROS_TYPE[StreamingString] = "std_msgs/msg/String"
 
 ROS_EXTRA_HINT = "install the ROS 2 extra: pip install 'embagents[ros]'"
+#: The ROS bridge actor's name in a supervised system.
+BRIDGE_NAME = "_ros_bridge"
 
 _RELIABILITY = ("reliable", "best_effort")
 _DURABILITY = ("volatile", "transient_local")
@@ -447,8 +449,6 @@ def ros_call(ros_name: str, srv_type: str, timeout: float = 5.0, **fields: Any) 
     """
     from actors import ActorRef
     from actors.errors import RemoteError, Timeout
-    from embagents.ros.bridge_actor import BRIDGE_NAME
-
     _check_ros_name("ros_call", ros_name)
     full = normalize_ros_type(srv_type, "srv")
     if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or timeout <= 0:
