@@ -26,7 +26,19 @@ Supported pairs (:data:`SUPPORTED`, ROS type -> our message class):
 ``nav_msgs/msg/OccupancyGrid``  :class:`~embagents.msgs.OccupancyGrid`
 ``sensor_msgs/msg/JointState``  :class:`~embagents.msgs.JointState`
 ``sensor_msgs/msg/PointCloud``  :class:`~embagents.msgs.Detections` (see below)
+``geometry_msgs/msg/PoseStamped``  :class:`~embagents.msgs.PoseStamped` (also Pose, Point, Quaternion)
+``sensor_msgs/msg/Imu``         :class:`~embagents.msgs.Imu`
+``sensor_msgs/msg/LaserScan``   :class:`~embagents.msgs.LaserScan`
+``sensor_msgs/msg/PointCloud2``  :class:`~embagents.msgs.PointCloud2` (a structured-array view)
+``trajectory_msgs/msg/JointTrajectory``  :class:`~embagents.msgs.JointTrajectory`
 ==============================  =====================================
+
+Every other installed message type is carried as a
+:class:`~embagents.msgs.RosMessage`, introspected by
+:mod:`embagents.ros.generic`; a type whose package is not installed is
+refused naming its wheel (:func:`wheel_for`). :class:`RosService` serves a
+component method as a ROS service, :func:`ros_call` calls one, and
+:class:`RosLifecycle` makes components ROS managed nodes.
 
 Outgoing only: :class:`~embagents.msgs.StreamingString` goes out as
 ``std_msgs/msg/String``, one ROS message per chunk carrying the chunk's
