@@ -38,7 +38,8 @@ class Homer(Component):
     def _execution_step(self, **inputs):
         reply = ros_call("/arm/home", "std_srvs/Trigger", timeout=5)
         results = [f"{reply.success}:{reply.message}"]
-        for name, srv_type in (("/arm/missing", "std_srvs/Trigger"), ("/arm/home", "std_srvs/SetBool")):
+        for name, srv_type in (("/arm/missing", "std_srvs/Trigger"), ("/arm/home", "std_srvs/SetBool"),
+                               ("/arm/stuck", "std_srvs/Trigger")):
             try:
                 ros_call(name, srv_type, timeout=1)
             except Exception as e:
@@ -66,6 +67,7 @@ def home(request, response):
     response.success, response.message = True, "homed"
     return response
 node.create_service(Trigger, "/arm/home", home)
+node.create_service(Trigger, "/arm/stuck", lambda request, response: time.sleep(3) or response)  # takes it, then silent
 pub = node.create_publisher(String, "/go", 10)
 got = []
 node.create_subscription(String, "/homed", lambda m: got.append(m.data), 10)
@@ -161,3 +163,8 @@ def test_change_state_deactivates_a_component_and_status_shows_it(session: str) 
 
 def test_an_invalid_transition_gets_ros_failure_result(session: str) -> None:
     assert "DEACTIVATE AGAIN False" in session, session
+
+
+def test_a_server_that_takes_the_request_and_goes_silent_is_a_timeout_saying_so(session: str) -> None:
+    assert "TimeoutError: ROS service /arm/stuck did not answer within 1.0 s: its server took the request and went " \
+           "silent" in session, session

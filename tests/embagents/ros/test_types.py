@@ -22,12 +22,12 @@ from embagents.msgs import Imu, LaserScan, Pose, PoseStamped, RosMessage
 from embagents.ros import RosInput, RosOutput
 
 imu, scan, fix = Topic("imu", Imu), Topic("scan", LaserScan), Topic("fix", RosMessage)
-goal = Topic("goal_pose", PoseStamped)
+goal, fix_out = Topic("goal_pose", PoseStamped), Topic("fix_out", RosMessage)
 
 
 class Nav(Component):
     allowed_inputs = {"Required": [Imu], "Optional": [LaserScan, RosMessage]}
-    allowed_outputs = {"Required": [PoseStamped]}
+    allowed_outputs = {"Required": [PoseStamped], "Optional": [RosMessage]}
 
     def _execution_step(self, **inputs):
         i, s, f = inputs["imu"], inputs.get("scan"), inputs.get("fix")
@@ -36,12 +36,16 @@ class Nav(Component):
         x = float(s.ranges.min())  # numpy float32 ranges
         self.publish(goal, PoseStamped(Pose((x, i.linear_acceleration[2], f.latitude), i.orientation),
                                        frame_id=f.header.frame_id, stamp=i.stamp))
+        # An introspected type goes out too: the fix moved north, as a dict of its ROS fields.
+        self.publish(fix_out, RosMessage("sensor_msgs/msg/NavSatFix",
+                                         {"latitude": f.latitude + 1, "header": {"frame_id": "moved"}}))
 
 
 system = System(
-    [Nav(name="nav", inputs=[imu, scan, fix], outputs=[goal], trigger=imu)],
+    [Nav(name="nav", inputs=[imu, scan, fix], outputs=[goal, fix_out], trigger=imu)],
     ros=[RosInput("/imu", "sensor_msgs/Imu"), RosInput("/scan", "sensor_msgs/LaserScan"),
-         RosInput("/fix", "sensor_msgs/NavSatFix"), RosOutput("goal_pose", ros_type="geometry_msgs/PoseStamped")],
+         RosInput("/fix", "sensor_msgs/NavSatFix"), RosOutput("goal_pose", ros_type="geometry_msgs/PoseStamped"),
+         RosOutput("fix_out", ros_type="sensor_msgs/NavSatFix")],
 )
 '''
 
@@ -53,8 +57,9 @@ deadline = time.time() + float(sys.argv[1])
 rclpy.init()
 node = rclpy.create_node("nav_peer")
 pubs = [node.create_publisher(t, n, 10) for t, n in ((Imu, "/imu"), (LaserScan, "/scan"), (NavSatFix, "/fix"))]
-got = []
+got, fixes = [], []
 node.create_subscription(PoseStamped, "/goal_pose", got.append, 10)
+node.create_subscription(NavSatFix, "/fix_out", fixes.append, 10)
 imu = Imu()
 imu.linear_acceleration.z, imu.orientation.z, imu.orientation.w = 9.81, 0.6, 0.8
 imu.header.stamp.sec, imu.header.stamp.nanosec = 7, 500_000_000
@@ -62,11 +67,11 @@ scan = LaserScan(angle_increment=0.01, range_max=30.0)
 scan.ranges = np.linspace(4.0, 0.25, 360, dtype=np.float32).tolist()
 fix = NavSatFix(latitude=48.25)
 fix.header.frame_id = "utm"
-while not got and time.time() < deadline:
+while not (got and fixes) and time.time() < deadline:
     for p, m in zip(pubs, (imu, scan, fix)):
         p.publish(m)
     end = time.time() + 0.2
-    while not got and time.time() < end:
+    while not (got and fixes) and time.time() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
 if got:
     g = got[0]
@@ -74,6 +79,7 @@ if got:
     print("GOT", p.x, p.y, p.z, q.z, q.w, g.header.frame_id, g.header.stamp.sec, g.header.stamp.nanosec, flush=True)
 else:
     print("GOT nothing", flush=True)
+print("FIX", *((fixes[0].latitude, fixes[0].header.frame_id) if fixes else ("nothing",)), flush=True)
 """
 
 
@@ -98,6 +104,7 @@ def test_imu_and_laser_scan_in_and_a_pose_stamped_goal_out(tmp_path: Path, ros_e
     assert sup.returncode == 0, log
     # x: the scan's nearest range; y: the Imu's z acceleration; z: NavSatFix.latitude read as a generic field.
     assert "GOT 0.25 9.81 48.25 0.6 0.8 utm 7 500000000" in out.stdout, out.stdout + out.stderr + log
+    assert "FIX 49.25 moved" in out.stdout, out.stdout + out.stderr + log  # a RosMessage out as a NavSatFix
 
 
 def test_check_accepts_imu_pose_stamped_and_laser_scan(tmp_path: Path) -> None:
