@@ -454,6 +454,12 @@ def ros_call(ros_name: str, srv_type: str, timeout: float = 5.0, **fields: Any) 
     server, a server that vanished mid-call), ValueError for a type mismatch
     or a field the request type lacks, RuntimeError without a bridge.
 
+    The bridge waits for the answer in its loop thread (an actor answers an
+    ask when its handler returns): meanwhile ROS messages for the system
+    queue in the bridge and go on when the call returns. Keep ``timeout``
+    short; a long-running ROS request is an action, which this bridge does
+    not carry yet.
+
     Example (in a component)::
 
         reply = ros_call("/arm/home", "std_srvs/Trigger", timeout=10)
