@@ -99,7 +99,15 @@ def _ros_available_elsewhere() -> tuple[bool, str]:
 
 def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
     """(topics the bridge provides, RosOutputs, problems)."""
-    from embagents.ros.spec import RosInput, RosLifecycle, RosOutput, RosService, check_bridge
+    from embagents.msgs import RosMessage
+    from embagents.ros.spec import (
+        RosAction,
+        RosInput,
+        RosLifecycle,
+        RosOutput,
+        RosService,
+        check_bridge,
+    )
 
     provided, outs, problems = [], [], []
     ins = [d for d in system.ros if isinstance(d, RosInput)]
@@ -107,9 +115,9 @@ def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any]
     services = [d for d in system.ros if isinstance(d, RosService)]
     by_name = {str(c.name): c for c in system.components}
     for d in system.ros:
-        if not isinstance(d, (RosInput, RosOutput, RosService, RosLifecycle)):
-            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput, RosOutput, RosService "
-                                    "or RosLifecycle"))
+        if not isinstance(d, (RosInput, RosOutput, RosService, RosLifecycle, RosAction)):
+            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput, RosOutput, RosService, "
+                                    "RosAction or RosLifecycle"))
         elif isinstance(d, RosLifecycle):
             for c in d.components or ():
                 if c not in by_name:
@@ -124,6 +132,7 @@ def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any]
             problems.append(Problem(sv.component, "ros", f"RosService {sv.ros_name}: {type(comp).__name__} "
                                     f"{sv.component!r} has no method {sv.method!r}"))
     provided = [(d.topic, d.msg_type) for d in ins]
+    provided += [(t, RosMessage) for d in system.ros if isinstance(d, RosAction) for t in d.provides]
     if system.ros:
         ok, why = _ros_available_elsewhere()
         if not ok:

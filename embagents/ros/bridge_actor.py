@@ -103,10 +103,11 @@ class RosBridgeActor(Actor):
         self.peer_ros_topics: frozenset[str] = frozenset()
         self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
-    def _declarations(self) -> tuple[list[Any], list[Any], list[Any]]:
+    def _declarations(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
         from embagents.ros.spec import (
             DEFAULT_ROS_TYPE,
             QoS,
+            RosAction,
             RosInput,
             RosLifecycle,
             RosOutput,
@@ -130,7 +131,7 @@ class RosBridgeActor(Actor):
                 else o
                 for o in outs
             ]
-            return ins, outs, services
+            return ins, outs, services, [d for d in system.ros if isinstance(d, RosAction)]
 
         def build(cls: type, d: dict[str, Any]) -> Any:
             d = dict(d)
@@ -143,6 +144,7 @@ class RosBridgeActor(Actor):
             [build(RosOutput, d) for d in self.raw_outputs],
             [build(RosService, d) for d in self.raw_services if "lifecycle" not in d]
             + lifecycle_services([d["lifecycle"] for d in self.raw_services if "lifecycle" in d]),
+            [],
         )
 
     def on_start(self) -> None:
@@ -154,11 +156,11 @@ class RosBridgeActor(Actor):
             clean_zombie_fastdds_segments(min_age=0, names=self.predecessor_dds_files)
         self.dds_files: set[str] = set()
 
-        ins, outs, services = self._declarations()
+        ins, outs, services, actions = self._declarations()
         self.forwarded_in = 0
         self.forwarded_out = 0
         self.served = 0
-        self.core = RosBridgeCore(ins, outs, services, self._serve)
+        self.core = RosBridgeCore(ins, outs, services, self._serve, actions)
         ctx = self.context
         expected, self.peers = set(self.peer_ros_topics), set(self.peer_ros_topics)
 
@@ -179,6 +181,10 @@ class RosBridgeActor(Actor):
         ctx.changed()
         for o in outs:
             ctx.subscribe(o.topic, lambda msg, t=o.topic: self._to_ros(t, msg), queue_size=o.qos.depth, keep="all")
+        for a in actions:
+            ctx.subscribe(a.goal, lambda msg, t=a.goal: self._send_goal(t, msg), queue_size=10, keep="all")
+            if a.cancel:
+                ctx.subscribe(a.cancel, lambda _msg, t=a.goal: self.core.cancel_goals(t), queue_size=10, keep="all")
         if expected:
             ctx.call_later(REDISCOVER_AFTER, lambda: self._rediscover(expected, 1))
 
@@ -313,6 +319,12 @@ class RosBridgeActor(Actor):
             self.core.publish_ros(f"/{component}/transition_event", event)
         except Exception:  # noqa: BLE001 - the transition happened; a lost event is only logged
             log.exception("transition_event of %s not published", component)
+
+    def _send_goal(self, goal_topic: str, msg: Any) -> None:
+        try:
+            self.core.send_goal(goal_topic, msg)
+        except (TypeError, ValueError) as exc:  # a goal that does not fit the Goal type
+            log.error("goal on %s not sent: %s", goal_topic, exc)
 
     def on_receive(self, message: Any) -> Any:
         from embagents.ros.spec import RosCall

@@ -31,6 +31,7 @@ from typing import Any
 
 import attrs
 import rclpy
+from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
@@ -47,9 +48,10 @@ from actors import private_file
 from embagents.msgs import RosMessage, StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
-from embagents.ros.generic import generic_to_ros
+from embagents.ros.generic import generic_from_ros, generic_to_ros
 from embagents.ros.spec import (
     QoS,
+    RosAction,
     RosInput,
     RosOutput,
     RosService,
@@ -103,6 +105,9 @@ class _Running:
     wake_services: GuardCondition | None = None
     clients: dict[tuple[str, str], Any] = attrs.field(factory=dict)  # (service, type) -> rclpy Client
     raw_publishers: dict[str, Any] = attrs.field(factory=dict)  # ROS topic -> publisher of publish_ros
+    # goal topic -> (declaration, ActionClient, running goal handles by id(): they are not hashable)
+    actions: dict[str, tuple[RosAction, Any, dict[int, Any]]] = attrs.field(factory=dict)
+    on_message: OnMessage | None = None
 
 
 class _ServedElsewhere(ReentrantCallbackGroup):
@@ -128,10 +133,12 @@ class RosBridgeCore:
         outputs: Sequence[RosOutput] = (),
         services: Sequence[RosService] = (),
         on_request: OnRequest | None = None,
+        actions: Sequence[RosAction] = (),
     ) -> None:
         self.inputs = list(inputs)
         self.outputs = list(outputs)
         self.services = list(services)
+        self.actions = list(actions)
         self.on_request = on_request
         check_bridge(self.inputs, self.outputs, self.services)
         if self.services and on_request is None:
@@ -217,6 +224,10 @@ class RosBridgeCore:
                     target=self._spin, args=(executor, context, stopping), name=f"ros-spin-{node_name}", daemon=True
                 )
                 self._run = _Running(context, node, executor, thread, stopping, publishers, subscriptions, on_matched)
+                self._run.on_message = on_message
+                for a in self.actions:
+                    client = ActionClient(node, ros_interface_class(a.action_type), a.ros_name)
+                    self._run.actions[a.goal] = (a, client, {})
                 if self.services:
                     group = _ServedElsewhere()
                     served = [
@@ -397,6 +408,67 @@ class RosBridgeCore:
             pub.publish(ros_msg)
         self.counts[internal_topic].published += 1
 
+    def send_goal(self, goal_topic: str, msg: Any, wait_server: float = 5.0) -> None:
+        """Send ``msg`` (a RosMessage or dict of the Goal's fields) as a goal of the RosAction on ``goal_topic``.
+
+        Returns at once: a short-lived thread waits (up to ``wait_server`` s) for the
+        server to be matched, then sends; feedback and the outcome reach ``on_message``
+        on the action's topics (``status`` "no_server" when none was matched).
+        """
+        run = self._run
+        if run is None:
+            raise RuntimeError(f"cannot send a goal from {goal_topic!r}: RosBridgeCore is not started")
+        decl, client, goals = run.actions[goal_topic]
+        fields = msg.fields if isinstance(msg, RosMessage) else msg
+        goal = generic_to_ros(fields, ros_interface_class(decl.action_type).Goal)  # a bad field raises here
+        on_message = run.on_message
+        assert on_message is not None
+
+        def outcome(status: str, result: Any = None) -> None:
+            on_message(decl.result, RosMessage(decl.action_type, {"status": status, "result": result}))
+
+        def on_result(handle: Any, fut: Any) -> None:
+            goals.pop(id(handle), None)
+            res = fut.result()
+            outcome(_GOAL_STATUS.get(res.status, str(res.status)) if res else "aborted",
+                    generic_from_ros(res.result) if res else None)
+
+        def on_accepted(fut: Any) -> None:
+            handle = fut.result()
+            if handle is None or not handle.accepted:
+                outcome("rejected")
+                return
+            goals[id(handle)] = handle
+            handle.get_result_async().add_done_callback(lambda f: on_result(handle, f))
+            run.executor.wake()
+
+        def feedback(fb: Any) -> None:
+            if decl.feedback:
+                on_message(decl.feedback, generic_from_ros(fb.feedback))
+
+        def send() -> None:
+            deadline = time.monotonic() + wait_server
+            while not client.server_is_ready() and time.monotonic() < deadline and run.context.ok():
+                time.sleep(0.02)  # as in call(): rclpy has no event for a server being matched
+            if not client.server_is_ready():
+                outcome("no_server")
+                return
+            client.send_goal_async(goal, feedback_callback=feedback).add_done_callback(on_accepted)
+            run.executor.wake()
+
+        threading.Thread(target=send, name=f"ros-goal-{decl.ros_name}", daemon=True).start()
+
+    def cancel_goals(self, goal_topic: str) -> int:
+        """Cancel the running goals of the RosAction on ``goal_topic``; returns how many were asked to cancel."""
+        run = self._run
+        if run is None:
+            return 0
+        _, _, goals = run.actions[goal_topic]
+        for handle in list(goals.values()):
+            handle.cancel_goal_async()
+        run.executor.wake()
+        return len(goals)
+
     def publish_ros(self, ros_topic: str, ros_msg: Any, depth: int = 10) -> None:
         """Publish a ROS message on ``ros_topic`` (a publisher of its type is made at first use; reliable)."""
         with self._lock:
@@ -491,6 +563,9 @@ def _matched(topic: str, on_matched: OnMatched | None) -> Callable[[Any], None] 
 def _create_publisher(node: Node, out: RosOutput, on_matched: OnMatched | None) -> Any:
     events = PublisherEventCallbacks(matched=_matched(out.ros_topic, on_matched))
     return node.create_publisher(ros_msg_class(out.ros_type), out.ros_topic, qos_profile(out.qos), event_callbacks=events)
+
+
+_GOAL_STATUS = {4: "succeeded", 5: "canceled", 6: "aborted"}  # action_msgs/GoalStatus
 
 
 def _never_called(_request: Any, response: Any) -> Any:  # our services are taken by RosBridgeCore._serve

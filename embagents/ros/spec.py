@@ -409,6 +409,54 @@ class RosService:
                 raise ValueError(f"RosService({self.ros_name!r}): {what} must be a non-empty name, got {v!r}")
 
 
+def _topic_name(_inst: object, attr: Any, value: object) -> None:
+    if value is not None and (not isinstance(value, str) or not value):
+        raise ValueError(f"RosAction {attr.name} must be a non-empty internal topic name, got {value!r}")
+
+
+@attrs.define(frozen=True)
+class RosAction:
+    """A ROS action the system uses as a client, through internal topics.
+
+    Each :class:`~embagents.msgs.RosMessage` (or message with the Goal's
+    fields) a component publishes on ``goal`` is sent as a goal of
+    ``action_type`` to the server ``ros_name``. Its feedback is published on
+    ``feedback`` (a RosMessage with the Feedback's fields) and its outcome on
+    ``result``: a RosMessage with ``status`` ("succeeded", "aborted",
+    "canceled" or "rejected") and ``result`` (the Result's fields). Any
+    message on ``cancel`` cancels the goals still running. Nothing waits in
+    the bridge: a goal may run for minutes.
+
+    >>> RosAction("/navigate_to_pose", "nav2_msgs/NavigateToPose", goal="nav_goal", result="nav_result",
+    ...           check_installed=False).action_type
+    'nav2_msgs/action/NavigateToPose'
+    """
+
+    ros_name: str
+    action_type: str = attrs.field()
+    goal: str = attrs.field(kw_only=True, validator=_topic_name)
+    result: str = attrs.field(kw_only=True, validator=_topic_name)
+    feedback: str | None = attrs.field(default=None, kw_only=True, validator=_topic_name)
+    cancel: str | None = attrs.field(default=None, kw_only=True, validator=_topic_name)
+    check_installed: bool = attrs.field(default=True, kw_only=True, repr=False)
+
+    def __attrs_post_init__(self) -> None:
+        _check_ros_name("RosAction", self.ros_name)
+        if self.check_installed:
+            full = normalize_ros_type(self.action_type, "action")
+        else:
+            m = _ROS_TYPE.match(str(self.action_type).strip())
+            if m is None:
+                raise ValueError(f"malformed ROS action type {self.action_type!r}")
+            full = f"{m.group(1)}/action/{m.group(3)}"
+        object.__setattr__(self, "action_type", full)
+
+    @property
+    def provides(self) -> list[str]:
+        """The internal topics the bridge publishes for this action."""
+        return [t for t in (self.result, self.feedback) if t]
+
+
 @attrs.define(frozen=True)
 class RosLifecycle:
     """Components as ROS 2 managed nodes: ``ros2 lifecycle get/set /<component>`` drive our lifecycle.

@@ -487,3 +487,21 @@ def test_typed_and_generic_declarations_without_a_mapping_table():
     assert RosOutput("goal_pose", ros_type="geometry_msgs/PoseStamped").accepts == (PoseStamped, RosMessage)
     assert RosInput("/fix", "sensor_msgs/NavSatFix").msg_type is RosMessage
     assert RosOutput("goal_pose").resolved(PoseStamped).ros_type == "geometry_msgs/msg/PoseStamped"
+
+
+def test_service_and_action_declarations_name_missing_wheels_and_bad_input():
+    from embagents.ros import RosAction, RosLifecycle, RosService, check_bridge
+
+    with pytest.raises(ValueError, match="package 'nav2_msgs' is not installed; pip install ros-nav2-msgs"):
+        RosAction("/navigate_to_pose", "nav2_msgs/NavigateToPose", goal="nav_goal", result="nav_result")
+    assert RosAction("/fibonacci", "test_msgs/Fibonacci", goal="g", result="r").action_type == "test_msgs/action/Fibonacci"
+    with pytest.raises(ValueError, match="std_srvs has no srv 'Trigerr'; it has: .*Trigger"):
+        RosService("/x", "std_srvs/Trigerr", component="c", method="m")
+    with pytest.raises(ValueError, match="malformed ROS srv type 'std_srvs/msg/Trigger'"):
+        RosService("/x", "std_srvs/msg/Trigger", component="c", method="m")
+    with pytest.raises(ValueError, match="timeout must be seconds > 0"):
+        RosService("/x", "std_srvs/Trigger", component="c", method="m", timeout=0)
+    with pytest.raises(ValueError, match="is declared twice"):
+        check_bridge([], [], [RosService("/x", "std_srvs/Trigger", component="c", method="m")] * 2)
+    with pytest.raises(ValueError, match="RosLifecycle component 'my-llm'"):
+        RosLifecycle(["my-llm"])
