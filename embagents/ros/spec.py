@@ -37,7 +37,8 @@ Every other installed message type is carried as a
 :class:`~embagents.msgs.RosMessage`, introspected by
 :mod:`embagents.ros.generic`; a type whose package is not installed is
 refused naming its wheel (:func:`wheel_for`). :class:`RosService` serves a
-component method as a ROS service, :func:`ros_call` calls one, and
+component method as a ROS service, :func:`ros_call` calls one,
+:class:`RosAction` sends goals to an action server, and
 :class:`RosLifecycle` makes components ROS managed nodes.
 
 Outgoing only: :class:`~embagents.msgs.StreamingString` goes out as
@@ -505,8 +506,7 @@ def ros_call(ros_name: str, srv_type: str, timeout: float = 5.0, **fields: Any) 
     The bridge waits for the answer in its loop thread (an actor answers an
     ask when its handler returns): meanwhile ROS messages for the system
     queue in the bridge and go on when the call returns. Keep ``timeout``
-    short; a long-running ROS request is an action, which this bridge does
-    not carry yet.
+    short; a long-running ROS request is an action (:class:`RosAction`).
 
     Example (in a component)::
 
