@@ -1,4 +1,4 @@
-"""The ROS 2 bridge: declarations here, rclpy only in ``convert`` and ``node``.
+"""The ROS 2 bridge: declarations here, ROS packages only in ``convert``, ``generic`` and ``node``.
 
 This package imports without rclpy: ``system.py`` declares ROS topics with
 :class:`RosInput` / :class:`RosOutput` on any machine. Only the bridge actor
