@@ -233,7 +233,7 @@ class RosBridgeActor(Actor):
             self.forwarded_out += 1
             if self.forwarded_out == 1:
                 log.info("first message to ROS from %s", topic)
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:  # a message ROS cannot carry: say so, keep bridging
             log.error("not sent to ROS: %s", exc)
 
     def _serve(self, decl: Any, request: Any, response: Any) -> Any:

@@ -354,8 +354,8 @@ class RosOutput:
     @property
     def accepts(self) -> tuple[type, ...]:
         """Our message classes this output publishes (all mapped ones while ros_type is unset)."""
-        if self.ros_type is None:
-            return tuple(DEFAULT_ROS_TYPE)
+        if self.ros_type is None:  # a RosMessage goes out as its own ros_type
+            return (*DEFAULT_ROS_TYPE, RosMessage)
         return OUTGOING.get(self.ros_type, (RosMessage,))
 
     def resolved(self, msg_class: type) -> RosOutput:

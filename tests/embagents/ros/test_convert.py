@@ -487,6 +487,7 @@ def test_typed_and_generic_declarations_without_a_mapping_table():
     assert RosOutput("goal_pose", ros_type="geometry_msgs/PoseStamped").accepts == (PoseStamped, RosMessage)
     assert RosInput("/fix", "sensor_msgs/NavSatFix").msg_type is RosMessage
     assert RosOutput("goal_pose").resolved(PoseStamped).ros_type == "geometry_msgs/msg/PoseStamped"
+    assert RosMessage in RosOutput("fix_out").accepts  # goes out as the message's own ros_type
 
 
 def test_service_and_action_declarations_name_missing_wheels_and_bad_input():

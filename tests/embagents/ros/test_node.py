@@ -457,3 +457,15 @@ def test_matched_counts_peers_and_restart_makes_a_new_participant(core_factory):
     assert got.get_nowait() == "after restart"
     rx.stop()
     assert rx.matched() == {}
+
+
+def test_a_ros_message_goes_out_as_its_own_type_on_an_output_declared_without_one(core_factory):
+    from embagents.msgs import RosMessage
+
+    core = core_factory(outputs=[RosOutput("fix_out", ros_topic="/fix_out")])
+    core.start("bridge_generic_out", lambda t, m: None, domain_id=DOMAIN_ID)
+    core.publish("fix_out", RosMessage("sensor_msgs/msg/NavSatFix", {"latitude": 1.0}))
+    (pub,) = core.node.get_publishers_info_by_topic("/fix_out")
+    assert pub.topic_type == "sensor_msgs/msg/NavSatFix"
+    with pytest.raises(ValueError, match="NavSatFix has no field 'lat'"):
+        core.publish("fix_out", RosMessage("sensor_msgs/msg/NavSatFix", {"lat": 1.0}))

@@ -36,7 +36,9 @@ class Nav(Component):
         x = float(s.ranges.min())  # numpy float32 ranges
         self.publish(goal, PoseStamped(Pose((x, i.linear_acceleration[2], f.latitude), i.orientation),
                                        frame_id=f.header.frame_id, stamp=i.stamp))
-        # An introspected type goes out too: the fix moved north, as a dict of its ROS fields.
+        # An introspected type goes out too: the fix moved north, as a dict of its ROS fields
+        # (after one with a field NavSatFix lacks, which the bridge refuses and logs).
+        self.publish(fix_out, RosMessage("sensor_msgs/msg/NavSatFix", {"lat": 0.0}))
         self.publish(fix_out, RosMessage("sensor_msgs/msg/NavSatFix",
                                          {"latitude": f.latitude + 1, "header": {"frame_id": "moved"}}))
 
@@ -105,6 +107,8 @@ def test_imu_and_laser_scan_in_and_a_pose_stamped_goal_out(tmp_path: Path, ros_e
     # x: the scan's nearest range; y: the Imu's z acceleration; z: NavSatFix.latitude read as a generic field.
     assert "GOT 0.25 9.81 48.25 0.6 0.8 utm 7 500000000" in out.stdout, out.stdout + out.stderr + log
     assert "FIX 49.25 moved" in out.stdout, out.stdout + out.stderr + log  # a RosMessage out as a NavSatFix
+    assert "not sent to ROS: sensor_msgs/msg/NavSatFix has no field 'lat'; its fields: header, status" in log, log
+    assert "crashed root/_ros_bridge" not in log, log
 
 
 def test_check_accepts_imu_pose_stamped_and_laser_scan(tmp_path: Path) -> None:
