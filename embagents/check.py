@@ -100,21 +100,46 @@ def _ros_available_elsewhere() -> tuple[bool, str]:
 
 def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
     """(topics the bridge provides, RosOutputs, problems)."""
-    from embagents.ros.spec import RosInput, RosOutput, check_bridge
+    from embagents.msgs import RosMessage
+    from embagents.ros.spec import (
+        RosAction,
+        RosInput,
+        RosLifecycle,
+        RosOutput,
+        RosService,
+        check_bridge,
+    )
 
     provided, outs, problems = [], [], []
     ins = [d for d in system.ros if isinstance(d, RosInput)]
     outs = [d for d in system.ros if isinstance(d, RosOutput)]
+    services = [d for d in system.ros if isinstance(d, RosService)]
+    by_name = {str(c.name): c for c in system.components}
     for d in system.ros:
-        if not isinstance(d, (RosInput, RosOutput)):
-            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput or RosOutput"))
+        if not isinstance(d, (RosInput, RosOutput, RosService, RosLifecycle, RosAction)):
+            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput, RosOutput, RosService, "
+                                    "RosAction or RosLifecycle"))
+        elif isinstance(d, RosLifecycle):
+            for c in d.components or ():
+                if c not in by_name:
+                    problems.append(Problem(None, "ros", f"RosLifecycle names component {c!r}, which this system "
+                                            f"does not have; components: {', '.join(by_name) or 'none'}"))
+    for sv in services:
+        comp = by_name.get(sv.component)
+        if comp is None:
+            problems.append(Problem(None, "ros", f"RosService {sv.ros_name}: no component is named {sv.component!r}; "
+                                    f"components: {', '.join(by_name) or 'none'}"))
+        elif not callable(getattr(comp, sv.method, None)):
+            problems.append(Problem(sv.component, "ros", f"RosService {sv.ros_name}: {type(comp).__name__} "
+                                    f"{sv.component!r} has no method {sv.method!r}"))
     provided = [(d.topic, d.msg_type) for d in ins]
+    provided += [(t, RosMessage) for d in system.ros if isinstance(d, RosAction) for t in d.provides]
     if system.ros:
         ok, why = _ros_available_elsewhere()
         if not ok:
             problems.append(Problem(None, "ros-missing", f"ROS bridge: {why}"))
     try:
-        check_bridge(ins, outs)
+        check_bridge(ins, outs, services)
     except (TypeError, ValueError) as exc:
         problems.append(Problem(None, "ros", f"ROS bridge: {exc}"))
     return provided, outs, problems
