@@ -395,7 +395,7 @@ class Component:
         if self.allowed_inputs is not None:
             problems += self._match(self.allowed_inputs, self.inputs, "input")[0]
         if self.allowed_outputs is not None:
-            problems += self._match(self.allowed_outputs, self.outputs, "output")[0]
+            problems += self._match(self.allowed_outputs, self._typed_outputs(), "output")[0]
         by_name = {t.name: t for t in self.inputs}
         for t in self.trigger_topics:
             if isinstance(t, FixedInput):
@@ -416,6 +416,10 @@ class Component:
         elif self.fallback is not None:
             problems += self._validate_fallback(self.fallback)
         return problems
+
+    def _typed_outputs(self) -> tuple[Topic, ...]:
+        """The outputs held to ``allowed_outputs`` (all of them here; an LLM leaves out converted ones)."""
+        return self.outputs
 
     def _validate_fallback(self, fallback: Fallback) -> list[ComponentProblem]:
         return [
