@@ -325,7 +325,8 @@ def cuda_in_process(read_maps: Callable[[], str] = _read_maps) -> str | None:
 def _system_file(system: System) -> str | None:
     """The file ``system`` was loaded from (the module of :func:`load_system` that holds it)."""
     for name, module in list(sys.modules.items()):
-        if name.startswith("_embagents_system_") and any(v is system for v in vars(module).values()):
+        if name.startswith("_embagents_system_") and any(
+                v is system for v in [*vars(module).values(), *getattr(module, "__embagents_registered__", [])]):
             return getattr(module, "__file__", None)
     return None
 

@@ -251,6 +251,8 @@ class LLM(ModelComponent):
 
     def validate(self) -> list[ComponentProblem]:
         problems = super().validate()
+        if self.output_converters:  # a converted output is an output: no text topic is required then
+            problems = [p for p in problems if p[0] != "missing-output"]
         cfg = self.config
         if cfg.prompt_template is not None:
             allowed = ["text", *(_placeholder(t) for t in self.inputs)]
@@ -334,7 +336,11 @@ class LLM(ModelComponent):
             return  # nothing new to answer (e.g. a rate tick with no new question)
         context = {_placeholder(t): inputs[t.name].data for t in self.inputs
                    if t is not question and inputs.get(t.name) is not None}
-        self.answer(inputs[question.name].data, context)
+        self.answer(self.question_text(question, inputs), context)
+
+    def question_text(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
+        """The text a step asks about when ``topic`` brought the question: its message's ``data``."""
+        return str(inputs[topic.name].data)
 
     def answer(self, text: str, context: Mapping[str, str] | None = None) -> str:
         """Answer ``text``: query the model (running tools), publish, update history; returns the answer."""
