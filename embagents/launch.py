@@ -134,6 +134,8 @@ class _SupervisorRequests:
 
 def run(args: argparse.Namespace) -> int:
     configure_logging("supervise", logging.DEBUG if args.verbose else logging.INFO)
+    if getattr(args, "offline", False):
+        os.environ["EMBAGENTS_OFFLINE"] = "1"  # embagents.compat's clients: servers -> offline defaults (children too)
     try:
         dashboard = (args.dashboard_host, args.dashboard_port) if getattr(args, "dashboard", False) else None
         return run_system(args.system, dashboard)

