@@ -52,10 +52,17 @@ def _translate(cls: type, role: str, kw: dict[str, Any]) -> tuple[dict[str, Any]
     if "name" not in kw:
         raise CompatError(f"{cls.__name__}: needs component_name= (the component's name)")
     kw.pop("callback_group", None)  # each component is its own process here
+    if "fallbacks" in kw:  # Sugarcoat's ComponentFallbacks (an embagents Fallback already)
+        kw["fallback"] = kw.pop("fallbacks")
     extras: dict[str, Any] = {}
     config = kw.get("config")
     if isinstance(config, _Config):
         extras, kw["config"] = dict(config.extras), config.native
+    wanted = getattr(cls, "config_class", None)
+    given = kw.get("config")
+    if wanted is not None and given is not None and not isinstance(given, wanted) and isinstance(wanted, type) \
+            and issubclass(wanted, type(given)):
+        kw["config"] = wanted(**attrs.asdict(given, recurse=False))  # an LLMConfig given to a VLM: its VLMConfig
     name = str(kw["name"])
     if kw.get("model_client") is not None:
         kw["model_client"] = build_client(kw["model_client"], role, name, bool(extras.get("enable_local_model")))

@@ -286,3 +286,19 @@ def test_a_compat_llm_with_a_pose_output_needs_a_preprocessor_and_publishes_the_
     assert llm.validate() == []
     sent = step(llm, "q", "go to the kitchen")
     assert sent[0][0] == "goal" and (sent[0][1].pose.position.x, sent[0][1].pose.position.y) == (4.0, 2.0)
+
+
+def test_a_vlm_takes_an_llm_config_and_sugarcoat_fallbacks() -> None:
+    from embagents.compat.agents.components import VLM
+    from embagents.compat.agents.config import LLMConfig
+    from embagents.compat.ros_sugar.core import Action as SugarAction
+    from embagents.compat.ros_sugar.core import ComponentFallbacks
+    from embagents.components import VLMConfig
+
+    q, image, a = Topic("q", String), Topic("image_raw", "Image"), Topic("a", String)
+    vlm = VLM(inputs=[q, image], outputs=[a], model_client=Parrot(), config=LLMConfig(max_new_tokens=40),
+              component_name="eyes")
+    assert isinstance(vlm.config, VLMConfig) and vlm.config.max_new_tokens == 40
+    fb = ComponentFallbacks(on_algorithm_fail=SugarAction(method=vlm.restart), max_retries=1)
+    vlm2 = VLM(inputs=[q, image], outputs=[a], model_client=Parrot(), fallbacks=fb, component_name="eyes2")
+    assert vlm2.fallback is fb and fb.decide("ALGORITHM_FAILURE").kind == "restart"
