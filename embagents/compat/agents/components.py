@@ -259,7 +259,8 @@ class LLM(_Clients, native.LLM, _Lifecycle):
 
         def keep(*args: Any, **kwargs: Any) -> Any:
             result = tool(*args, **kwargs)
-            self._raw_tool_result = result
+            if not send_tool_response_to_model:  # the result is the answer: a preprocessor gets it as it is
+                self._raw_tool_result = result
             return result.tolist() if isinstance(result, np.ndarray) else result
 
         keep.__name__, keep.__doc__ = name, function.get("description") or tool.__doc__
