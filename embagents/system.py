@@ -260,7 +260,7 @@ def _import(path: str) -> Any:
     outer, _registered = _registered, []
     try:
         spec.loader.exec_module(module)
-        module.__embagents_registered__ = _registered
+        module.__dict__["__embagents_registered__"] = _registered  # what bringup() registered
     except BaseException as exc:
         sys.modules.pop(module_name, None)
         if isinstance(exc, KeyboardInterrupt):

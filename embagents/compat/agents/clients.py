@@ -188,7 +188,7 @@ class LeRobotClient(_Client):
     def build(self, role: str, component: str, enable_local_model: bool = False) -> Any:
         from embagents.models import LeRobotPolicyClient
 
-        m = self.model
+        m: Any = self.model  # a LeRobotPolicy (checked next), whose fields _Model does not declare
         if m is None or not hasattr(m, "policy_type"):
             raise TypeError(f"LeRobotClient of {component!r}: model must be a LeRobotPolicy, got {m!r}")
         return LeRobotPolicyClient(f"{self.host}:{self.port}", actions_per_chunk=m.actions_per_chunk,

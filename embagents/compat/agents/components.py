@@ -189,7 +189,7 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         self._component_template: str | None = None
         self._raw_tool_result: Any = None
         config = kw.get("config")
-        if getattr(config, "stream", False) and not any(t.msg_type is StreamingString for t in kw.get("outputs") or ()):
+        if config is not None and getattr(config, "stream", False) and not any(t.msg_type is StreamingString for t in kw.get("outputs") or ()):
             # EmbodiedAgents streams chunks on a String topic; here a stream is a StreamingString topic.
             from embagents.compat._core import note
 
