@@ -17,21 +17,21 @@ Example::
 
 Supported pairs (:data:`SUPPORTED`, ROS type -> our message class):
 
-===================================  =============================================
-``std_msgs/msg/String``              :class:`~embagents.msgs.String`
-``sensor_msgs/msg/Image``            :class:`~embagents.msgs.Image`
-``sensor_msgs/msg/CompressedImage``  :class:`~embagents.msgs.CompressedImage`
-``geometry_msgs/msg/Twist``          :class:`~embagents.msgs.Twist`
-``nav_msgs/msg/Odometry``            :class:`~embagents.msgs.Odometry`
-``nav_msgs/msg/OccupancyGrid``       :class:`~embagents.msgs.OccupancyGrid`
-``sensor_msgs/msg/JointState``       :class:`~embagents.msgs.JointState`
-``sensor_msgs/msg/PointCloud``       :class:`~embagents.msgs.Detections` (see below)
-``geometry_msgs/msg/PoseStamped``    :class:`~embagents.msgs.PoseStamped` (also Pose, Point, Quaternion)
-``sensor_msgs/msg/Imu``              :class:`~embagents.msgs.Imu`
-``sensor_msgs/msg/LaserScan``        :class:`~embagents.msgs.LaserScan`
-``sensor_msgs/msg/PointCloud2``      :class:`~embagents.msgs.PointCloud2` (a structured-array view)
+=======================================  ===================================================================
+``std_msgs/msg/String``                  :class:`~embagents.msgs.String`
+``sensor_msgs/msg/Image``                :class:`~embagents.msgs.Image`
+``sensor_msgs/msg/CompressedImage``      :class:`~embagents.msgs.CompressedImage`
+``geometry_msgs/msg/Twist``              :class:`~embagents.msgs.Twist`
+``nav_msgs/msg/Odometry``                :class:`~embagents.msgs.Odometry`
+``nav_msgs/msg/OccupancyGrid``           :class:`~embagents.msgs.OccupancyGrid`
+``sensor_msgs/msg/JointState``           :class:`~embagents.msgs.JointState`
+``sensor_msgs/msg/PointCloud``           :class:`~embagents.msgs.Detections` (see below)
+``geometry_msgs/msg/PoseStamped``        :class:`~embagents.msgs.PoseStamped` (also Pose, Point, Quaternion)
+``sensor_msgs/msg/Imu``                  :class:`~embagents.msgs.Imu`
+``sensor_msgs/msg/LaserScan``            :class:`~embagents.msgs.LaserScan`
+``sensor_msgs/msg/PointCloud2``          :class:`~embagents.msgs.PointCloud2` (a structured-array view)
 ``trajectory_msgs/msg/JointTrajectory``  :class:`~embagents.msgs.JointTrajectory`
-===================================  =============================================
+=======================================  ===================================================================
 
 Every other installed message type is carried as a
 :class:`~embagents.msgs.RosMessage`, introspected by
