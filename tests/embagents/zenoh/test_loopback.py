@@ -1,0 +1,57 @@
+"""Two runs linked by their Zenoh bridges over loopback: a component on one publishes, one on the other receives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.embagents.zenoh.runs import RECEIVER, SENDER, Run, free_port, wait_for, write
+
+pytest.importorskip("zenoh")
+
+
+def test_a_topic_crosses_from_one_run_to_the_other_in_order(tmp_path: Path) -> None:
+    port = free_port()
+    runs = str(tmp_path / "runs")
+    a = Run(write(tmp_path, "robot_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']"), runs)
+    b = Run(write(tmp_path, "gpu_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 20, 60, "20 messages on run B: " + "".join(b.all[-20:]))
+        got = b.got()
+        assert got == list(range(got[0], got[0] + len(got)))  # in order, none twice, none missing
+        detail = wait_for(lambda: b.bridge(), 30, "the bridge's status detail")
+        link = detail["links"][0]
+        assert (link["endpoint"], link["role"], link["state"]) == (f"tcp/127.0.0.1:{port}", "connect", "up")
+        assert detail["counts"]["msgs_in"] >= 20 and detail["health"] == "HEALTHY"
+        sender = wait_for(lambda: a.bridge(), 30, "run A's bridge detail")
+        assert sender["links"][0]["state"] == "up" and sender["counts"]["msgs_out"] >= 20
+    finally:
+        assert b.stop() == 0, "".join(b.all[-30:])
+        assert a.stop() == 0, "".join(a.all[-30:])
+
+
+def test_a_link_that_never_came_up_is_an_error_in_status_and_the_log(tmp_path: Path) -> None:
+    port = free_port()  # nobody listens there
+    runs = str(tmp_path / "runs")
+    b = Run(write(tmp_path, "lonely", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']", link_down_s=1.0), runs)
+    try:
+        def failing() -> dict | None:
+            d = b.bridge()
+            return d if d and d["health"] == "SYSTEM_FAILURE" and d["links"][0]["last_error"] else None
+
+        detail = wait_for(failing, 60, "SYSTEM_FAILURE on the bridge: " + "".join(b.all[-20:]))
+        link = detail["links"][0]
+        assert link["state"] == "never up"
+        assert "Connection refused" in link["last_error"] and f"127.0.0.1:{port}" in link["last_error"]
+        assert "never came up" in detail["health_text"]
+        wait_for(lambda: any("never came up" in x and "start the other side" in x for x in b.all), 30, "the log line")
+        import subprocess
+        import sys
+
+        table = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--run", "lonely"],
+                               capture_output=True, text=True, timeout=60, env=b.env).stdout
+        assert f"_zenoh_bridge: zenoh connect tcp/127.0.0.1:{port}: never up for" in table
+        assert "last error: Connection refused" in table
+    finally:
+        assert b.stop() == 0, "".join(b.all[-30:])
