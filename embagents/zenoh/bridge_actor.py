@@ -41,6 +41,8 @@ __all__ = ["BRIDGE_NAME", "CHECK_EVERY_S", "ZenohBridgeActor", "zenoh_config"]
 log = logging.getLogger("embagents.zenoh.bridge")
 #: How often link states and health are looked at.
 CHECK_EVERY_S = 0.25
+#: A connect endpoint without a link has its TCP port tried this often, to say why (refused, unreachable...).
+PROBE_EVERY_S = 2.0
 HEALTH_TOPIC = "_health"
 _INLINE = 1 << 62  # a threshold no array reaches: arrays travel inside the frame
 
@@ -54,7 +56,7 @@ def zenoh_config(spec: ZenohBridge) -> Any:
     conf.insert_json5("listen/endpoints", json.dumps(spec.listen))
     conf.insert_json5("connect/endpoints", json.dumps(spec.connect))
     # Retry a lost or not yet reachable peer every 0.1-1 s, for ever: a link comes back on its own.
-    conf.insert_json5("connect/timeout_ms", "0")
+    conf.insert_json5("connect/timeout_ms", "-1")  # 0 would mean: one try, no retry
     conf.insert_json5("connect/exit_on_failure", "false")
     conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}')
     conf.insert_json5("scouting/multicast/enabled", "false")
@@ -93,6 +95,7 @@ class _Endpoint:
         self.last_error = ""
         self.reported = False  # the failure of this down period is logged and on health
         self.probing = False
+        self.next_probe = now + PROBE_EVERY_S / 4
 
     def matches(self, src: str, dst: str) -> bool:
         if self.role == "connect":
@@ -260,7 +263,8 @@ class ZenohBridgeActor(Actor):
         for ep in self.endpoints:
             if ep.links:
                 continue
-            if ep.role == "connect" and not ep.probing:
+            if ep.role == "connect" and not ep.probing and now >= ep.next_probe:
+                ep.next_probe = now + PROBE_EVERY_S
                 self._probe(ep)
             if now - ep.since >= self.spec.link_down_s:
                 what = ("never came up" if not ep.ever_up else "down") + f" for {now - ep.since:.0f} s"

@@ -34,7 +34,7 @@ class Counter(Component):
         self.publish(chatter, String(data=str(self.n)))
 
 system = System([Counter(name="counter", outputs=[chatter], trigger=RATE)], name=NAME,
-                zenoh=ZenohBridge("robot1", exports=[Export("chatter")], ENDPOINTS, LINK_DOWN))
+                zenoh=ZenohBridge("robot1", exports=[Export("chatter", window=WINDOW)], ENDPOINTS, LINK_DOWN))
 '''
 
 RECEIVER = '''
@@ -61,10 +61,11 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def write(tmp: Path, name: str, template: str, endpoints: str, rate: float = 20.0, link_down_s: float = 2.0) -> str:
+def write(tmp: Path, name: str, template: str, endpoints: str, rate: float = 20.0, link_down_s: float = 2.0,
+          window: int = 5000) -> str:
     path = tmp / f"{name}.py"
     path.write_text(textwrap.dedent(template).replace("NAME", repr(name)).replace("ENDPOINTS", endpoints)
-                    .replace("RATE", repr(rate)).replace("LINK_DOWN", f"link_down_s={link_down_s}"))
+                    .replace("RATE", repr(rate)).replace("WINDOW", repr(window)).replace("LINK_DOWN", f"link_down_s={link_down_s}"))
     return str(path)
 
 
