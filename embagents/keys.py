@@ -38,12 +38,39 @@ def keys_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dir", metavar="FOLDER", help="where to write the key files (default: ~/.config/embagents/keys)")
     parser.add_argument("--name", default="embagents",
                         help="file names NAME.key (public) and NAME.key_secret (default: embagents, the default key)")
+    parser.add_argument("--tls", action="store_true",
+                        help="instead: TLS certificates for the Zenoh bridge (a CA, made once, and --host's certificate)")
+    parser.add_argument("--host", help="with --tls: the host the certificate is for (files HOST.pem, HOST.key)")
+    parser.add_argument("--ip", action="append", default=[], help="with --tls: an address of that host (repeatable)")
+
+
+def _tls(args: argparse.Namespace, folder: str) -> int:
+    from embagents.zenoh.certs import make_ca, make_host
+
+    if not args.host:
+        print("error: --tls needs --host NAME (e.g. --host robot1): each host gets its own certificate",
+              file=sys.stderr)
+        return 1
+    try:
+        ca, made = make_ca(folder)
+        cert, key = make_host(folder, args.host, args.ip)
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"{'made' if made else 'using'} CA {ca} (its key ca.key stays here)\n"
+          f"certificate {cert}, key {key} (mode 600): copy ca.pem, {os.path.basename(cert)} and "
+          f"{os.path.basename(key)} to {args.host}; there: ZenohBridge(..., tls=TlsFiles.of_host(FOLDER, "
+          f"{args.host!r}))", file=sys.stderr)
+    print(cert)
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
     """Write the pair; print the public key. Exit 1 with the fix when the folder or name cannot be used."""
     try:
         folder = check_folder(os.path.abspath(args.dir)) if args.dir else keys_dir()
+        if getattr(args, "tls", False):
+            return _tls(args, folder)
         public, secret_file = write_keypair(folder, args.name)
     except UnsafeFolder as exc:
         print(f"error: {exc}; or name a private folder of yours (`mkdir -m 700 DIR`, then --dir DIR)", file=sys.stderr)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import socket
 import threading
 import time
@@ -43,6 +44,7 @@ log = logging.getLogger("embagents.zenoh.bridge")
 CHECK_EVERY_S = 0.25
 #: A connect endpoint without a link has its TCP port tried this often, to say why (refused, unreachable...).
 PROBE_EVERY_S = 2.0
+PROBE_ANSWERED_EVERY_S = 30.0
 HEALTH_TOPIC = "_health"
 _INLINE = 1 << 62  # a threshold no array reaches: arrays travel inside the frame
 
@@ -141,6 +143,11 @@ class ZenohBridgeActor(Actor):
                          [_Endpoint(e, "connect", now) for e in spec.connect]
         self.health = (HealthStatus.HEALTHY, "starting")
         ctx = self.context
+        # Zenoh's own warnings (a peer refused in the TLS handshake, garbage on the port) go to this
+        # actor's stderr, which the run logs; RUST_LOG overrides the level.
+        os.environ.setdefault("NO_COLOR", "1")  # plain lines in the run's log
+        # (name checks are off on purpose: peers are reached by address and proved by the CA, see zenoh_config)
+        zenoh.init_log_from_env_or("warn,zenoh_link_tls::utils=error")
         self.session = zenoh.open(zenoh_config(spec))
 
         def on_link(event: Any) -> None:  # zenoh's thread
@@ -254,6 +261,8 @@ class ZenohBridgeActor(Actor):
 
     def _probed(self, ep: _Endpoint, err: str) -> None:
         ep.probing = False
+        if err.startswith("its port answers"):  # each probe is a failed handshake in the peer's log: seldom now
+            ep.next_probe = time.monotonic() + PROBE_ANSWERED_EVERY_S
         if not ep.links:
             ep.last_error = err
 
