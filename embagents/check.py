@@ -140,6 +140,13 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
     for name, msg_type in ros_provided:
         use(name, msg_type, "RosInput")
     zenoh = getattr(system, "zenoh", None)
+    if zenoh is not None:
+        from embagents.zenoh.spec import ZenohBridge
+
+        if not isinstance(zenoh, ZenohBridge):
+            out.append(Problem(None, "zenoh", f"System zenoh must be one embagents.zenoh.ZenohBridge (one per host), "
+                               f"got {zenoh!r}"))
+            zenoh = None
     zenoh_in = list(zenoh.imports) if zenoh is not None else []
     for i in zenoh_in:
         if isinstance(i.msg_type, type):

@@ -57,10 +57,10 @@ def zenoh_config(spec: ZenohBridge) -> Any:
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("listen/endpoints", json.dumps(spec.listen))
     conf.insert_json5("connect/endpoints", json.dumps(spec.connect))
-    # Retry a lost or not yet reachable peer every 0.1-1 s, for ever: a link comes back on its own.
+    # Retry a lost or not yet reachable peer every 0.1-0.5 s, for ever: a link comes back on its own.
     conf.insert_json5("connect/timeout_ms", "-1")  # 0 would mean: one try, no retry
     conf.insert_json5("connect/exit_on_failure", "false")
-    conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}')
+    conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     conf.insert_json5("transport/shared_memory/enabled", "false")
