@@ -63,7 +63,7 @@ def _raw(size: int, n: int, period: float) -> np.ndarray:
 class _RunB:
     """Run B in this process: a bridge importing ``a/bench_z`` and a recorder; run A as a process."""
 
-    def __init__(self, port: int, connect_port: int, **send: Any) -> None:
+    def __init__(self, port: int, connect_port: int, keep: str = "all", **send: Any) -> None:
         from embagents.zenoh.bench_peer import Recorder
         from embagents.zenoh.bridge_actor import ZenohBridgeActor
         from embagents.zenoh.spec import Import, ZenohBridge
@@ -72,11 +72,11 @@ class _RunB:
         self.asys.__enter__()
         try:
             self.recorder = self.asys.spawn(Recorder, "bench_recorder", wait=60, heartbeat=None)
-            bridge = ZenohBridge("b", imports=[Import("a/bench_z", topic="bench_z")],
+            bridge = ZenohBridge("b", imports=[Import("a/bench_z", topic="bench_z", keep=keep)],
                                  connect=[f"tcp/127.0.0.1:{connect_port}"], link_down_s=1.0)
             self.bridge = self.asys.spawn(ZenohBridgeActor, "_zenoh_bridge", None, bridge.to_dict(), wait=60,
                                           heartbeat=None)
-            args = [f"--{k}={v}" for k, v in send.items()]
+            args = [f"--{k}={v}" for k, v in {**send, "keep": keep}.items()]
             self.sender = subprocess.Popen(_peer("send", "--port", str(port), *args), stdin=subprocess.PIPE,
                                            stdout=subprocess.PIPE, text=True)
             assert self.sender.stdout is not None
@@ -107,9 +107,9 @@ class _RunB:
         self.asys.__exit__(None, None, None)
 
 
-def _ours(size: int, n: int, period: float) -> np.ndarray:
+def _ours(size: int, n: int, period: float, keep: str = "all") -> np.ndarray:
     port = _free_port()
-    run = _RunB(port, port, n=n, size=size, period=period, warm=1.5)
+    run = _RunB(port, port, keep, n=n, size=size, period=period, warm=1.5)
     try:
         seen = run.wait_for(n, n * period + 60)
     finally:
@@ -146,7 +146,7 @@ def zenoh_link_cut(opts: BenchOptions) -> dict[str, Any]:
     proxy = CutProxy(port)
     restored: list[int] = []
     try:
-        run = _RunB(port, proxy.port, n=n, size=64, period=1.0 / rate, warm=1.5, keep="all", window=5000)
+        run = _RunB(port, proxy.port, "all", n=n, size=64, period=1.0 / rate, warm=1.5, window=5000)
         try:
             if not run.wait_for(50, 30):
                 raise RuntimeError("no message reached run B before the first cut")

@@ -162,11 +162,11 @@ class ZenohBridgeActor(Actor):
             key = spec.key_of(e)
             if e.keep == "all":
                 pub = zext.declare_advanced_publisher(
-                    self.session, key, congestion_control=zenoh.CongestionControl.BLOCK,
+                    self.session, key, congestion_control=zenoh.CongestionControl.BLOCK, express=True,
                     reliability=zenoh.Reliability.RELIABLE, cache=zext.CacheConfig(max_samples=e.window),
                     sample_miss_detection=zext.MissDetectionConfig(heartbeat=0.1), publisher_detection=True)
             else:
-                pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+                pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
             ctx.subscribe(e.topic, lambda msg, p=pub: self._out(p, msg), queue_size=max(10, min(e.window, 1000)),
                           keep=e.keep)
