@@ -62,7 +62,7 @@ def zenoh_config(spec: ZenohBridge) -> Any:
     conf.insert_json5("connect/exit_on_failure", "false")
     conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}')
     conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("scouting/gossip/enabled", "false")
+    conf.insert_json5("scouting/delay", "0")  # open at once: links come up (and are watched) in the background
     conf.insert_json5("transport/shared_memory/enabled", "false")
     if spec.tls is not None:
         tls = {
@@ -147,7 +147,7 @@ class ZenohBridgeActor(Actor):
         # actor's stderr, which the run logs; RUST_LOG overrides the level.
         os.environ.setdefault("NO_COLOR", "1")  # plain lines in the run's log
         # (name checks are off on purpose: peers are reached by address and proved by the CA, see zenoh_config)
-        zenoh.init_log_from_env_or("warn,zenoh_link_tls::utils=error")
+        zenoh.init_log_from_env_or("warn,zenoh_link_tls::utils=error,zenoh::net::runtime::orchestrator=error")
         self.session = zenoh.open(zenoh_config(spec))
 
         def on_link(event: Any) -> None:  # zenoh's thread

@@ -55,3 +55,26 @@ def test_a_link_that_never_came_up_is_an_error_in_status_and_the_log(tmp_path: P
         assert "last error: Connection refused" in table
     finally:
         assert b.stop() == 0, "".join(b.all[-30:])
+
+
+def test_the_two_hosts_example_brings_detections_back_to_the_robot(tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("skimage")
+    import os
+
+    root = Path(__file__).resolve().parents[3]
+    runs = str(tmp_path / "runs")
+    os.environ["EMBAGENTS_ZENOH_PORT"] = str(free_port())
+    os.environ["EMBAGENTS_TWO_HOSTS_N"] = "3"
+    try:
+        gpu = Run(str(root / "examples/two_hosts/gpu_box.py"), runs)
+        robot = Run(str(root / "examples/two_hosts/robot.py"), runs)
+    finally:
+        del os.environ["EMBAGENTS_ZENOH_PORT"], os.environ["EMBAGENTS_TWO_HOSTS_N"]
+    try:
+        assert robot.proc.wait(timeout=180) == 0, "".join(robot.all[-30:])
+        found = [x for x in robot.all if x.startswith("from the GPU box: ")]
+        assert len(found) >= 3 and all("face 1.00" in x for x in found), "".join(robot.all[-30:])
+    finally:
+        robot.stop()
+        assert gpu.stop() == 0, "".join(gpu.all[-30:])
