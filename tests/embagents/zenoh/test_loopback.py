@@ -26,6 +26,20 @@ def test_a_topic_crosses_from_one_run_to_the_other_in_order(tmp_path: Path) -> N
         assert detail["counts"]["msgs_in"] >= 20 and detail["health"] == "HEALTHY"
         sender = wait_for(lambda: a.bridge(), 30, "run A's bridge detail")
         assert sender["links"][0]["state"] == "up" and sender["counts"]["msgs_out"] >= 20
+
+        # Garbage on the Zenoh port: refused by Zenoh, the bridge stays up and the link keeps flowing.
+        import os
+        import socket
+
+        for _ in range(3):
+            with socket.create_connection(("127.0.0.1", port)) as s:
+                s.sendall(os.urandom(4096) + b"\xff" * 4096)
+        n = len(b.got())
+        wait_for(lambda: len(b.got()) >= n + 20, 30, "messages after the garbage")
+        rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
+        assert rows["_zenoh_bridge"]["restarts"] == 0 and rows["_zenoh_bridge"]["status"] == "running"
+        got = b.got()
+        assert got == list(range(got[0], got[0] + len(got)))
     finally:
         assert b.stop() == 0, "".join(b.all[-30:])
         assert a.stop() == 0, "".join(a.all[-30:])
