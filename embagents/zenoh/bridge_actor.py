@@ -3,8 +3,9 @@
 It serves the System's :class:`~embagents.zenoh.ZenohBridge`: each exported
 internal topic is subscribed here and put on Zenoh under the namespace;
 each import's key expression is subscribed on Zenoh and published on its
-internal topic. Messages cross as the actors' msgpack frames with arrays
-inline (copied: shared memory never leaves a host). Zenoh's own threads
+internal topic. Messages cross as the actors' msgpack frames, arrays of
+64 KB or more copied once into the payload after the frame (shared memory
+never leaves a host; see :class:`_Blobs`). Zenoh's own threads
 hand each sample to the actor's loop thread.
 
 Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
@@ -27,13 +28,16 @@ import json
 import logging
 import os
 import socket
+import struct
 import threading
 import time
 from typing import Any
 
+import numpy as np
+
 from actors import Actor
 from actors.codec import Codec
-from actors.errors import CodecError, UnknownMessage
+from actors.errors import CodecError, CorruptFrame, UnknownMessage
 from embagents.msgs import Health, HealthStatus
 from embagents.zenoh.spec import BRIDGE_NAME, ZenohBridge, zenoh_key
 
@@ -46,7 +50,67 @@ CHECK_EVERY_S = 0.25
 PROBE_EVERY_S = 2.0
 PROBE_ANSWERED_EVERY_S = 30.0
 HEALTH_TOPIC = "_health"
-_INLINE = 1 << 62  # a threshold no array reaches: arrays travel inside the frame
+#: The first bytes of our Zenoh payloads: the frame format's version.
+MAGIC = b"EZ1\0"
+_HEAD = struct.Struct("<4sI")  # magic, msgpack body length
+
+
+class _Blobs:
+    """Large arrays out of band (the codec's sink and source, as shared memory is on a host).
+
+    A payload is ``MAGIC, len(body), body (msgpack), blob bytes``: each array of 64 KB or more is
+    copied once, straight from its shared-memory ring into the payload, instead of through three
+    msgpack buffers; its handle in the body is ``[offset, nbytes, dtype, shape]``. A receiver
+    views it in the payload it got, after checking the handle against the payload's size.
+    """
+
+    def __init__(self) -> None:
+        self.arrays: list[np.ndarray] = []
+        self.size = 0
+        self._local = threading.local()  # the payload being decoded, per zenoh thread
+
+    # -- encoding (the actor's thread) --
+    def put(self, arr: np.ndarray) -> list[Any]:
+        arr = np.ascontiguousarray(arr)
+        handle = [self.size, arr.nbytes, arr.dtype.str, list(arr.shape)]
+        self.arrays.append(arr)
+        self.size += arr.nbytes
+        return handle
+
+    def frame(self, body: bytes) -> bytearray:
+        out = bytearray(_HEAD.size + len(body) + self.size)  # zenoh takes a bytearray without a copy
+        _HEAD.pack_into(out, 0, MAGIC, len(body))
+        start = _HEAD.size + len(body)
+        out[_HEAD.size:start] = body
+        for arr in self.arrays:
+            out[start:start + arr.nbytes] = memoryview(arr).cast("B")
+            start += arr.nbytes
+        self.arrays, self.size = [], 0
+        return out
+
+    # -- decoding (zenoh's threads) --
+    def split(self, data: bytes) -> memoryview:
+        if len(data) < _HEAD.size:
+            raise CorruptFrame(f"a {len(data)}-byte payload is no embagents frame")
+        magic, n = _HEAD.unpack_from(data)
+        if magic != MAGIC or _HEAD.size + n > len(data):
+            raise CorruptFrame(f"not an embagents frame (magic {magic!r}, body {n} of {len(data)} bytes)")
+        self._local.data, self._local.blobs = data, _HEAD.size + n
+        return memoryview(data)[_HEAD.size:_HEAD.size + n]
+
+    def view(self, handle: list[Any], on_release: Any) -> np.ndarray:
+        data, base = self._local.data, self._local.blobs
+        try:
+            off, nbytes, dtype, shape = handle
+            dt = np.dtype(dtype)
+            count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+            ok = (not dt.hasobject and isinstance(off, int) and 0 <= off and count >= 0
+                  and count * dt.itemsize == nbytes and base + off + nbytes <= len(data))
+        except Exception as exc:  # noqa: BLE001 - any malformed handle is a corrupt frame
+            raise CorruptFrame(f"bad array handle {handle!r:.100}: {exc}") from None
+        if not ok:
+            raise CorruptFrame(f"bad array handle {handle!r:.100} in a {len(data)}-byte payload")
+        return np.frombuffer(data, dtype=dt, count=count, offset=base + off).reshape(shape)
 
 
 def zenoh_config(spec: ZenohBridge) -> Any:
@@ -134,7 +198,8 @@ class ZenohBridgeActor(Actor):
         import zenoh.ext as zext
 
         self.spec = spec = self._spec()
-        self.codec = Codec(threshold=_INLINE)
+        self.blobs = _Blobs()
+        self.codec = Codec(source=self.blobs)
         self.counts = {"msgs_out": 0, "bytes_out": 0, "msgs_in": 0, "bytes_in": 0, "lost": 0, "refused": 0}
         self._prev: tuple[float, dict[str, int]] | None = None
         self._lock = threading.Lock()  # counters touched by zenoh's threads
@@ -191,8 +256,10 @@ class ZenohBridgeActor(Actor):
     # -- traffic ------------------------------------------------------------------------
     def _out(self, pub: Any, msg: Any) -> None:
         try:
-            data, _ = self.codec.encode(msg, shm=False)
+            body, _ = self.codec.encode(msg, sink=self.blobs)
+            data = self.blobs.frame(body)
         except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
+            self.blobs.arrays, self.blobs.size = [], 0
             self.counts["refused"] += 1
             log.error("not sent: %s (%s)", type(msg).__name__, exc)
             return
@@ -202,12 +269,12 @@ class ZenohBridgeActor(Actor):
             self.counts["bytes_out"] += len(data)
 
     def _in_callback(self, topic: str) -> Any:
-        codec, ctx, counts, lock = self.codec, self.context, self.counts, self._lock
+        codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
 
         def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
             data = sample.payload.to_bytes()
             try:
-                msg = codec.decode(data)
+                msg = codec.decode(blobs.split(data))
             except CodecError as exc:  # a peer's garbage: dropped and counted, never a crash
                 with lock:
                     counts["refused"] += 1

@@ -40,6 +40,13 @@ def test_a_topic_crosses_from_one_run_to_the_other_in_order(tmp_path: Path) -> N
         assert rows["_zenoh_bridge"]["restarts"] == 0 and rows["_zenoh_bridge"]["status"] == "running"
         got = b.got()
         assert got == list(range(got[0], got[0] + len(got)))
+
+        import subprocess
+        import sys
+
+        topics = subprocess.run([sys.executable, "-m", "embagents.cli", "topic", "list", "--run", "gpu_b"],
+                                capture_output=True, text=True, timeout=60, env=b.env).stdout
+        assert "(remote robot*/chatter)" in topics  # the remote topic names its host's key
     finally:
         assert b.stop() == 0, "".join(b.all[-30:])
         assert a.stop() == 0, "".join(a.all[-30:])
