@@ -128,6 +128,8 @@ def zenoh_config(spec: ZenohBridge) -> Any:
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/delay", "0")  # open at once: links come up (and are watched) in the background
     conf.insert_json5("transport/shared_memory/enabled", "false")
+    # A silent peer is gone after the lease (Zenoh's default, 10 s, hides a pulled cable that long).
+    conf.insert_json5("transport/link/tx/lease", str(int(spec.lease_s * 1000)))
     if spec.tls is not None:
         tls = {
             "root_ca_certificate": spec.tls.ca,

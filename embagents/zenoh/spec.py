@@ -225,7 +225,9 @@ class ZenohBridge:
     - ``imports``: :class:`Import` (or a ``"ns/topic"`` str) brought in;
     - ``listen`` / ``connect``: endpoints (at least one); this side listens, the other connects;
     - ``tls``: :class:`TlsFiles`, needed for ``tls/`` and ``quic/`` endpoints;
-    - ``link_down_s``: a link down (or never up) this long reports SYSTEM_FAILURE on the bridge's health.
+    - ``link_down_s``: a link down (or never up) this long reports SYSTEM_FAILURE on the bridge's health;
+    - ``lease_s``: a peer silent this long (a pulled cable, a veth down) is a link down (Zenoh's lease;
+      keep-alives go 4 times per lease).
     """
 
     def __init__(
@@ -237,6 +239,7 @@ class ZenohBridge:
         connect: Sequence[str] = (),
         tls: TlsFiles | None = None,
         link_down_s: float = 5.0,
+        lease_s: float = 3.0,
     ) -> None:
         if not isinstance(namespace, str) or not _NAME.match(namespace):
             raise ValueError(f"ZenohBridge namespace must be one chunk of letters, digits, '_' or '-' "
@@ -255,6 +258,9 @@ class ZenohBridge:
         if isinstance(link_down_s, bool) or not isinstance(link_down_s, (int, float)) or link_down_s <= 0:
             raise ValueError(f"link_down_s must be seconds > 0, got {link_down_s!r}")
         self.link_down_s = float(link_down_s)
+        if isinstance(lease_s, bool) or not isinstance(lease_s, (int, float)) or not 0.5 <= lease_s <= 600:
+            raise ValueError(f"lease_s must be seconds in 0.5-600, got {lease_s!r}")
+        self.lease_s = float(lease_s)
         seen: set[str] = set()
         for e in self.exports:
             if e.topic in seen:
@@ -277,14 +283,14 @@ class ZenohBridge:
             "imports": [{"key": i.key, "topic": i.topic, "keep": i.keep} for i in self.imports],
             "listen": self.listen, "connect": self.connect,
             "tls": None if self.tls is None else attrs.asdict(self.tls),
-            "link_down_s": self.link_down_s,
+            "link_down_s": self.link_down_s, "lease_s": self.lease_s,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ZenohBridge:
         return cls(d["namespace"], [Export(**e) for e in d["exports"]], [Import(**i) for i in d["imports"]],
                    d["listen"], d["connect"], None if d.get("tls") is None else TlsFiles(**d["tls"]),
-                   d.get("link_down_s", 5.0))
+                   d.get("link_down_s", 5.0), d.get("lease_s", 3.0))
 
     def __repr__(self) -> str:
         return (f"ZenohBridge({self.namespace!r}, exports={[e.topic for e in self.exports]}, "

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -66,10 +65,14 @@ def test_two_namespaces_link_over_tls_and_a_veth_cut_loses_nothing(namespaces: N
         detail = b.bridge()
         assert detail is not None and detail["links"][0]["state"] == "up", detail
         _ip("-n", NS_A, "link", "set", VETH_A, "down")
-        time.sleep(3.0)
+        # A silent peer: down once the 3 s lease runs out, SYSTEM_FAILURE 1 s later (link_down_s).
+        down = wait_for(lambda: (d := b.bridge()) and d["health"] == "SYSTEM_FAILURE" and d, 30,
+                        "SYSTEM_FAILURE while the veth is down")
+        assert down["links"][0]["state"] == "down"
         before = len(b.got())
         _ip("-n", NS_A, "link", "set", VETH_A, "up")
-        wait_for(lambda: len(b.got()) >= before + 150, 60, "the messages of the cut")
+        wait_for(lambda: len(b.got()) >= before + 200, 60, "the messages of the cut")
+        wait_for(lambda: (d := b.bridge()) and d["health"] == "HEALTHY", 30, "HEALTHY after the veth is up")
         got = b.got()
         assert got == list(range(got[0], got[0] + len(got)))  # every message once, in order
         assert b.bridge()["counts"]["lost"] == 0  # type: ignore[index]
