@@ -52,6 +52,10 @@ PROBE_ANSWERED_EVERY_S = 30.0
 HEALTH_TOPIC = "_health"
 #: The first bytes of our Zenoh payloads: the frame format's version.
 MAGIC = b"EZ1\0"
+LZ4 = b"EZL\0"  # then an lz4 frame of a whole MAGIC payload
+JPEG = b"EZJ\0"  # then a MAGIC payload's rest: its message is a CompressedImage that goes on as an Image
+#: The most an lz4 payload may grow to (a decompression bomb is a corrupt frame).
+MAX_PAYLOAD = 256 * 1024 * 1024
 _HEAD = struct.Struct("<4sI")  # magic, msgpack body length
 
 
@@ -93,7 +97,7 @@ class _Blobs:
         if len(data) < _HEAD.size:
             raise CorruptFrame(f"a {len(data)}-byte payload is no embagents frame")
         magic, n = _HEAD.unpack_from(data)
-        if magic != MAGIC or _HEAD.size + n > len(data):
+        if magic not in (MAGIC, JPEG) or _HEAD.size + n > len(data):
             raise CorruptFrame(f"not an embagents frame (magic {magic!r}, body {n} of {len(data)} bytes)")
         self._local.data, self._local.blobs = data, _HEAD.size + n
         return memoryview(data)[_HEAD.size:_HEAD.size + n]
@@ -149,6 +153,53 @@ def _split(endpoint: str) -> tuple[str, str, int]:
     rest = rest.split("#", 1)[0].split("?", 1)[0]
     host, _, port = rest.rpartition(":")
     return proto, host.strip("[]"), int(port) if port.isdigit() else -1
+
+
+def _to_jpeg(msg: Any, quality: int) -> Any:
+    """An Image as a CompressedImage (JPEG), for ``Export(compress="jpeg")``; anything else as it is."""
+    import cv2
+
+    from embagents.msgs import CompressedImage, Image
+
+    if not isinstance(msg, Image) or msg.data.dtype != np.uint8 or msg.encoding not in ("rgb8", "bgr8", "mono8"):
+        raise ValueError(f"compress='jpeg' takes an Image of rgb8, bgr8 or mono8 uint8 pixels, got {msg!r:.120}; "
+                         "use compress='lz4' for other messages")
+    pixels = msg.data[..., ::-1] if msg.encoding == "rgb8" else msg.data  # OpenCV writes BGR
+    ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(pixels), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f"OpenCV could not encode a {msg.data.shape} image as JPEG")
+    return CompressedImage(data=jpeg.tobytes(), format="jpeg", stamp=msg.stamp, frame_id=f"{msg.encoding}|{msg.frame_id}")
+
+
+def _from_jpeg(msg: Any) -> Any:
+    import cv2
+
+    from embagents.msgs import CompressedImage, Image
+
+    if not isinstance(msg, CompressedImage):
+        raise CorruptFrame(f"a JPEG payload that holds no CompressedImage: {msg!r:.100}")
+    encoding, _, frame_id = msg.frame_id.partition("|")
+    mono = encoding == "mono8"
+    pixels = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE if mono else cv2.IMREAD_COLOR)
+    if pixels is None:
+        raise CorruptFrame("a JPEG payload OpenCV cannot decode")
+    if encoding == "rgb8":
+        pixels = np.ascontiguousarray(pixels[..., ::-1])
+    return Image(data=pixels, encoding=encoding if encoding in ("rgb8", "bgr8", "mono8") else "bgr8",
+                 stamp=msg.stamp, frame_id=frame_id)
+
+
+def _unlz4(data: bytes) -> bytes:
+    import lz4.frame
+
+    try:
+        dec = lz4.frame.LZ4FrameDecompressor()
+        out = dec.decompress(data, max_length=MAX_PAYLOAD)
+    except RuntimeError as exc:
+        raise CorruptFrame(f"not an lz4 frame: {exc}") from None
+    if not dec.eof:
+        raise CorruptFrame(f"an lz4 payload larger than {MAX_PAYLOAD} bytes or cut short")
+    return bytes(out)
 
 
 class _Endpoint:
@@ -225,6 +276,7 @@ class ZenohBridgeActor(Actor):
 
         self.link_listener = self.session.info.declare_link_events_listener(on_link, history=True)
         self.publishers: dict[str, Any] = {}
+        self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
         for e in spec.exports:
             key = spec.key_of(e)
             if e.keep == "all":
@@ -235,7 +287,7 @@ class ZenohBridgeActor(Actor):
             else:
                 pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
-            ctx.subscribe(e.topic, lambda msg, p=pub: self._out(p, msg), queue_size=max(10, min(e.window, 1000)),
+            ctx.subscribe(e.topic, lambda msg, p=pub, t=e.topic: self._out(p, msg, t), queue_size=max(10, min(e.window, 1000)),
                           keep=e.keep)
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
@@ -256,10 +308,19 @@ class ZenohBridgeActor(Actor):
         self._timer = ctx.call_later(CHECK_EVERY_S, self._check)
 
     # -- traffic ------------------------------------------------------------------------
-    def _out(self, pub: Any, msg: Any) -> None:
+    def _out(self, pub: Any, msg: Any, topic: str = "") -> None:
+        how, quality = self.compress.get(topic, (None, 0))
         try:
+            if how == "jpeg":
+                msg = _to_jpeg(msg, quality)
             body, _ = self.codec.encode(msg, sink=self.blobs)
             data = self.blobs.frame(body)
+            if how == "jpeg":
+                data[:4] = JPEG
+            elif how == "lz4":
+                import lz4.frame
+
+                data = bytearray(LZ4 + lz4.frame.compress(data))
         except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
             self.blobs.arrays, self.blobs.size = [], 0
             self.counts["refused"] += 1
@@ -276,7 +337,11 @@ class ZenohBridgeActor(Actor):
         def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
             data = sample.payload.to_bytes()
             try:
+                if data[:4] == LZ4:
+                    data = _unlz4(data[4:])
                 msg = codec.decode(blobs.split(data))
+                if data[:4] == JPEG:
+                    msg = _from_jpeg(msg)
             except CodecError as exc:  # a peer's garbage: dropped and counted, never a crash
                 with lock:
                     counts["refused"] += 1

@@ -122,6 +122,12 @@ def _keep(value: str) -> str:
     return value
 
 
+def _compress(value: str | None) -> str | None:
+    if value not in (None, "lz4", "jpeg"):
+        raise ValueError(f"compress must be None, 'lz4' (any message) or 'jpeg' (an Image; lossy), got {value!r}")
+    return value
+
+
 def _window(value: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f"window must be an int >= 1 (messages kept for replay after a link cut), got {value!r}")
@@ -134,8 +140,10 @@ class Export:
 
     ``keep="all"``: reliable, the last ``window`` messages kept for replay after a
     link cut, a loss beyond it counted; ``"latest"``: resumes with what comes next.
+    ``compress``: ``"lz4"`` (any message) or ``"jpeg"`` (an ``Image`` arrives as an
+    ``Image`` again, lossy, quality ``jpeg_quality``) for links that need it.
 
-    >>> Export("camera/image", keep="latest").key
+    >>> Export("camera/image", keep="latest", compress="jpeg").key
     'camera/image'
     """
 
@@ -143,6 +151,8 @@ class Export:
     keep: str = attrs.field(default="all", validator=lambda _i, _a, v: _keep(v))
     window: int = attrs.field(default=5000, validator=lambda _i, _a, v: _window(v))
     key: str | None = None
+    compress: str | None = attrs.field(default=None, validator=lambda _i, _a, v: _compress(v))
+    jpeg_quality: int = 90
 
     def __attrs_post_init__(self) -> None:
         if not isinstance(self.topic, str) or not self.topic:

@@ -6,7 +6,8 @@
 
 The ``camera`` publishes a real photo (scikit-image's astronaut.png) at 5 Hz on
 ``camera/image``; the bridge exports it as ``robot1/camera/image`` (keep-latest:
-a late frame is worth nothing). The GPU box's Vision finds her face and
+a late frame is worth nothing; as JPEG: 30 KB instead of 786 KB on the link, an
+``Image`` again on the other side). The GPU box's Vision finds her face and
 exports ``gpu/faces``; this bridge imports it back as ``faces`` (keep-all), and
 ``report`` prints each detection with its round trip, then stops the system
 after ``EMBAGENTS_TWO_HOSTS_N`` detections (default 20; 0: run on).
@@ -76,7 +77,7 @@ system = System(
         PhotoCamera(name="camera", outputs=[frames], trigger=5.0),
         Report(name="report", inputs=[faces], outputs=[stop], trigger=faces),
     ],
-    zenoh=ZenohBridge("robot1", exports=[Export(frames, keep="latest")],
+    zenoh=ZenohBridge("robot1", exports=[Export(frames, keep="latest", compress="jpeg")],
                       imports=[Import("gpu/faces", Detections)], connect=[CONNECT], tls=tls("robot1")),
     name="robot1",
 )

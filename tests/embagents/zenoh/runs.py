@@ -34,7 +34,7 @@ class Counter(Component):
         self.publish(chatter, String(data=str(self.n)))
 
 system = System([Counter(name="counter", outputs=[chatter], trigger=RATE)], name=NAME,
-                zenoh=ZenohBridge("robot1", exports=[Export("chatter", window=WINDOW)], ENDPOINTS, LINK_DOWN))
+                zenoh=ZenohBridge("robot1", exports=[Export("chatter", window=WINDOW, compress=COMPRESS)], ENDPOINTS, LINK_DOWN))
 '''
 
 RECEIVER = '''
@@ -62,10 +62,10 @@ def free_port() -> int:
 
 
 def write(tmp: Path, name: str, template: str, endpoints: str, rate: float = 20.0, link_down_s: float = 2.0,
-          window: int = 5000) -> str:
+          window: int = 5000, compress: str | None = None) -> str:
     path = tmp / f"{name}.py"
     path.write_text(textwrap.dedent(template).replace("NAME", repr(name)).replace("ENDPOINTS", endpoints)
-                    .replace("RATE", repr(rate)).replace("WINDOW", repr(window)).replace("LINK_DOWN", f"link_down_s={link_down_s}"))
+                    .replace("RATE", repr(rate)).replace("WINDOW", repr(window)).replace("COMPRESS", repr(compress)).replace("LINK_DOWN", f"link_down_s={link_down_s}"))
     return str(path)
 
 

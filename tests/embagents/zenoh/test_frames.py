@@ -9,7 +9,7 @@ import embagents.msgs  # noqa: F401 - registers Image
 from actors.codec import Codec
 from actors.errors import CorruptFrame
 from embagents.msgs import Image
-from embagents.zenoh.bridge_actor import _HEAD, MAGIC, _Blobs
+from embagents.zenoh.bridge_actor import _HEAD, MAGIC, MAX_PAYLOAD, _Blobs, _from_jpeg, _to_jpeg, _unlz4
 
 
 def _roundtrip(msg: object) -> object:
@@ -47,3 +47,25 @@ def test_a_payload_that_is_not_ours_is_a_corrupt_frame() -> None:
     for data in (b"", b"hello world!", _HEAD.pack(MAGIC, 10**6) + b"x"):
         with pytest.raises(CorruptFrame):
             blobs.split(data)
+
+
+def test_jpeg_brings_an_image_back_as_an_image_and_refuses_what_it_cannot_carry() -> None:
+    pytest.importorskip("cv2")
+    from skimage import data
+
+    photo = data.astronaut()
+    back = _from_jpeg(_roundtrip(_to_jpeg(Image(data=photo, encoding="rgb8", stamp=2.0, frame_id="cam"), 90)))
+    assert isinstance(back, Image) and back.encoding == "rgb8" and back.frame_id == "cam" and back.stamp == 2.0
+    assert back.data.shape == photo.shape and np.abs(back.data.astype(int) - photo).mean() < 4  # lossy, close
+    with pytest.raises(ValueError, match="use compress='lz4' for other messages"):
+        _to_jpeg(Image(data=np.zeros((4, 4), np.float32), encoding="32FC1"), 90)
+
+
+def test_an_lz4_bomb_or_garbage_is_a_corrupt_frame() -> None:
+    import lz4.frame
+
+    assert _unlz4(lz4.frame.compress(b"abc" * 1000)) == b"abc" * 1000
+    with pytest.raises(CorruptFrame, match="larger than"):
+        _unlz4(lz4.frame.compress(bytes(MAX_PAYLOAD + 1)))
+    with pytest.raises(CorruptFrame):
+        _unlz4(b"not lz4 at all")

@@ -99,3 +99,17 @@ def test_the_two_hosts_example_brings_detections_back_to_the_robot(tmp_path: Pat
     finally:
         robot.stop()
         assert gpu.stop() == 0, "".join(gpu.all[-30:])
+
+
+def test_an_lz4_compressed_topic_arrives_whole(tmp_path: Path) -> None:
+    port = free_port()
+    runs = str(tmp_path / "runs")
+    a = Run(write(tmp_path, "lz_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", compress="lz4"), runs)
+    b = Run(write(tmp_path, "lz_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 10, 60, "lz4 messages on run B")
+        got = b.got()
+        assert got == list(range(got[0], got[0] + len(got)))
+        assert b.bridge()["counts"]["refused"] == 0  # type: ignore[index]
+    finally:
+        b.stop(), a.stop()
