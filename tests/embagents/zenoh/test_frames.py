@@ -9,7 +9,15 @@ import embagents.msgs  # noqa: F401 - registers Image
 from actors.codec import Codec
 from actors.errors import CorruptFrame
 from embagents.msgs import Image
-from embagents.zenoh.bridge_actor import _HEAD, MAGIC, MAX_PAYLOAD, _Blobs, _from_jpeg, _to_jpeg, _unlz4
+from embagents.zenoh.bridge_actor import (
+    _HEAD,
+    MAGIC,
+    MAX_PAYLOAD,
+    _Blobs,
+    _from_jpeg,
+    _to_jpeg,
+    _unlz4,
+)
 
 
 def _roundtrip(msg: object) -> object:
