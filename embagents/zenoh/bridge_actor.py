@@ -323,7 +323,8 @@ class ZenohBridgeActor(Actor):
                 data = bytearray(LZ4 + lz4.frame.compress(data))
         except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
             self.blobs.arrays, self.blobs.size = [], 0
-            self.counts["refused"] += 1
+            with self._lock:
+                self.counts["refused"] += 1
             log.error("not sent: %s (%s)", type(msg).__name__, exc)
             return
         pub.put(data)
@@ -420,21 +421,18 @@ class ZenohBridgeActor(Actor):
                     log.error("zenoh link %s (%s) %s: %s; %s", ep.endpoint, ep.role, what, why, fix)
         if failing:
             self._set_health(HealthStatus.SYSTEM_FAILURE, "; ".join(failing))
-        elif self.health[0] != HealthStatus.HEALTHY or self.health[1] == "starting":
+        elif all(ep.links for ep in self.endpoints):
             self._set_health(HealthStatus.HEALTHY, "links up")
         self._timer = self.context.call_later(CHECK_EVERY_S, self._check)
 
     def _set_health(self, status: HealthStatus, text: str) -> None:
-        # Texts carry seconds: publish on a change of status, or every second while failing.
-        if status == self.health[0] and (status == HealthStatus.HEALTHY or int(time.monotonic()) == self._health_at):
-            self.health = (status, text)
-            return
-        self._health_at = int(time.monotonic())
+        # Published when the status changes (fallbacks act on each report); the text (with its
+        # seconds) is kept up to date for `embagents status` and HealthQuery.
+        changed = status != self.health[0]
         self.health = (status, text)
-        self.context.publish(HEALTH_TOPIC, Health(component=self.context.name, status=status, text=text,
-                                                  stamp=time.time()))
-
-    _health_at = 0
+        if changed:
+            self.context.publish(HEALTH_TOPIC, Health(component=self.context.name, status=status, text=text,
+                                                      stamp=time.time()))
 
     # -- status ----------------------------------------------------------------------------
     def links(self) -> list[dict[str, Any]]:

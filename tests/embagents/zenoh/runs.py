@@ -49,7 +49,19 @@ class Printer(Component):
     def _execution_step(self, **inputs):
         print("GOT", inputs["chatter"].data, flush=True)
 
-system = System([Printer(name="printer", inputs=[chatter], trigger=chatter)], name=NAME,
+from embagents.msgs import Health
+
+health = Topic("_health", Health, queue_size=100, keep="all")
+
+class HealthPrinter(Component):
+    allowed_inputs = {"Required": [Health]}
+
+    def _execution_step(self, **inputs):
+        h = inputs["_health"]
+        print("HEALTH", h.component, h.status.name, flush=True)
+
+system = System([Printer(name="printer", inputs=[chatter], trigger=chatter),
+                 HealthPrinter(name="health_printer", inputs=[health], trigger=health)], name=NAME,
                 zenoh=ZenohBridge("gpu", imports=[Import("robot*/chatter", String, topic="chatter")], ENDPOINTS,
                                   LINK_DOWN))
 '''

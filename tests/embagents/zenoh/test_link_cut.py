@@ -40,6 +40,10 @@ def test_a_three_second_cut_loses_nothing_and_sets_system_failure_meanwhile(tmp_
         up = wait_for(lambda: (d := b.bridge()) and d["health"] == "HEALTHY" and d, 20, "HEALTHY after the cut")
         assert up["links"][0]["state"] == "up" and up["counts"]["lost"] == 0
         assert any("link tcp/127.0.0.1" in x and "down" in x for x in b.all)
+        # The reports on `_health` a fallback or an event acts on: one per change of status.
+        reports = [x.split()[1:] for x in b.all if x.startswith("HEALTH ")]
+        assert ["_zenoh_bridge", "SYSTEM_FAILURE"] in reports and reports[-1] == ["_zenoh_bridge", "HEALTHY"]
+        assert reports.count(["_zenoh_bridge", "SYSTEM_FAILURE"]) == 1
     finally:
         b.stop(), a.stop()
         proxy.close()
