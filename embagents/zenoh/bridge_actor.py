@@ -144,7 +144,28 @@ def zenoh_config(spec: ZenohBridge) -> Any:
             "verify_name_on_connect": False,
         }
         conf.insert_json5("transport/link/tls", json.dumps(tls))
+    if spec.peers is not None:
+        conf.insert_json5("access_control", json.dumps(access_rules(spec.peers)))
     return conf
+
+
+#: Every kind of Zenoh message an access rule covers (the advanced pub/sub's queries and tokens too).
+_ACL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply", "liveliness_token",
+                 "declare_liveliness_subscriber", "liveliness_query"]
+
+
+def access_rules(peers: dict[str, list[str]]) -> dict[str, Any]:
+    """Zenoh's access_control for ``ZenohBridge(peers=...)``: deny by default; per certificate name,
+    its key expressions (with what the advanced pub/sub hangs under them and its ``@adv`` tokens)."""
+    rules, subjects, policies = [], [], []
+    for i, (name, keys) in enumerate(sorted(peers.items())):
+        exprs = sorted({x for k in map(zenoh_key, keys) for x in (k, k if k.endswith("**") else k + "/**")}
+                       | {"@adv/**"})
+        rules.append({"id": f"r{i}", "messages": _ACL_MESSAGES, "flows": ["ingress", "egress"],
+                      "permission": "allow", "key_exprs": exprs})
+        subjects.append({"id": f"s{i}", "cert_common_names": [name]})
+        policies.append({"rules": [f"r{i}"], "subjects": [f"s{i}"]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def _split(endpoint: str) -> tuple[str, str, int]:

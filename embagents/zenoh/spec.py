@@ -236,6 +236,9 @@ class ZenohBridge:
     - ``listen`` / ``connect``: endpoints (at least one); this side listens, the other connects;
     - ``tls``: :class:`TlsFiles`, needed for ``tls/`` and ``quic/`` endpoints;
     - ``link_down_s``: a link down (or never up) this long reports SYSTEM_FAILURE on the bridge's health;
+    - ``peers``: access rules, ``{certificate name: [key expressions]}`` (needs ``tls``): only the
+      peers named here may link, and with each only those key expressions flow, either way (publish
+      and subscribe); without it any peer whose certificate the CA signed may use every key;
     - ``lease_s``: a peer silent this long (a pulled cable, a veth down) is a link down (Zenoh's lease;
       keep-alives go 4 times per lease).
     """
@@ -250,6 +253,7 @@ class ZenohBridge:
         tls: TlsFiles | None = None,
         link_down_s: float = 5.0,
         lease_s: float = 3.0,
+        peers: dict[str, Sequence[str]] | None = None,
     ) -> None:
         if not isinstance(namespace, str) or not _NAME.match(namespace):
             raise ValueError(f"ZenohBridge namespace must be one chunk of letters, digits, '_' or '-' "
@@ -271,6 +275,14 @@ class ZenohBridge:
         if isinstance(lease_s, bool) or not isinstance(lease_s, (int, float)) or not 0.5 <= lease_s <= 600:
             raise ValueError(f"lease_s must be seconds in 0.5-600, got {lease_s!r}")
         self.lease_s = float(lease_s)
+        if peers is not None:
+            if tls is None:
+                raise ValueError("peers= (access rules by certificate name) needs tls=TlsFiles(...): without TLS "
+                                 "a peer has no proven name")
+            if not isinstance(peers, dict) or not all(isinstance(k, str) and k for k in peers):
+                raise TypeError(f"peers must be {{certificate name: [key expressions]}}, got {peers!r}")
+            peers = {name: [_key(f"peers[{name!r}]", k) for k in keys] for name, keys in peers.items()}
+        self.peers = peers
         seen: set[str] = set()
         for e in self.exports:
             if e.topic in seen:
@@ -293,14 +305,14 @@ class ZenohBridge:
             "imports": [{"key": i.key, "topic": i.topic, "keep": i.keep} for i in self.imports],
             "listen": self.listen, "connect": self.connect,
             "tls": None if self.tls is None else attrs.asdict(self.tls),
-            "link_down_s": self.link_down_s, "lease_s": self.lease_s,
+            "link_down_s": self.link_down_s, "lease_s": self.lease_s, "peers": self.peers,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ZenohBridge:
         return cls(d["namespace"], [Export(**e) for e in d["exports"]], [Import(**i) for i in d["imports"]],
                    d["listen"], d["connect"], None if d.get("tls") is None else TlsFiles(**d["tls"]),
-                   d.get("link_down_s", 5.0), d.get("lease_s", 3.0))
+                   d.get("link_down_s", 5.0), d.get("lease_s", 3.0), d.get("peers"))
 
     def __repr__(self) -> str:
         return (f"ZenohBridge({self.namespace!r}, exports={[e.topic for e in self.exports]}, "

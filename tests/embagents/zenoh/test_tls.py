@@ -57,6 +57,31 @@ def test_peers_of_one_ca_link_and_a_peer_of_another_ca_is_refused_and_logged(tmp
             r.stop()
 
 
+def test_access_rules_let_a_named_peer_have_its_keys_and_nothing_else(tmp_path: Path) -> None:
+    fleet = tmp_path / "fleet"
+    fleet.mkdir(mode=0o700)
+    for host in ("robot1", "gpu", "laptop"):
+        assert _keys(fleet, host).returncode == 0
+    port = free_port()
+    runs = str(tmp_path / "runs")
+
+    def tls(host: str) -> str:
+        return f"tls=TlsFiles.of_host({str(fleet)!r}, {host!r})"
+
+    # robot1 lets gpu have robot*/chatter (the key gpu subscribes to); laptop (a certificate of the same CA) is named nowhere.
+    a = Run(write(tmp_path, "acl_robot", SENDER, f"listen=['tls/127.0.0.1:{port}'], {tls('robot1')}, "
+                  "peers={'gpu': ['robot*/chatter']}"), runs)
+    b = Run(write(tmp_path, "acl_gpu", RECEIVER, f"connect=['tls/127.0.0.1:{port}'], {tls('gpu')}"), runs)
+    c = Run(write(tmp_path, "acl_laptop", RECEIVER, f"connect=['tls/127.0.0.1:{port}'], {tls('laptop')}"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 20, 60, "messages for the named peer")
+        n = len(c.got())
+        assert n == 0, "".join(c.all[-20:])
+    finally:
+        for r in (c, b, a):
+            r.stop()
+
+
 def test_plain_tcp_beyond_loopback_and_tls_without_certificates_are_refused_naming_the_fix(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"plain TCP beyond loopback is not allowed; use 'tls/192.168.1.20:7447' "
                                          r"with tls=TlsFiles"):
@@ -67,6 +92,8 @@ def test_plain_tcp_beyond_loopback_and_tls_without_certificates_are_refused_nami
         ZenohBridge("robot1", listen=["tcp:127.0.0.1:7447"])
     with pytest.raises(ValueError, match=r"does not exist; make it with `embagents keys --tls --host NAME`"):
         TlsFiles.of_host(str(tmp_path), "robot1")
+    with pytest.raises(ValueError, match=r"peers= \(access rules by certificate name\) needs tls="):
+        ZenohBridge("robot1", listen=["tcp/127.0.0.1:7447"], peers={"gpu": ["robot1/**"]})
     with pytest.raises(TypeError, match=r"write \['tcp/127.0.0.1:7447'\]"):
         ZenohBridge("robot1", listen="tcp/127.0.0.1:7447")  # type: ignore[arg-type]
 
