@@ -20,7 +20,12 @@ def _linked(tmp_path: Path, window: int) -> tuple[Run, Run, CutProxy]:
     runs = str(tmp_path / "runs")
     a = Run(write(tmp_path, "robot_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", rate=50.0, window=window), runs)
     b = Run(write(tmp_path, "gpu_b", RECEIVER, f"connect=['tcp/127.0.0.1:{proxy.port}']", link_down_s=1.0), runs)
-    wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B: " + "".join(b.all[-20:]))
+    try:
+        wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B")
+    except BaseException:
+        b.stop(), a.stop()
+        proxy.close()
+        raise
     return a, b, proxy
 
 
