@@ -142,6 +142,13 @@ class Actor:
     ) -> None:
         """Called when a told message raised; the actor then exits (and may be restarted)."""
 
+    def status_detail(self) -> dict[str, Any] | None:
+        """More for ``embagents status`` than its standard row: plain data, its ``lines`` printed under the table.
+
+        Called on the actor's thread for each status request; keep it cheap.
+        """
+        return None
+
     def on_receive(self, message: Any) -> Any:
         """Handle one message; the return value answers an ``ask``."""
         raise NotImplementedError(f"{type(self).__name__} does not handle messages: override on_receive")

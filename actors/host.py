@@ -174,6 +174,7 @@ class ActorHost:
             "busy_for": time.monotonic() - mb.busy_since if mb.busy_since else 0.0,
             "subscriptions": [sub.stats() for sub in self.subscriptions],
             "stalled": {t: p.stalled for t, p in self.publishers.items() if p.stalled},
+            "detail": getattr(self.actor, "status_detail", lambda: None)(),
         }
 
     # -- topics -------------------------------------------------------------

@@ -166,6 +166,18 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
                 use(t.name, t.msg_type, f"input of node {node.name!r} of manager {m.name!r}", m.name)
     for name, msg_type in ros_provided:
         use(name, msg_type, "RosInput")
+    zenoh = getattr(system, "zenoh", None)
+    if zenoh is not None:
+        from embagents.zenoh.spec import ZenohBridge
+
+        if not isinstance(zenoh, ZenohBridge):
+            out.append(Problem(None, "zenoh", f"System zenoh must be one embagents.zenoh.ZenohBridge (one per host), "
+                               f"got {zenoh!r}"))
+            zenoh = None
+    zenoh_in = list(zenoh.imports) if zenoh is not None else []
+    for i in zenoh_in:
+        if isinstance(i.msg_type, type):
+            use(i.topic, i.msg_type, f"zenoh Import {i.key!r}")
     for t in system.external:
         use(t.name, t.msg_type, "external topic")
     for event, actions in system.events:
@@ -186,6 +198,18 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
     provided |= {name for name, _ in ros_provided} | {t.name for t in system.external}
     provided |= {t for m in system.managers for node in m.nodes for t in node.outputs}
     provided |= {a.args["topic"] for _, actions in system.events for a in actions if a.kind == "publish"}
+    provided |= {i.topic for i in zenoh_in}
+    if zenoh is not None:
+        import importlib.util
+
+        if importlib.util.find_spec("zenoh") is None:
+            from embagents.zenoh.spec import ZENOH_EXTRA_HINT
+
+            out.append(Problem(None, "zenoh-missing", f"Zenoh bridge: zenoh is not installed; {ZENOH_EXTRA_HINT}"))
+        for e in zenoh.exports:
+            if e.topic not in provided:
+                out.append(Problem(None, "unknown-topic", f"zenoh export {e.topic!r}: nothing in this system "
+                                   "publishes this topic", "warning"))
     for m in system.managers:
         heard = {t.name for node in m.nodes for t in node.subscriptions}
         for rule in m.handshake:

@@ -109,6 +109,11 @@ def build_spec(system: System, path: str, resolved: dict[str, str] | None = None
         from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
 
         children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
+    if getattr(system, "zenoh", None) is not None:
+        from embagents.zenoh.bridge_actor import BRIDGE_NAME as ZENOH_BRIDGE
+        from embagents.zenoh.bridge_actor import ZenohBridgeActor
+
+        children.append(ChildSpec(ZENOH_BRIDGE, (ZenohBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
     for c in system.components:
         # config.step_timeout_s is the component's hang deadline: a longer step gets it killed and restarted.
         heartbeat = getattr(c.config, "step_timeout_s", None) or HEARTBEAT_S

@@ -114,6 +114,7 @@ class System:
     - ``events``: ``{Event: Action or [Actions]}`` or a list of such pairs.
     - ``models`` / ``clients``: model declarations and clients to serve (carried for the runtime).
     - ``ros``: ``RosInput`` / ``RosOutput`` declarations of the ROS bridge (carried).
+    - ``zenoh``: this host's :class:`~embagents.zenoh.ZenohBridge` (topics to and from other hosts), or None.
     - ``external``: topics published from outside (a test harness, another system);
       they count as provided in checks.
     - ``managers``: :class:`~embagents.manager.Manager` loops (each a supervised actor; its
@@ -136,6 +137,7 @@ class System:
         supervision: Mapping[str, Any] | None = None,
         name: str = "system",
         managers: Sequence[Any] = (),
+        zenoh: Any = None,
     ) -> None:
         if isinstance(components, Component) or not isinstance(components, Sequence):
             raise TypeError(f"System components must be a list of components, got {components!r}")
@@ -161,6 +163,8 @@ class System:
         self.supervision = _supervision(supervision)
         self.name = name
         self.managers = list(managers)
+        # Its type is checked by `embagents check` (embagents.zenoh is not imported here: it loads systems).
+        self.zenoh = zenoh
 
     def __repr__(self) -> str:
         return f"System(name={self.name!r}, components={[c.name for c in self.components]})"

@@ -251,6 +251,8 @@ def format_status_table(rows: Sequence[dict[str, Any]]) -> str:
     for row in cells:
         parts = [c.rjust(w) if right else c.ljust(w) for c, w, (_, _, right) in zip(row, widths, _COLUMNS, strict=True)]
         lines.append("  ".join(parts).rstrip())
+    for r in rows:  # an actor's own lines (a bridge's links), under the table
+        lines += [f"{r['name']}: {line}" for line in ((r.get("detail") or {}).get("lines") or [])]
     return "\n".join(lines)
 
 

@@ -344,6 +344,8 @@ class ControlServer:
             subs = st.get("subscriptions") or []
             r["subscriptions"], r["drops"] = subs, sum(s["dropped"] for s in subs)
             r["stalled"] = st.get("stalled") or {}  # keep-all subscribers its publishers drop for
+            if st.get("detail") is not None:
+                r["detail"] = st["detail"]  # the actor's own (a bridge's links)
             with self._rows_lock:
                 prev = self._prev.get(r["name"])
                 if prev is not None and prev[0] == st["incarnation"] and now > prev[2]:

@@ -66,6 +66,14 @@ def topic_rows(system: System, run_dir: str) -> list[dict[str, Any]]:
             pubs.append("(external)")
         rows[name] = {"name": name, "type": t.type_name, "wire": message_name(t.msg_type), "keep": t.keep,
                       "queue_size": t.queue_size, "publishers": pubs}
+    bridge = getattr(system, "zenoh", None)  # a ZenohBridge: remote topics name their host's key
+    for i in getattr(bridge, "imports", ()):
+        if i.topic in rows:
+            rows[i.topic]["publishers"].append(f"(remote {i.key})")
+            rows[i.topic]["remote"] = i.key
+    for e in getattr(bridge, "exports", ()):
+        if e.topic in rows:
+            rows[e.topic]["exported"] = bridge.key_of(e)
     rows.setdefault(EVENTS_TOPIC, {"name": EVENTS_TOPIC, "type": "SupervisorEvent", "wire": "", "keep": "latest",
                                    "queue_size": 100, "publishers": ["(supervisor)"]})
     for r in rows.values():

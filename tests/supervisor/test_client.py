@@ -34,6 +34,12 @@ def test_format_status_table() -> None:
     assert format_status_table([]).startswith("NAME")
 
 
+def test_an_actors_own_status_lines_follow_the_table_under_its_name() -> None:
+    rows = [dict(ROWS[0], detail={"lines": ["zenoh connect tcp/127.0.0.1:7447: up, 1 link(s)"], "links": []}), ROWS[1]]
+    lines = format_status_table(rows).splitlines()
+    assert len(lines) == 4 and lines[3] == "camera: zenoh connect tcp/127.0.0.1:7447: up, 1 link(s)"
+
+
 def test_find_runs_skips_and_removes_dead_announcements(system: ActorSystem) -> None:
     os.makedirs(runs_dir(), exist_ok=True)
     stale = os.path.join(runs_dir(), "dead.json")

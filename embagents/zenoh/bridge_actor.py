@@ -1,0 +1,501 @@
+"""The Zenoh bridge actor: the one process of a run that imports zenoh.
+
+It serves the System's :class:`~embagents.zenoh.ZenohBridge`: each exported
+internal topic is subscribed here and put on Zenoh under the namespace;
+each import's key expression is subscribed on Zenoh and published on its
+internal topic. Messages cross as the actors' msgpack frames, arrays of
+64 KB or more copied once into the payload after the frame (shared memory
+never leaves a host; see :class:`_Blobs`). Zenoh's own threads
+hand each sample to the actor's loop thread.
+
+Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
+samples cached, heartbeats for miss detection) and advanced subscriber
+(recovery of missed samples by sequence number, in order, once): a link cut
+shorter than the window loses nothing; a loss beyond it is counted
+(``lost`` in ``embagents status``) and logged. Keep-latest topics are plain
+publishers that drop under congestion and just resume.
+
+Links: explicit endpoints, multicast scouting off. Each endpoint's state
+(up, down since when, never up with the last error) and the traffic each
+way are in ``embagents status``; an endpoint without a link for
+``link_down_s`` reports SYSTEM_FAILURE on the bridge's health (topic
+``_health``) so fallbacks and events can act, and HEALTHY once it is back.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import struct
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from actors import Actor
+from actors.codec import Codec
+from actors.errors import CodecError, CorruptFrame, UnknownMessage
+from embagents.msgs import Health, HealthStatus
+from embagents.zenoh.spec import BRIDGE_NAME, ZenohBridge, zenoh_key
+
+__all__ = ["BRIDGE_NAME", "CHECK_EVERY_S", "ZenohBridgeActor", "zenoh_config"]
+
+log = logging.getLogger("embagents.zenoh.bridge")
+#: How often link states and health are looked at.
+CHECK_EVERY_S = 0.25
+#: A connect endpoint without a link has its TCP port tried this often, to say why (refused, unreachable...).
+PROBE_EVERY_S = 2.0
+PROBE_ANSWERED_EVERY_S = 30.0
+HEALTH_TOPIC = "_health"
+#: The first bytes of our Zenoh payloads: the frame format's version.
+MAGIC = b"EZ1\0"
+LZ4 = b"EZL\0"  # then an lz4 frame of a whole MAGIC payload
+JPEG = b"EZJ\0"  # then a MAGIC payload's rest: its message is a CompressedImage that goes on as an Image
+#: The most an lz4 payload may grow to (a decompression bomb is a corrupt frame).
+MAX_PAYLOAD = 256 * 1024 * 1024
+_HEAD = struct.Struct("<4sI")  # magic, msgpack body length
+
+
+class _Blobs:
+    """Large arrays out of band (the codec's sink and source, as shared memory is on a host).
+
+    A payload is ``MAGIC, len(body), body (msgpack), blob bytes``: each array of 64 KB or more is
+    copied once, straight from its shared-memory ring into the payload, instead of through three
+    msgpack buffers; its handle in the body is ``[offset, nbytes, dtype, shape]``. A receiver
+    views it in the payload it got, after checking the handle against the payload's size.
+    """
+
+    def __init__(self) -> None:
+        self.arrays: list[np.ndarray] = []
+        self.size = 0
+        self._local = threading.local()  # the payload being decoded, per zenoh thread
+
+    # -- encoding (the actor's thread) --
+    def put(self, arr: np.ndarray) -> list[Any]:
+        arr = np.ascontiguousarray(arr)
+        handle = [self.size, arr.nbytes, arr.dtype.str, list(arr.shape)]
+        self.arrays.append(arr)
+        self.size += arr.nbytes
+        return handle
+
+    def frame(self, body: bytes) -> bytearray:
+        out = bytearray(_HEAD.size + len(body) + self.size)  # zenoh takes a bytearray without a copy
+        _HEAD.pack_into(out, 0, MAGIC, len(body))
+        start = _HEAD.size + len(body)
+        out[_HEAD.size:start] = body
+        for arr in self.arrays:
+            out[start:start + arr.nbytes] = memoryview(arr).cast("B")
+            start += arr.nbytes
+        self.arrays, self.size = [], 0
+        return out
+
+    # -- decoding (zenoh's threads) --
+    def split(self, data: bytes) -> memoryview:
+        if len(data) < _HEAD.size:
+            raise CorruptFrame(f"a {len(data)}-byte payload is no embagents frame")
+        magic, n = _HEAD.unpack_from(data)
+        if magic not in (MAGIC, JPEG) or _HEAD.size + n > len(data):
+            raise CorruptFrame(f"not an embagents frame (magic {magic!r}, body {n} of {len(data)} bytes)")
+        self._local.data, self._local.blobs = data, _HEAD.size + n
+        return memoryview(data)[_HEAD.size:_HEAD.size + n]
+
+    def view(self, handle: list[Any], on_release: Any) -> np.ndarray:
+        data, base = self._local.data, self._local.blobs
+        try:
+            off, nbytes, dtype, shape = handle
+            dt = np.dtype(dtype)
+            count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+            ok = (not dt.hasobject and isinstance(off, int) and 0 <= off and count >= 0
+                  and count * dt.itemsize == nbytes and base + off + nbytes <= len(data))
+        except Exception as exc:  # noqa: BLE001 - any malformed handle is a corrupt frame
+            raise CorruptFrame(f"bad array handle {handle!r:.100}: {exc}") from None
+        if not ok:
+            raise CorruptFrame(f"bad array handle {handle!r:.100} in a {len(data)}-byte payload")
+        return np.frombuffer(data, dtype=dt, count=count, offset=base + off).reshape(shape)
+
+
+def zenoh_config(spec: ZenohBridge) -> Any:
+    """The zenoh.Config of a bridge: peer mode, explicit endpoints, no multicast, no shared memory."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps(spec.listen))
+    conf.insert_json5("connect/endpoints", json.dumps(spec.connect))
+    # Retry a lost or not yet reachable peer every 0.1-0.5 s, for ever: a link comes back on its own.
+    conf.insert_json5("connect/timeout_ms", "-1")  # 0 would mean: one try, no retry
+    conf.insert_json5("connect/exit_on_failure", "false")
+    conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/delay", "0")  # open at once: links come up (and are watched) in the background
+    conf.insert_json5("transport/shared_memory/enabled", "false")
+    # A silent peer is gone after the lease (Zenoh's default, 10 s, hides a pulled cable that long).
+    conf.insert_json5("transport/link/tx/lease", str(int(spec.lease_s * 1000)))
+    if spec.tls is not None:
+        tls = {
+            "root_ca_certificate": spec.tls.ca,
+            "listen_certificate": spec.tls.cert, "listen_private_key": spec.tls.key,
+            "connect_certificate": spec.tls.cert, "connect_private_key": spec.tls.key,
+            "enable_mtls": True,
+            # Certificates name hosts (embagents keys --tls --host); peers are reached by address.
+            "verify_name_on_connect": False,
+        }
+        conf.insert_json5("transport/link/tls", json.dumps(tls))
+    if spec.peers is not None:
+        conf.insert_json5("access_control", json.dumps(access_rules(spec.peers)))
+    return conf
+
+
+#: Every kind of Zenoh message an access rule covers (the advanced pub/sub's queries and tokens too).
+_ACL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply", "liveliness_token",
+                 "declare_liveliness_subscriber", "liveliness_query"]
+
+
+def access_rules(peers: dict[str, list[str]]) -> dict[str, Any]:
+    """Zenoh's access_control for ``ZenohBridge(peers=...)``: deny by default; per certificate name,
+    its key expressions (with what the advanced pub/sub hangs under them and its ``@adv`` tokens)."""
+    rules, subjects, policies = [], [], []
+    for i, (name, keys) in enumerate(sorted(peers.items())):
+        exprs = sorted({x for k in map(zenoh_key, keys) for x in (k, k if k.endswith("**") else k + "/**")}
+                       | {"@adv/**"})
+        rules.append({"id": f"r{i}", "messages": _ACL_MESSAGES, "flows": ["ingress", "egress"],
+                      "permission": "allow", "key_exprs": exprs})
+        subjects.append({"id": f"s{i}", "cert_common_names": [name]})
+        policies.append({"rules": [f"r{i}"], "subjects": [f"s{i}"]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+def _split(endpoint: str) -> tuple[str, str, int]:
+    """'tcp/127.0.0.1:7447' -> ('tcp', '127.0.0.1', 7447)."""
+    proto, _, rest = endpoint.partition("/")
+    rest = rest.split("#", 1)[0].split("?", 1)[0]
+    host, _, port = rest.rpartition(":")
+    return proto, host.strip("[]"), int(port) if port.isdigit() else -1
+
+
+def _to_jpeg(msg: Any, quality: int) -> Any:
+    """An Image as a CompressedImage (JPEG), for ``Export(compress="jpeg")``; anything else as it is."""
+    import cv2
+
+    from embagents.msgs import CompressedImage, Image
+
+    if not isinstance(msg, Image) or msg.data.dtype != np.uint8 or msg.encoding not in ("rgb8", "bgr8", "mono8"):
+        raise ValueError(f"compress='jpeg' takes an Image of rgb8, bgr8 or mono8 uint8 pixels, got {msg!r:.120}; "
+                         "use compress='lz4' for other messages")
+    pixels = msg.data[..., ::-1] if msg.encoding == "rgb8" else msg.data  # OpenCV writes BGR
+    ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(pixels), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f"OpenCV could not encode a {msg.data.shape} image as JPEG")
+    return CompressedImage(data=jpeg.tobytes(), format="jpeg", stamp=msg.stamp, frame_id=f"{msg.encoding}|{msg.frame_id}")
+
+
+def _from_jpeg(msg: Any) -> Any:
+    import cv2
+
+    from embagents.msgs import CompressedImage, Image
+
+    if not isinstance(msg, CompressedImage):
+        raise CorruptFrame(f"a JPEG payload that holds no CompressedImage: {msg!r:.100}")
+    encoding, _, frame_id = msg.frame_id.partition("|")
+    mono = encoding == "mono8"
+    pixels = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE if mono else cv2.IMREAD_COLOR)
+    if pixels is None:
+        raise CorruptFrame("a JPEG payload OpenCV cannot decode")
+    if encoding == "rgb8":
+        pixels = np.ascontiguousarray(pixels[..., ::-1])
+    return Image(data=pixels, encoding=encoding if encoding in ("rgb8", "bgr8", "mono8") else "bgr8",
+                 stamp=msg.stamp, frame_id=frame_id)
+
+
+def _unlz4(data: bytes) -> bytes:
+    import lz4.frame
+
+    try:
+        dec = lz4.frame.LZ4FrameDecompressor()
+        out = dec.decompress(data, max_length=MAX_PAYLOAD)
+    except RuntimeError as exc:
+        raise CorruptFrame(f"not an lz4 frame: {exc}") from None
+    if not dec.eof:
+        raise CorruptFrame(f"an lz4 payload larger than {MAX_PAYLOAD} bytes or cut short")
+    return bytes(out)
+
+
+class _Endpoint:
+    """What the bridge knows of one configured endpoint."""
+
+    def __init__(self, endpoint: str, role: str, now: float) -> None:
+        self.endpoint, self.role = endpoint, role
+        self.proto, self.host, self.port = _split(endpoint)
+        self.links: set[tuple[str, str]] = set()
+        self.ever_up = False
+        self.since = now  # of the current state
+        self.last_error = ""
+        self.reported = False  # the failure of this down period is logged and on health
+        self.probing = False
+        self.next_probe = now + PROBE_EVERY_S / 4
+
+    def matches(self, src: str, dst: str) -> bool:
+        if self.role == "connect":
+            _, host, port = _split(dst)
+            return port == self.port and (host == self.host or not self.host[:1].isdigit())
+        return _split(src)[2] == self.port
+
+    @property
+    def state(self) -> str:
+        return "up" if self.links else ("down" if self.ever_up else "never up")
+
+
+class ZenohBridgeActor(Actor):
+    """Bridges the System at ``system_path`` (or ``bridge``: :meth:`ZenohBridge.to_dict`, for the bench)."""
+
+    def __init__(self, system_path: str | None = None, bridge: dict[str, Any] | None = None) -> None:
+        self.system_path = system_path
+        self.raw_bridge = bridge
+
+    def _spec(self) -> ZenohBridge:
+        if self.system_path is not None:
+            from embagents.runtime.component_actor import loaded_system
+
+            spec = loaded_system(self.system_path).zenoh
+            if spec is None:
+                raise RuntimeError(f"{self.system_path} declares no ZenohBridge (System(..., zenoh=ZenohBridge(...)))")
+            return spec  # type: ignore[no-any-return]
+        assert self.raw_bridge is not None
+        return ZenohBridge.from_dict(self.raw_bridge)
+
+    # -- start -------------------------------------------------------------------------
+    def on_start(self) -> None:
+        import zenoh
+        import zenoh.ext as zext
+
+        self.spec = spec = self._spec()
+        self.blobs = _Blobs()
+        self.codec = Codec(source=self.blobs)
+        self.counts = {"msgs_out": 0, "bytes_out": 0, "msgs_in": 0, "bytes_in": 0, "lost": 0, "refused": 0}
+        self._prev: tuple[float, dict[str, int]] | None = None
+        self._lock = threading.Lock()  # counters touched by zenoh's threads
+        now = time.monotonic()
+        self.endpoints = [_Endpoint(e, "listen", now) for e in spec.listen] + \
+                         [_Endpoint(e, "connect", now) for e in spec.connect]
+        self.health = (HealthStatus.HEALTHY, "starting")
+        ctx = self.context
+        # Zenoh's own warnings (a peer refused in the TLS handshake, garbage on the port) go to this
+        # actor's stderr, which the run logs; RUST_LOG overrides the level.
+        os.environ.setdefault("NO_COLOR", "1")  # plain lines in the run's log
+        # (name checks are off on purpose: peers are reached by address and proved by the CA, see zenoh_config)
+        zenoh.init_log_from_env_or("warn,zenoh_link_tls::utils=error,zenoh::net::runtime::orchestrator=error")
+        self.session = zenoh.open(zenoh_config(spec))
+
+        def on_link(event: Any) -> None:  # zenoh's thread
+            kind, link = event.kind, event.link
+            up = kind == zenoh.SampleKind.PUT
+            src, dst = str(link.src), str(link.dst)
+            ctx.call_soon_threadsafe(lambda: self._link(up, src, dst))
+
+        self.link_listener = self.session.info.declare_link_events_listener(on_link, history=True)
+        self.publishers: dict[str, Any] = {}
+        self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
+        for e in spec.exports:
+            key = spec.key_of(e)
+            if e.keep == "all":
+                pub = zext.declare_advanced_publisher(
+                    self.session, key, congestion_control=zenoh.CongestionControl.BLOCK, express=True,
+                    reliability=zenoh.Reliability.RELIABLE, cache=zext.CacheConfig(max_samples=e.window),
+                    sample_miss_detection=zext.MissDetectionConfig(heartbeat=0.1), publisher_detection=True)
+            else:
+                pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
+            self.publishers[e.topic] = pub
+            ctx.subscribe(e.topic, lambda msg, p=pub, t=e.topic: self._out(p, msg, t), queue_size=max(10, min(e.window, 1000)),
+                          keep=e.keep)
+        self.subscribers: list[Any] = []
+        self.miss_listeners: list[Any] = []
+        for i in spec.imports:
+            cb = self._in_callback(i.topic)
+            if i.keep == "all":
+                sub = zext.declare_advanced_subscriber(
+                    self.session, zenoh_key(i.key), cb, allowed_origin=zenoh.Locality.REMOTE,
+                    history=zext.HistoryConfig(detect_late_publishers=True), recovery=zext.RecoveryConfig(heartbeat=True),
+                    subscriber_detection=True)
+                self.miss_listeners.append(sub.sample_miss_listener(
+                    lambda miss, key=i.key: self._missed(key, str(miss.source), int(miss.nb))))
+            else:
+                sub = self.session.declare_subscriber(zenoh_key(i.key), cb, allowed_origin=zenoh.Locality.REMOTE)
+            self.subscribers.append(sub)
+        log.info("zenoh bridge %r: exports %s, imports %s, listen %s, connect %s", spec.namespace,
+                 [spec.key_of(e) for e in spec.exports], [i.key for i in spec.imports], spec.listen, spec.connect)
+        self._timer = ctx.call_later(CHECK_EVERY_S, self._check)
+
+    # -- traffic ------------------------------------------------------------------------
+    def _out(self, pub: Any, msg: Any, topic: str = "") -> None:
+        how, quality = self.compress.get(topic, (None, 0))
+        try:
+            if how == "jpeg":
+                msg = _to_jpeg(msg, quality)
+            body, _ = self.codec.encode(msg, sink=self.blobs)
+            data = self.blobs.frame(body)
+            if how == "jpeg":
+                data[:4] = JPEG
+            elif how == "lz4":
+                import lz4.frame
+
+                data = bytearray(LZ4 + lz4.frame.compress(data))
+        except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
+            self.blobs.arrays, self.blobs.size = [], 0
+            with self._lock:
+                self.counts["refused"] += 1
+            log.error("not sent: %s (%s)", type(msg).__name__, exc)
+            return
+        pub.put(data)
+        with self._lock:
+            self.counts["msgs_out"] += 1
+            self.counts["bytes_out"] += len(data)
+
+    def _in_callback(self, topic: str) -> Any:
+        codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
+
+        def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
+            data = sample.payload.to_bytes()
+            try:
+                if data[:4] == LZ4:
+                    data = _unlz4(data[4:])
+                msg = codec.decode(blobs.split(data))
+                if data[:4] == JPEG:
+                    msg = _from_jpeg(msg)
+            except CodecError as exc:  # a peer's garbage: dropped and counted, never a crash
+                with lock:
+                    counts["refused"] += 1
+                log.warning("dropped a frame on %s from %s: %s", sample.key_expr, topic, exc)
+                return
+            with lock:
+                counts["msgs_in"] += 1
+                counts["bytes_in"] += len(data)
+            ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
+
+        return on_sample
+
+    def _missed(self, key: str, source: str, n: int) -> None:  # zenoh's thread
+        with self._lock:
+            self.counts["lost"] += n
+        log.error("%d message(s) on %s from %s lost: the link was down longer than the publisher's replay window "
+                  "(Export(window=...))", n, key, source)
+
+    # -- links and health ---------------------------------------------------------------
+    def _link(self, up: bool, src: str, dst: str) -> None:
+        now = time.monotonic()
+        for ep in self.endpoints:
+            if not ep.matches(src, dst):
+                continue
+            was = ep.state
+            (ep.links.add if up else ep.links.discard)((src, dst))
+            if ep.state != was:
+                ep.since = now
+                if up:
+                    ep.ever_up, ep.last_error = True, ""
+                    log.info("link %s (%s) up: %s -> %s", ep.endpoint, ep.role, src, dst)
+                else:
+                    log.warning("link %s (%s) down: %s -> %s", ep.endpoint, ep.role, src, dst)
+                    ep.reported = False
+        self.context.changed()
+
+    def _probe(self, ep: _Endpoint) -> None:
+        """Why a connect endpoint has no link: try its TCP port (in a thread: it may take a second)."""
+        ep.probing = True
+
+        def run() -> None:
+            try:
+                with socket.create_connection((ep.host, ep.port), timeout=1.0):
+                    err = ("its port answers TCP but no Zenoh link came up: a wrong or missing certificate, "
+                           "or not a Zenoh peer there (see both sides' logs)")
+            except OSError as exc:
+                err = f"{exc.strerror or exc} connecting to {ep.host}:{ep.port}"
+            self.context.call_soon_threadsafe(lambda: self._probed(ep, err))
+
+        threading.Thread(target=run, name="zenoh-probe", daemon=True).start()
+
+    def _probed(self, ep: _Endpoint, err: str) -> None:
+        ep.probing = False
+        if err.startswith("its port answers"):  # each probe is a failed handshake in the peer's log: seldom now
+            ep.next_probe = time.monotonic() + PROBE_ANSWERED_EVERY_S
+        if not ep.links:
+            ep.last_error = err
+
+    def _check(self) -> None:
+        now = time.monotonic()
+        failing = []
+        for ep in self.endpoints:
+            if ep.links:
+                continue
+            if ep.role == "connect" and not ep.probing and now >= ep.next_probe:
+                ep.next_probe = now + PROBE_EVERY_S
+                self._probe(ep)
+            if now - ep.since >= self.spec.link_down_s:
+                what = ("never came up" if not ep.ever_up else "down") + f" for {now - ep.since:.0f} s"
+                why = ep.last_error or ("no peer connected" if ep.role == "listen" else "no answer")
+                failing.append(f"{ep.endpoint} {what}: {why}")
+                if not ep.reported:
+                    ep.reported = True
+                    fix = ("start the other side, check the address and the firewall"
+                           if ep.role == "connect" else "the other side's connect= must name this address")
+                    log.error("zenoh link %s (%s) %s: %s; %s", ep.endpoint, ep.role, what, why, fix)
+        if failing:
+            self._set_health(HealthStatus.SYSTEM_FAILURE, "; ".join(failing))
+        elif all(ep.links for ep in self.endpoints):
+            self._set_health(HealthStatus.HEALTHY, "links up")
+        self._timer = self.context.call_later(CHECK_EVERY_S, self._check)
+
+    def _set_health(self, status: HealthStatus, text: str) -> None:
+        # Published when the status changes (fallbacks act on each report); the text (with its
+        # seconds) is kept up to date for `embagents status` and HealthQuery.
+        changed = status != self.health[0]
+        self.health = (status, text)
+        if changed:
+            self.context.publish(HEALTH_TOPIC, Health(component=self.context.name, status=status, text=text,
+                                                      stamp=time.time()))
+
+    # -- status ----------------------------------------------------------------------------
+    def links(self) -> list[dict[str, Any]]:
+        """Each endpoint: role, state, since (s), links, last error."""
+        now = time.monotonic()
+        return [{"endpoint": ep.endpoint, "role": ep.role, "state": ep.state, "for_s": round(now - ep.since, 1),
+                 "links": len(ep.links), "last_error": ep.last_error} for ep in self.endpoints]
+
+    def status_detail(self) -> dict[str, Any]:
+        now = time.monotonic()
+        with self._lock:
+            counts = dict(self.counts)
+        rates = dict.fromkeys(("msgs_out", "bytes_out", "msgs_in", "bytes_in"), 0.0)
+        if self._prev is not None and now > self._prev[0]:
+            dt = now - self._prev[0]
+            rates = {k: round((counts[k] - self._prev[1][k]) / dt, 1) for k in rates}
+        self._prev = (now, counts)
+        links = self.links()
+        lines = []
+        for ln in links:
+            state = ln["state"] + ("" if ln["state"] == "up" else f" for {ln['for_s']:.0f}s")
+            err = f"  last error: {ln['last_error']}" if ln["last_error"] and ln["state"] != "up" else ""
+            lines.append(f"zenoh {ln['role']} {ln['endpoint']}: {state}, {ln['links']} link(s){err}")
+        lines.append(f"zenoh {self.spec.namespace}: out {rates['msgs_out']:g} msg/s {rates['bytes_out']:g} B/s, "
+                     f"in {rates['msgs_in']:g} msg/s {rates['bytes_in']:g} B/s, lost {counts['lost']}, "
+                     f"refused {counts['refused']}; health {self.health[0].name}")
+        return {"links": links, "counts": counts, "rates": rates, "health": self.health[0].name,
+                "health_text": self.health[1], "lines": lines}
+
+    def on_receive(self, message: Any) -> Any:
+        from embagents.runtime.requests import HealthQuery
+
+        if message == "stats":
+            return self.status_detail()
+        if isinstance(message, HealthQuery):
+            return {"status": int(self.health[0]), "text": self.health[1]}
+        raise UnknownMessage("the Zenoh bridge", message, "it answers 'stats' and HealthQuery()")
+
+    def on_stop(self) -> None:
+        for sub in self.subscribers:
+            sub.undeclare()
+        for pub in self.publishers.values():
+            pub.undeclare()
+        self.link_listener.undeclare()
+        self.session.close()

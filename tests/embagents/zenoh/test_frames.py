@@ -1,0 +1,79 @@
+"""The bridge's payloads: large arrays out of band after the msgpack body; a forged handle is a corrupt frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import embagents.msgs  # noqa: F401 - registers Image
+from actors.codec import Codec
+from actors.errors import CorruptFrame
+from embagents.msgs import Image
+from embagents.zenoh.bridge_actor import (
+    _HEAD,
+    MAGIC,
+    MAX_PAYLOAD,
+    _Blobs,
+    _from_jpeg,
+    _to_jpeg,
+    _unlz4,
+)
+
+
+def _roundtrip(msg: object) -> object:
+    blobs = _Blobs()
+    codec = Codec(source=blobs)
+    body, _ = codec.encode(msg, sink=blobs)
+    data = bytes(blobs.frame(body))
+    return Codec(source=blobs).decode(blobs.split(data))
+
+
+def test_a_1080p_image_crosses_with_its_pixels_after_the_body_and_small_arrays_inline() -> None:
+    frame = (np.arange(1080 * 1920 * 3) % 251).astype(np.uint8).reshape(1080, 1920, 3)
+    out = _roundtrip(Image(data=frame[:, ::2], stamp=1.5, frame_id="cam"))  # not contiguous: copied once
+    assert isinstance(out, Image) and out.frame_id == "cam" and out.stamp == 1.5
+    assert np.array_equal(out.data, frame[:, ::2])
+    small = _roundtrip({"a": np.arange(10, dtype=np.float32), "b": [np.zeros((300, 300), np.uint16)]})
+    assert np.array_equal(small["a"], np.arange(10, dtype=np.float32))  # type: ignore[index]
+    assert small["b"][0].shape == (300, 300)  # type: ignore[index]
+
+
+@pytest.mark.parametrize("handle", [[0, 10**9, "|u1", [10**9]], [-8, 8, "|u1", [8]], [0, 8, "|O", [1]],
+                                    [0, 9, "<u2", [4]], ["x"]])
+def test_a_forged_array_handle_is_a_corrupt_frame_not_a_crash(handle: list) -> None:
+    import msgpack
+
+    body = msgpack.packb(msgpack.ExtType(3, msgpack.packb(handle)))
+    data = _HEAD.pack(MAGIC, len(body)) + body + bytes(16)
+    blobs = _Blobs()
+    with pytest.raises(CorruptFrame):
+        Codec(source=blobs).decode(blobs.split(data))
+
+
+def test_a_payload_that_is_not_ours_is_a_corrupt_frame() -> None:
+    blobs = _Blobs()
+    for data in (b"", b"hello world!", _HEAD.pack(MAGIC, 10**6) + b"x"):
+        with pytest.raises(CorruptFrame):
+            blobs.split(data)
+
+
+def test_jpeg_brings_an_image_back_as_an_image_and_refuses_what_it_cannot_carry() -> None:
+    pytest.importorskip("cv2")
+    from skimage import data
+
+    photo = data.astronaut()
+    back = _from_jpeg(_roundtrip(_to_jpeg(Image(data=photo, encoding="rgb8", stamp=2.0, frame_id="cam"), 90)))
+    assert isinstance(back, Image) and back.encoding == "rgb8" and back.frame_id == "cam" and back.stamp == 2.0
+    assert back.data.shape == photo.shape and np.abs(back.data.astype(int) - photo).mean() < 4  # lossy, close
+    with pytest.raises(ValueError, match="use compress='lz4' for other messages"):
+        _to_jpeg(Image(data=np.zeros((4, 4), np.float32), encoding="32FC1"), 90)
+
+
+def test_an_lz4_bomb_or_garbage_is_a_corrupt_frame() -> None:
+    import lz4.frame
+
+    assert _unlz4(lz4.frame.compress(b"abc" * 1000)) == b"abc" * 1000
+    with pytest.raises(CorruptFrame, match="larger than"):
+        _unlz4(lz4.frame.compress(bytes(MAX_PAYLOAD + 1)))
+    with pytest.raises(CorruptFrame):
+        _unlz4(b"not lz4 at all")

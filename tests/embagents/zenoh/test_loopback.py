@@ -1,0 +1,137 @@
+"""Two runs linked by their Zenoh bridges over loopback: a component on one publishes, one on the other receives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.embagents.zenoh.runs import RECEIVER, SENDER, Run, free_port, wait_for, write
+
+pytest.importorskip("zenoh")
+
+
+def test_a_topic_crosses_from_one_run_to_the_other_in_order(tmp_path: Path) -> None:
+    port = free_port()
+    runs = str(tmp_path / "runs")
+    a = Run(write(tmp_path, "robot_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']"), runs)
+    b = Run(write(tmp_path, "gpu_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 20, 60, "20 messages on run B: " + "".join(b.all[-20:]))
+        got = b.got()
+        assert got == list(range(got[0], got[0] + len(got)))  # in order, none twice, none missing
+        detail = wait_for(lambda: b.bridge(), 30, "the bridge's status detail")
+        link = detail["links"][0]
+        assert (link["endpoint"], link["role"], link["state"]) == (f"tcp/127.0.0.1:{port}", "connect", "up")
+        assert detail["counts"]["msgs_in"] >= 20 and detail["health"] == "HEALTHY"
+        sender = wait_for(lambda: a.bridge(), 30, "run A's bridge detail")
+        assert sender["links"][0]["state"] == "up" and sender["counts"]["msgs_out"] >= 20
+
+        # Garbage on the Zenoh port: refused by Zenoh, the bridge stays up and the link keeps flowing.
+        import os
+        import socket
+
+        for _ in range(3):
+            with socket.create_connection(("127.0.0.1", port)) as s:
+                s.sendall(os.urandom(4096) + b"\xff" * 4096)
+        n = len(b.got())
+        wait_for(lambda: len(b.got()) >= n + 20, 30, "messages after the garbage")
+        rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
+        assert rows["_zenoh_bridge"]["restarts"] == 0 and rows["_zenoh_bridge"]["status"] == "running"
+        got = b.got()
+        assert got == list(range(got[0], got[0] + len(got)))
+
+        import subprocess
+        import sys
+
+        topics = subprocess.run([sys.executable, "-m", "embagents.cli", "topic", "list", "--run", "gpu_b"],
+                                capture_output=True, text=True, timeout=60, env=b.env).stdout
+        assert "(remote robot*/chatter)" in topics  # the remote topic names its host's key
+    finally:
+        codes = b.stop(), a.stop()  # both stopped before either is judged: nothing left running
+        assert codes == (0, 0), "".join(b.all[-30:] + a.all[-30:])
+
+
+def test_a_link_that_never_came_up_is_an_error_in_status_and_the_log(tmp_path: Path) -> None:
+    port = free_port()  # nobody listens there
+    runs = str(tmp_path / "runs")
+    b = Run(write(tmp_path, "lonely", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']", link_down_s=1.0), runs)
+    try:
+        def failing() -> dict | None:
+            d = b.bridge()
+            return d if d and d["health"] == "SYSTEM_FAILURE" and d["links"][0]["last_error"] else None
+
+        detail = wait_for(failing, 60, "SYSTEM_FAILURE on the bridge: " + "".join(b.all[-20:]))
+        link = detail["links"][0]
+        assert link["state"] == "never up"
+        assert "Connection refused" in link["last_error"] and f"127.0.0.1:{port}" in link["last_error"]
+        assert "never came up" in detail["health_text"]
+        wait_for(lambda: any("never came up" in x and "start the other side" in x for x in b.all), 30, "the log line")
+        import subprocess
+        import sys
+
+        table = subprocess.run([sys.executable, "-m", "embagents.cli", "status", "--run", "lonely"],
+                               capture_output=True, text=True, timeout=60, env=b.env).stdout
+        assert f"_zenoh_bridge: zenoh connect tcp/127.0.0.1:{port}: never up for" in table
+        assert "last error: Connection refused" in table
+    finally:
+        assert b.stop() == 0, "".join(b.all[-30:])
+
+
+def test_the_two_hosts_example_brings_detections_back_to_the_robot(tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("skimage")
+    import os
+
+    root = Path(__file__).resolve().parents[3]
+    runs = str(tmp_path / "runs")
+    os.environ["EMBAGENTS_ZENOH_PORT"] = str(free_port())
+    os.environ["EMBAGENTS_TWO_HOSTS_N"] = "3"
+    try:
+        gpu = Run(str(root / "examples/two_hosts/gpu_box.py"), runs)
+        robot = Run(str(root / "examples/two_hosts/robot.py"), runs)
+    finally:
+        del os.environ["EMBAGENTS_ZENOH_PORT"], os.environ["EMBAGENTS_TWO_HOSTS_N"]
+    try:
+        assert robot.proc.wait(timeout=180) == 0, "".join(robot.all[-30:])
+        found = [x for x in robot.all if x.startswith("from the GPU box: ")]
+        assert len(found) >= 3 and all("face 1.00" in x for x in found), "".join(robot.all[-30:])
+    finally:
+        codes = robot.stop(), gpu.stop()
+        assert codes[1] == 0, "".join(gpu.all[-30:])
+
+
+def test_an_lz4_compressed_topic_arrives_whole(tmp_path: Path) -> None:
+    port = free_port()
+    runs = str(tmp_path / "runs")
+    a = Run(write(tmp_path, "lz_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", compress="lz4"), runs)
+    b = Run(write(tmp_path, "lz_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 10, 60, "lz4 messages on run B")
+        got = b.got()
+        assert got == list(range(got[0], got[0] + len(got)))
+        assert b.bridge()["counts"]["refused"] == 0  # type: ignore[index]
+    finally:
+        b.stop(), a.stop()
+
+
+def test_a_killed_bridge_is_restarted_and_the_topic_flows_again(tmp_path: Path) -> None:
+    import os
+    import signal
+
+    port = free_port()
+    runs = str(tmp_path / "runs")
+    a = Run(write(tmp_path, "kill_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']"), runs)
+    b = Run(write(tmp_path, "kill_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B")
+        rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
+        os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
+        wait_for(lambda: {r["name"]: r for r in (a.status() or {"rows": []})["rows"]}
+                 .get("_zenoh_bridge", {}).get("restarts") == 1, 30, "the bridge restarted")
+        n = len(b.got())
+        wait_for(lambda: len(b.got()) >= n + 20, 60, "messages after the restart")
+        got = b.got()
+        assert len(set(got)) == len(got) and got == sorted(got)  # none twice, in order (a gap at the kill)
+    finally:
+        b.stop(), a.stop()
