@@ -155,6 +155,9 @@ class BaseComponentConfig:
       received (a frozen camera must not feed a stale frame); ``None``: no limit.
     - ``log_level``: one of debug, info, warning, error: the level of the
       component's logger (``embagents.component.<name>``).
+    - ``wait_for_inputs``: a step (rate, topic or event triggered) waits until
+      every required input has a message, and says once which one it waits
+      for; ``False``: it runs with what is there (``None`` for the missing ones).
 
     >>> BaseComponentConfig(loop_rate_hz=2).loop_rate_hz
     2.0
@@ -164,6 +167,7 @@ class BaseComponentConfig:
     step_timeout_s: float | None = field(default=None, converter=optional_positive_float)
     input_max_age_s: float | None = field(default=None, converter=optional_positive_float)
     log_level: str = field(default="info", converter=_log_level)
+    wait_for_inputs: bool = field(default=True, converter=to_bool)
 
 
 def config_fields(config_or_class: object) -> list[str]:
