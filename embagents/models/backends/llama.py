@@ -428,8 +428,10 @@ def _functions(tools: list[dict], tool_choice: Any) -> list[dict]:
 
 def _argument_pattern(max_length: int) -> str:
     """A string argument as the grammar holds it: at most ``max_length`` characters, not starting with a dot, an
-    ellipsis or a space (so never a placeholder such as ``"..."`` that a small model copies), no escapes (GBNF has no ``\\s``)."""
-    return '^[^. <\u2026"\\\\][^"\\\\]{0,%d}$' % max(int(max_length) - 1, 0)
+    ellipsis, "<" or a space (never a placeholder such as ``"..."`` a small model copies), no escapes (GBNF has
+    no ``\\s``: the space is literal)."""
+    rest = max(int(max_length) - 1, 0)
+    return '^[^. <\u2026"\\\\][^"\\\\]{0,' + str(rest) + '}$'
 
 
 def _bounded(params: dict) -> dict:
