@@ -161,6 +161,9 @@ class BaseComponentConfig:
       startup is lost, whatever the list order; ``False``: at once, in list
       order (a camera that must not wait; what it publishes before its
       subscribers are up is lost).
+    - ``wait_for_inputs``: a step (rate, topic or event triggered) waits until
+      every required input has a message, and says once which one it waits
+      for; ``False``: it runs with what is there (``None`` for the missing ones).
 
     >>> BaseComponentConfig(loop_rate_hz=2).loop_rate_hz
     2.0
@@ -171,6 +174,7 @@ class BaseComponentConfig:
     input_max_age_s: float | None = field(default=None, converter=optional_positive_float)
     log_level: str = field(default="info", converter=_log_level)
     wait_for_subscribers: bool = field(default=True, converter=to_bool)
+    wait_for_inputs: bool = field(default=True, converter=to_bool)
 
 
 def config_fields(config_or_class: object) -> list[str]:

@@ -1,14 +1,17 @@
 """The Camera: a source component that owns an opencv ``VideoCapture`` in its own process.
 
 ``source`` is a device index (``0``), a video file (``loop=True`` plays it
-again from the start) or a network URL (rtsp://, http://). The trigger is
+again from the start), a network URL (rtsp://, http://), or still images: an
+image file, a folder of them or a glob (``"photos/*.jpg"``), played in name
+order, one per step (``loop=True``: again from the first; else once). The trigger is
 the frame rate in Hz (default 15 steps per second). Each step publishes one
 frame as an RGB ``Image`` (through shared memory), resized to ``width`` x
 ``height`` when given. A device that cannot be opened, or is lost, is retried
 with exponential backoff (``retry_s`` doubling up to ``retry_max_s``) and
 reported on health as SYSTEM_FAILURE naming the source and the fix; the
-process and the system keep running. A file that ends (without ``loop``)
-sets ``finished``.
+process and the system keep running. A file (or the images) that ends
+(without ``loop``) sets ``finished``. An image that cannot be read is skipped,
+with a warning naming it.
 
 Example::
 
@@ -17,10 +20,13 @@ Example::
     >>> cam = Camera(name="cam", outputs=[Topic("image", Image)], config=CameraConfig(source="clip.mp4"), trigger=10.0)
     >>> cam.rate_hz
     10.0
+    >>> is_image_source("photos/*.jpg"), is_image_source("clip.mp4")
+    (True, False)
 """
 
 from __future__ import annotations
 
+import glob
 import os
 import time
 from typing import Any
@@ -32,12 +38,33 @@ from embagents.components.device_retry import DeviceRetry
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
 from embagents.msgs import Image
 
-__all__ = ["Camera", "CameraConfig"]
+__all__ = ["IMAGE_EXTENSIONS", "Camera", "CameraConfig", "is_image_source"]
+
+#: File name endings a source of still images may have (what opencv's imread reads).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pbm")
+
+
+def is_image_source(source: int | str) -> bool:
+    """Whether ``source`` names still images: an image file, a folder or a glob (not a video, device or URL)."""
+    if not isinstance(source, str) or "://" in source:
+        return False
+    return source.lower().endswith(IMAGE_EXTENSIONS) or glob.has_magic(source) or os.path.isdir(source)
+
+
+def _image_files(source: str) -> list[str]:
+    if os.path.isdir(source):
+        names = [os.path.join(source, n) for n in os.listdir(source)]
+    elif glob.has_magic(source):
+        names = glob.glob(source)
+    else:
+        names = [source]
+    return sorted(n for n in names if os.path.isfile(n) and n.lower().endswith(IMAGE_EXTENSIONS))
 
 
 def _source(value: object) -> int | str:
     if isinstance(value, bool) or not isinstance(value, (int, str)) or value == "":
-        raise ConfigError(f"source must be a device index (0), a video file path or a URL, got {value!r}")
+        raise ConfigError(f"source must be a device index (0), a video file, a URL, or an image file, folder "
+                          f"or glob, got {value!r}")
     return int(value) if isinstance(value, str) and value.isdigit() else value
 
 
@@ -75,6 +102,8 @@ class Camera(Component):
 
     def __init__(self, *, name: str, **kw: Any) -> None:
         self._cap: Any = None
+        self._images: list[str] | None = None  # still images: the files, in order, and the next one's index
+        self._next_image = 0
         self._retry = DeviceRetry()
         self.frames = 0
         self.finished = False
@@ -87,12 +116,17 @@ class Camera(Component):
         src = self.config.source
         if isinstance(src, int):
             return f"camera device {src}"
+        if is_image_source(src):
+            kind = "image folder" if os.path.isdir(src) else "images matching" if glob.has_magic(src) else "image file"
+            return f"{kind} {os.path.abspath(src)!r}"
         return f"video file {os.path.abspath(src)!r}" if "://" not in src else f"stream {src!r}"
 
     def _open(self) -> bool:
         import cv2
 
         src = self.config.source
+        if is_image_source(src):
+            return self._open_images(str(src))
         cap = cv2.VideoCapture(src)
         if isinstance(src, int) and cap.isOpened():
             if self.config.width:
@@ -108,6 +142,36 @@ class Camera(Component):
         self.logger.info("%s: opened %s", self._label(), self._describe())
         return True
 
+    def _open_images(self, src: str) -> bool:
+        files = _image_files(src)
+        if not files:
+            many = os.path.isdir(src) or glob.has_magic(src)
+            self._lost(f"holds no images ({', '.join(e[1:] for e in IMAGE_EXTENSIONS[:4])}, ...)" if many
+                       else "cannot be opened")
+            return False
+        self._images, self._next_image = files, 0
+        self._retry.opened()
+        self.logger.info("%s: playing %d images of %s", self._label(), len(files), self._describe())
+        return True
+
+    def _read_image(self) -> Any:
+        """The next still image as BGR, or ``None`` at the end; unreadable files are skipped."""
+        import cv2
+
+        assert self._images is not None
+        for _ in range(len(self._images)):
+            if self._next_image >= len(self._images):
+                if not self.config.loop:
+                    return None
+                self._next_image = 0
+            path = self._images[self._next_image]
+            self._next_image += 1
+            bgr = cv2.imread(path, cv2.IMREAD_COLOR)
+            if bgr is not None:
+                return bgr
+            self.logger.warning("%s: %s is not an image opencv can read; skipped", self._label(), path)
+        return None
+
     def _lost(self, what: str) -> None:
         if self._cap is not None:
             self._cap.release()
@@ -120,8 +184,18 @@ class Camera(Component):
     def _execution_step(self, **inputs: Any) -> None:
         import cv2
 
-        if self.finished or (self._cap is None and (self._retry.waiting() or not self._open())):
+        if self.finished or (self._cap is None and self._images is None and
+                             (self._retry.waiting() or not self._open())):
             self._health_set_in_step = True  # the failure (or the end) stands between retries
+            return
+        if self._images is not None:
+            bgr = self._read_image()
+            if bgr is None:
+                self.finished = True
+                self.logger.info("%s: %s ended after %d frames", self._label(), self._describe(), self.frames)
+                self._health_set_in_step = True
+                return
+            self._publish(bgr)
             return
         ok, bgr = self._cap.read()
         if not ok and isinstance(self.config.source, str) and "://" not in self.config.source:
@@ -137,6 +211,11 @@ class Camera(Component):
         if not ok:
             self._lost("stopped giving frames")
             return
+        self._publish(bgr)
+
+    def _publish(self, bgr: Any) -> None:
+        import cv2
+
         w, h = self.config.width, self.config.height
         if (w or h) and (bgr.shape[1], bgr.shape[0]) != (w or bgr.shape[1], h or bgr.shape[0]):
             bgr = cv2.resize(bgr, (w or bgr.shape[1], h or bgr.shape[0]), interpolation=cv2.INTER_AREA)

@@ -37,7 +37,8 @@ import copy
 import logging
 import re
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
 from embagents.config import BaseComponentConfig, ConfigError, apply_config, config_fields
@@ -201,10 +202,18 @@ class Component:
 
     ``_execution_step`` receives the latest message of every input topic as
     keyword arguments named by topic (``None`` for a topic not heard from yet
-    or older than ``config.input_max_age_s``); a step only runs once every
-    required input has a message. :attr:`fresh_inputs` names the topics with a
-    new message since the previous step. Input topic names may contain ``/``:
-    accept them with ``**inputs``.
+    or older than ``config.input_max_age_s``). A step only runs once every
+    required input has a message: until then a tick (or a trigger message)
+    runs nothing, and the log says once which input it waits for;
+    ``config.wait_for_inputs=False`` runs it with what is there.
+    :attr:`fresh_inputs` names the topics with a new message since the
+    previous step. Input topic names may contain ``/``: accept them with ``**inputs``.
+
+    ``queued``: inputs whose step argument is the list of every message since
+    the previous step (oldest first), not only the latest: ``{topic: bound}``
+    or a list of topics (bound: the topic's ``queue_size``). Past the bound the
+    oldest is dropped, counted in :attr:`dropped` and logged once. Use it for a
+    rate-triggered step that must see every detection or every phrase.
     """
 
     allowed_inputs: ClassVar[AllowedTypes | None] = None  # None: any input types
@@ -229,6 +238,7 @@ class Component:
         fallback: Fallback | None = None,
         standby: bool = False,
         start_method: str = "fork",
+        queued: Mapping[Topic | str, int] | Sequence[Topic | str] | None = None,
         **config_overrides: Any,
     ) -> None:
         self._init_problems: list[ComponentProblem] = []
@@ -240,6 +250,12 @@ class Component:
         self.start_method = start_method
         self.inputs = self._topics(inputs, "inputs")
         self.outputs = self._topics(outputs, "outputs")
+        #: Queued inputs: topic name -> bound (see the class docstring).
+        self.queued: dict[str, int] = self._queue_bounds(queued)
+        self._queues: dict[str, deque[Any]] = {n: deque() for n in self.queued}
+        #: Messages dropped from a full queued input, per topic.
+        self.dropped: dict[str, int] = dict.fromkeys(self.queued, 0)
+        self._waiting_logged: set[str] = set()
         self.config = self._make_config(config, config_overrides)
         self.fallback = fallback
         self.trigger = self.default_trigger() if trigger is UNSET else trigger
@@ -296,6 +312,30 @@ class Component:
             else:
                 self._problem("bad-topic", f"{what} must be Topics, got {item!r}")
         return tuple(good)
+
+    def _queue_bounds(self, queued: Mapping[Topic | str, int] | Sequence[Topic | str] | None) -> dict[str, int]:
+        if queued is None:
+            return {}
+        if isinstance(queued, (str, Topic)) or not isinstance(queued, (Mapping, Sequence)):
+            self._problem("bad-queued", f"queued must be a dict {{topic: bound}} or a list of input topics, "
+                                        f"got {queued!r}")
+            return {}
+        by_name = {t.name: t for t in self.inputs}
+        pairs = queued.items() if isinstance(queued, Mapping) else ((t, None) for t in queued)
+        out: dict[str, int] = {}
+        for topic, bound in pairs:
+            name = topic.name if isinstance(topic, Topic) else str(topic).lstrip("/")
+            if name not in by_name:
+                self._problem("bad-queued", f"queued topic {name!r} is not one of its inputs "
+                                            f"({', '.join(by_name) or 'none'}); add it to inputs")
+                continue
+            bound = by_name[name].queue_size if bound is None else bound
+            if isinstance(bound, bool) or not isinstance(bound, int) or bound < 1:
+                self._problem("bad-queued", f"queued[{name!r}]: the bound is how many messages a step may get, "
+                                            f"an int >= 1; got {bound!r}")
+                continue
+            out[name] = bound
+        return out
 
     def _make_config(self, config: Any, overrides: Mapping[str, Any]) -> Any:
         cls = self.config_class
@@ -466,6 +506,16 @@ class Component:
         self._latest[topic_name] = msg
         self._received_at[topic_name] = time.monotonic() if now is None else now
         self._fresh.add(topic_name)
+        queue = self._queues.get(topic_name)
+        if queue is not None:
+            if len(queue) >= self.queued[topic_name]:
+                queue.popleft()
+                self.dropped[topic_name] += 1
+                if self.dropped[topic_name] == 1:
+                    self.logger.warning("%s: queued input %r is full (%d messages since the last step): dropping "
+                                        "the oldest; raise its bound or step faster (logged once)",
+                                        self._label(), topic_name, self.queued[topic_name])
+            queue.append(msg)
         if self.trigger_kind == "topics":
             return topic_name in self._trigger_names
         if self.trigger_event is not None:
@@ -483,7 +533,7 @@ class Component:
         return frozenset(self._fresh)
 
     def current_inputs(self, now: float | None = None) -> dict[str, Any]:
-        """The latest message of every input topic (``None``: none yet, or too old)."""
+        """The latest message of every input topic (``None``: none yet, or too old); a queued input's list."""
         max_age = self.config.input_max_age_s
         now = time.monotonic() if now is None else now
         out: dict[str, Any] = {}
@@ -494,7 +544,8 @@ class Component:
             msg = self._latest.get(t.name)
             if msg is not None and max_age is not None and now - self._received_at[t.name] > max_age:
                 msg = None
-            out[t.name] = msg
+            queue = self._queues.get(t.name)
+            out[t.name] = list(queue) if queue is not None and msg is not None else msg
         return out
 
     def missing_inputs(self, now: float | None = None, inputs: Mapping[str, Any] | None = None) -> list[str]:
@@ -515,8 +566,26 @@ class Component:
         if self._missing_module is not None:
             return False  # it failed for good: nothing to retry until the process restarts
         inputs = self.current_inputs(now)
-        if self.missing_inputs(inputs=inputs):
+        missing = self.missing_inputs(inputs=inputs)
+        if missing and self.config.wait_for_inputs:
+            for name in missing:
+                if name not in self._waiting_logged:  # once: a rate trigger would say it every tick
+                    self._waiting_logged.add(name)
+                    self.logger.info("%s: a step waits for required input %r (no message yet); "
+                                     "wait_for_inputs=False runs it with what is there", self._label(), name)
             return False
+        for queue in self._queues.values():
+            queue.clear()  # the step has them now
+        return self.run_step(inputs)
+
+    def run_step(self, inputs: Mapping[str, Any], fresh: Iterable[str] | None = None) -> bool:
+        """Run one step on ``inputs`` (topic name -> message), as :meth:`execute` does; True when it succeeded.
+
+        ``fresh``: the topics :attr:`fresh_inputs` names during the step (default: those received since the
+        previous step). A model component replays a failed step this way on a new model client.
+        """
+        if fresh is not None:
+            self._fresh = set(fresh)
         self._health_set_in_step = False
         self._fresh |= {t.name for t in self.inputs if isinstance(t, FixedInput)}  # new at every step
         try:

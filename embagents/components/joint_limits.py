@@ -1,9 +1,10 @@
 """Joint limits (from a URDF or a dict) and the clipping every arm command goes through.
 
 A URDF is read with ``urdf_parser_py`` (ROS's own parser, package
-``urdfdom-py``): each revolute or prismatic joint gives ``lower``, ``upper``
-(rad or m) and ``velocity`` (rad/s or m/s). A dict gives the same per joint
-and wins over the URDF. :class:`Clipper` makes one command safe: positions
+``urdfdom-py``), as bytes (xacro's and vendors' files declare their encoding),
+without its transmission and gazebo tags (not needed for limits): each
+revolute or prismatic joint gives ``lower``, ``upper`` (rad or m) and
+``velocity`` (rad/s or m/s). A dict gives the same per joint and wins over the URDF. :class:`Clipper` makes one command safe: positions
 inside the limits and no faster than the velocity limit allows over one
 control period; velocities within the limit and never pushing past a
 position limit. Each joint clipped is logged once.
@@ -42,6 +43,7 @@ def limits_from_urdf(path: str) -> dict[str, JointLimit]:
 
     Continuous joints get +-inf positions. Raises ``ValueError`` for a file that is not a URDF.
     """
+    from lxml import etree  # urdf_parser_py's own XML library
     from urdf_parser_py import urdf as urdf_py
     from urdf_parser_py.xml_reflection import core
 
@@ -51,8 +53,13 @@ def limits_from_urdf(path: str) -> dict[str, JointLimit]:
     saved = core.on_error
     core.on_error = lambda _msg: None  # the parser's hook: it prints every tag it does not model (materials, contacts)
     try:
-        with open(full, encoding="utf-8") as f:
-            robot = urdf_py.URDF.from_xml_string(f.read())
+        with open(full, "rb") as f:  # bytes: lxml refuses a str with an <?xml ... encoding="utf-8"?> declaration
+            root = etree.fromstring(f.read())
+        # Limits need joints only: transmissions and gazebo tags (often xacro leftovers, such as pybullet_data's
+        # xArm6 <mechanicalReduction>reduction</mechanicalReduction>) must not make a good robot unreadable.
+        for tag in root.findall("transmission") + root.findall("gazebo"):
+            root.remove(tag)
+        robot = urdf_py.URDF.from_xml_string(etree.tostring(root))
     except Exception as exc:
         raise ValueError(f"{full!r} is not a URDF urdf_parser_py can read: {exc}") from exc
     finally:

@@ -9,8 +9,9 @@ done=True)`` with the same ``stream_id``.
 Tool calling: ``LLMConfig(tools={"get_time": get_time})`` offers Python
 functions to the model (JSON schemas are derived from their signatures or
 given in ``tool_schemas``); tool calls the model makes are run and their
-results fed back, for at most ``max_tool_rounds`` rounds, then the model
-must answer in text.
+results fed back, for at most ``max_tool_rounds`` rounds (one with
+``tool_choice="required"``), then the model must answer in text
+(``tool_choice="none"``: the answer published is a sentence, not a call).
 
 Example::
 
@@ -36,6 +37,7 @@ from __future__ import annotations
 import copy
 import inspect
 import json
+import re
 import string
 import uuid
 from collections.abc import Callable, Mapping
@@ -47,7 +49,7 @@ from attrs import define, field
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, to_bool
-from embagents.models.chat import openai_tool_call
+from embagents.models.chat import openai_tool_call, tool_calls_from_text
 from embagents.msgs import StreamingString, String
 from embagents.topic import Topic
 
@@ -122,15 +124,42 @@ _JSON_TYPES = {str: "string", int: "integer", float: "number", bool: "boolean", 
 _JSON_TYPE_NAMES = {t.__name__: j for t, j in _JSON_TYPES.items()}
 
 
+_ARGS_HEADER = re.compile(r"^(Args|Arguments|Parameters):$")
+_ARG_LINE = re.compile(r"^\s*(?::param\s+)?(\w+)(?:\s*\([^)]*\))?\s*:\s*(.+)$")
+
+
+def _argument_docs(doc: str) -> dict[str, str]:
+    """Argument descriptions in a docstring: ``Args:`` lines (``name: text``, ``name (type): text``), ``:param name: text``."""
+    out: dict[str, str] = {}
+    in_args = False
+    for line in doc.splitlines():
+        if _ARGS_HEADER.match(line.strip()):
+            in_args = True
+            continue
+        if in_args and line.strip() and not line.startswith((" ", "\t")):
+            in_args = False  # the next section
+        match = _ARG_LINE.match(line)
+        if match and (in_args or line.strip().startswith(":param")):
+            out[match.group(1)] = match.group(2).strip()
+    return out
+
+
 def tool_schema(name: str, fn: Callable[..., Any], parameters: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """An OpenAI-style tool description of ``fn``, parameters derived from its signature.
+    """An OpenAI-style tool description of ``fn``: parameters from its signature, their descriptions
+    from its docstring's ``Args:`` section (the model is shown them: what to fill in, not a sample).
 
     >>> def turn(angle: float, unit: str = "deg"):
-    ...     '''Turn the robot in place.'''
-    >>> tool_schema("turn", turn)["function"]["parameters"]["required"]
-    ['angle']
+    ...     '''Turn the robot in place.
+    ...
+    ...     Args:
+    ...         angle: how far, in the unit
+    ...     '''
+    >>> params = tool_schema("turn", turn)["function"]["parameters"]
+    >>> params["required"], params["properties"]["angle"]
+    (['angle'], {'type': 'number', 'description': 'how far, in the unit'})
     """
     if parameters is None:
+        told = _argument_docs(inspect.getdoc(fn) or "")
         props: dict[str, Any] = {}
         required = []
         for p in inspect.signature(fn).parameters.values():
@@ -141,7 +170,7 @@ def tool_schema(name: str, fn: Callable[..., Any], parameters: Mapping[str, Any]
             # "float | None" (an optional number) is a number.
             first = ann.split("|")[0].strip() if isinstance(ann, str) else ""
             jtype = _JSON_TYPES.get(ann) or _JSON_TYPE_NAMES.get(first, "string")
-            props[p.name] = {"type": jtype}
+            props[p.name] = {"type": jtype, **({"description": told[p.name]} if p.name in told else {})}
             if p.default is p.empty:
                 required.append(p.name)
         parameters = {"type": "object", "properties": props, "required": required}
@@ -166,9 +195,10 @@ class LLMConfig(BaseComponentConfig):
     - ``tools``: name -> Python function the model may call; ``tool_schemas``:
       name -> JSON schema of its parameters (else derived from the signature);
       ``max_tool_rounds``: tool rounds before the model must answer;
-      ``tool_choice``: ``"auto"`` (the model decides) or ``"required"`` (its first
-      reply must be a tool call: with llama.cpp, held to a JSON schema by a grammar,
-      so even SmolLM2-135M makes a valid call; later rounds answer freely);
+      ``tool_choice``: ``"auto"`` (the model decides, each round until ``max_tool_rounds``)
+      or ``"required"`` (its first reply must be a tool call: with llama.cpp, held to a
+      JSON schema by a grammar, so even SmolLM2-135M makes a valid call). The reply that
+      ends the tool rounds is asked with ``tool_choice="none"``: text, never a call;
       ``tools_answer_directly``: tools whose result is the answer itself (published
       as is, the model is not asked again: EmbodiedAgents' ``send_tool_response_to_model=False``).
 
@@ -382,24 +412,35 @@ class LLM(ModelComponent):
         specs = self.tool_specs() or None
         rounds = 0
         while True:
-            tools = specs if rounds < cfg.max_tool_rounds else None
+            # Tools are offered in the first round, and in later ones only with tool_choice="auto" (the model
+            # may chain calls) until max_tool_rounds. The reply after a tool result otherwise is the answer:
+            # text, with tool_choice="none" (a small model shown its own call would copy it as the answer).
+            offered = specs is not None and rounds < cfg.max_tool_rounds and (rounds == 0 or cfg.tool_choice == "auto")
+            tools = specs if offered or rounds > 0 else None
+            extra: dict[str, Any] = {}
+            if offered and rounds == 0 and cfg.tool_choice == "required":
+                extra["tool_choice"] = "required"
+            elif tools is not None and not offered:
+                extra["tool_choice"] = "none"
             parts: list[str] = []
             tool_calls = None
-            extra = {"tool_choice": "required"} if tools and rounds == 0 and cfg.tool_choice == "required" else {}
+            shown = [] if extra.get("tool_choice") == "required" else streams  # a forced call is no answer to stream
             for chunk in self.chat_stream(messages, max_tokens=cfg.max_new_tokens, temperature=cfg.temperature,
                                           stop=cfg.stop or None, tools=tools, **self._model_inputs(), **extra):
                 delta = chunk.get("delta")
                 if delta:
                     parts.append(delta)
-                    for t in streams:
+                    for t in shown:
                         self.publish(t, StreamingString(data=delta, done=False, stream_id=stream_id))
                 if chunk.get("done"):
                     tool_calls = chunk.get("tool_calls")
             text = "".join(parts)
-            if not tool_calls or tools is None:
+            if not tool_calls or not offered:
                 return text
             calls = [openai_tool_call(c, i) for i, c in enumerate(tool_calls)]
-            new = [{"role": "assistant", "content": text, "tool_calls": calls}]
+            # A reply that is only the calls' JSON (a model without native tool calls) has no content besides them.
+            content = "" if tool_calls_from_text(text, tools) else text
+            new = [{"role": "assistant", "content": content, "tool_calls": calls}]
             new += [{"role": "tool", "tool_call_id": c["id"], "name": c["function"]["name"],
                      "content": self._run_tool(c)} for c in calls]
             messages += new

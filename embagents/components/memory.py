@@ -357,11 +357,14 @@ class Memory(Component):
             why = (f"nothing is stored in memory {self.config.map_name!r} yet; layers: "
                    f"{', '.join(layer.name for layer in self.layers) or 'none'}")
             return {"found": False, "what": what, "why": why, "summary": f"I have not seen {what}: {why}"}
-        hits = store.semantic(self.embedding_client.embed([what])[0], k=20)
-        # The same thing seen again (as close in meaning as the best match, give or take 0.1): the latest wins.
-        cutoff = min(self.config.locate_max_distance, hits[0]["distance"] + 0.1)
-        close = [h for h in hits if h["distance"] <= cutoff]
-        best = max(close, key=lambda h: h["time"]) if close else hits[0]
+        vector = self.embedding_client.embed([what])[0]
+        closest = store.semantic(vector, k=1)[0]
+        # The same thing seen again (as close in meaning as the best match, give or take 0.1): the newest of
+        # all such items wins, not of the top k (a label stored 100 times would hide its latest sightings).
+        cutoff = min(self.config.locate_max_distance, closest["distance"] + 0.1)
+        latest = store.latest_similar(vector, cutoff) if closest["distance"] <= cutoff else None
+        close = latest is not None
+        best = latest if latest is not None else closest
         x, y = best["position"][0], best["position"][1]
         near = [it["text"] for it in store.within((x, y), self.config.near_m)
                 if it["layer"] != best["layer"] and it["id"] != best["id"]]

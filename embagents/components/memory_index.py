@@ -109,6 +109,17 @@ class VectorIndex:
             return self._top(ids, dist, k)
         return self._top(ids, 1.0 - mat @ q, k)
 
+    def within(self, q: np.ndarray, max_distance: float) -> np.ndarray:
+        """Every id whose cosine distance to ``q`` is at most ``max_distance`` (the groups :meth:`search` scans)."""
+        if self.all.n == 0:
+            return np.zeros(0, np.int64)
+        if self.centroids is None:
+            ids, mat = self.all.ids[: self.all.n], self.all.mat[: self.all.n]
+            return ids[1.0 - mat @ q <= max_distance]
+        probe = np.argpartition(-(self.centroids @ q), self.nprobe)[: self.nprobe]
+        groups = [self.lists[int(c)] for c in probe if self.lists[int(c)].n]
+        return np.concatenate([g.ids[: g.n][1.0 - g.mat[: g.n] @ q <= max_distance] for g in groups])
+
     @staticmethod
     def _top(ids: np.ndarray, dist: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         k = min(k, len(ids))

@@ -258,6 +258,21 @@ class MemoryStore:
         by_id = {r[0]: r for r in self.db.execute(f"SELECT {self._COLS} FROM items i WHERE i.id IN ({marks})", ids)}
         return [self._row(by_id[i], distance=float(d)) for i, d in zip(ids, dist, strict=True) if i in by_id]
 
+    def latest_similar(self, vector: np.ndarray, max_distance: float) -> dict[str, Any] | None:
+        """The newest item (by time) within cosine ``distance`` ``max_distance`` of ``vector``; ``None``: none is."""
+        q = self._check_vector(vector)
+        ids = self._index.within(q, float(max_distance))
+        if not len(ids):
+            return None
+        # json_each: any number of ids in one statement (an IN list of ? stops at SQLite's variable limit)
+        rows = list(self.db.execute(f"SELECT {self._COLS}, i.embedding FROM items i WHERE i.id IN "
+                                    "(SELECT value FROM json_each(?)) ORDER BY i.t DESC, i.id DESC LIMIT 1",
+                                    (json.dumps(ids.tolist()),)))
+        if not rows:
+            return None
+        v = np.frombuffer(rows[0][8], np.float32)
+        return self._row(rows[0], distance=float(1.0 - v @ q))
+
     def within(self, center: Sequence[float], radius: float, layer: str | None = None,
                limit: int = 100) -> list[dict[str, Any]]:
         """Items within ``radius`` (metres, in x/y) of ``center``, nearest first."""

@@ -6,7 +6,10 @@ str, "tool_calls": list | None}``) or ``chat(messages, **options)``: a local
 model actor's client, an HTTP client, or an in-process backend. Clients are
 named by their ``name`` attribute (else their class name); extra clients are
 standbys that :meth:`ModelComponent.change_model_client` (or a fallback's
-``switch_model_client``) swaps in without a restart.
+``switch_model_client``) swaps in without a restart. A step that failed
+(a dead primary: the question it carried) is run once more on the new
+client when the switch comes within ``RETRY_WITHIN_S`` of the failure, so
+the request that met the dead client is answered, not lost.
 
 Example::
 
@@ -26,7 +29,8 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+import time
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 from embagents.components.component import Component, ComponentProblem
@@ -78,6 +82,8 @@ class ModelComponent(Component):
         for key, client in extras:
             self._add_client(key, client)
         self.warmup = bool(warmup)
+        #: The inputs, fresh topics and time of the last step that failed (retried once on a new client).
+        self._failed_step: tuple[dict[str, Any], frozenset[str], float] | None = None
         super().__init__(name=name, **kw)
 
     @property
@@ -129,7 +135,29 @@ class ModelComponent(Component):
         previous, self.client_name, self.model_client = self.client_name, key, self.clients[key]
         self.client_switches += 1  # reports from now on are told apart from those before the switch
         self.logger.info("%s: model client %s -> %s", self._label(), previous, key)
+        failed, self._failed_step = self._failed_step, None
+        if failed is not None and key != previous and time.monotonic() - failed[2] <= self.RETRY_WITHIN_S:
+            try:  # after this request is answered: a fallback's tell must not wait on a generation
+                self.call_later(0.0, lambda: self._retry(failed))
+            except RuntimeError:  # not under a runtime (a test, a script): now
+                self._retry(failed)
         return previous
+
+    #: A failed step is retried on a new client switched in at most this many seconds after it failed.
+    RETRY_WITHIN_S = 60.0
+
+    def run_step(self, inputs: Mapping[str, Any], fresh: Iterable[str] | None = None) -> bool:
+        """:meth:`Component.run_step`, keeping a failed step's inputs for one retry on the next client."""
+        fresh_now = self.fresh_inputs if fresh is None else frozenset(fresh)
+        ok = super().run_step(inputs, fresh)
+        self._failed_step = None if ok else (dict(inputs), fresh_now, time.monotonic())
+        return ok
+
+    def _retry(self, failed: tuple[dict[str, Any], frozenset[str], float]) -> None:
+        inputs, fresh, _ = failed
+        self.logger.info("%s: retrying the step that failed, on model client %s", self._label(), self.client_name)
+        self.run_step(inputs, fresh)
+        self._failed_step = None  # once: a failure now is reported, not retried again
 
     def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
         """Stream chunks from the active client, normalised to ``{"delta"}``... ``{"done": True, ...}``.

@@ -41,6 +41,7 @@ __all__ = [
     "default_use_extra_bufts",
     "tool_call_schema",
     "tool_prompt_messages",
+    "tool_signature",
 ]
 
 _INSTALL_HINT = "pip install 'embagents[llm]' (or pip install llama-cpp-python)"
@@ -212,6 +213,8 @@ class LlamaBackend:
             "logits_processor": llama_cpp.LogitsProcessorList([counter]),
         }
         constrained = bool(tools) and tool_choice not in (None, "auto", "none") and self.chat_format is None
+        if tool_choice == "none" and self.chat_format is None:
+            tools = None  # text only: no tools shown to the template, none read back from the reply
         if constrained:
             # Small models (SmolLM2-135M) rarely write a well-formed call on their own: the tools are
             # described in the system message and the reply is held to a JSON schema by a llama.cpp
@@ -223,8 +226,8 @@ class LlamaBackend:
             kwargs["tools"] = tools
             # chatml-function-calling only considers tools when a choice is given.
             kwargs["tool_choice"] = tool_choice if tool_choice is not None else "auto"
-        if self.chat_format is None:
-            kwargs["messages"] = calls_as_text(kwargs["messages"])
+        if self.chat_format is None:  # past calls as the grammar writes them only where the reply is a call too
+            kwargs["messages"] = calls_as_text(kwargs["messages"], as_json=constrained)
         self._busy = True
         start = time.perf_counter()
         first_token_s: float | None = None
@@ -423,10 +426,25 @@ def _functions(tools: list[dict], tool_choice: Any) -> list[dict]:
     return fns
 
 
+def _argument_pattern(max_length: int) -> str:
+    """A string argument as the grammar holds it: at most ``max_length`` characters, not starting with a dot, an
+    ellipsis, "<" or a space (never a placeholder such as ``"..."`` a small model copies), no escapes (GBNF has
+    no ``\\s``: the space is literal)."""
+    rest = max(int(max_length) - 1, 0)
+    return '^[^. <\u2026"\\\\][^"\\\\]{0,' + str(rest) + '}$'
+
+
 def _bounded(params: dict) -> dict:
-    """Tool parameters as the grammar holds them: no extra keys, strings at most 80 characters."""
-    props = {k: ({**v, "maxLength": 80} if v.get("type") == "string" and "maxLength" not in v else v)
-             for k, v in (params.get("properties") or {}).items()}
+    """Tool parameters as the grammar holds them: no extra keys, strings per :func:`_argument_pattern` (80 chars).
+
+    A string the schema already shapes (``enum``, ``const``, ``pattern``, ``format``) keeps its shape.
+    """
+    def bound(v: dict) -> dict:
+        if v.get("type") != "string" or any(key in v for key in ("enum", "const", "pattern", "format")):
+            return v
+        return {**v, "pattern": _argument_pattern(v.get("maxLength", 80))}
+
+    props = {k: bound(v) for k, v in (params.get("properties") or {}).items()}
     return {**params, "type": "object", "properties": props, "additionalProperties": False}
 
 
@@ -446,20 +464,36 @@ def tool_call_schema(tools: list[dict], tool_choice: Any = "required") -> dict:
     return {"oneOf": options}
 
 
+def tool_signature(fn: dict) -> str:
+    """A tool as the prompt shows it: description, the shape of a call, each argument's type and description.
+
+    A string argument is shown as ``"..."``, which the grammar refuses (:func:`_argument_pattern`): measured on
+    SmolLM2-135M, a call shape with a value there makes it write the asked word (``"garage"``, ``"cup"``); with
+    no value shown it wrote the tool's name instead, and with an accepted ``"..."`` it copied that.
+
+    >>> tool_signature({"name": "switch_on", "description": "Switch on the lights.", "parameters": {
+    ...     "properties": {"room": {"type": "string", "description": "where"}, "level": {"type": "integer"}}}})
+    'switch_on: Switch on the lights. Call: {"name": "switch_on", "arguments": {"room": "...", "level": 0}} (room: string (where), level: integer)'
+    """
+    props = (fn.get("parameters") or {}).get("properties") or {}
+    shape = {k: ("..." if v.get("type", "string") == "string" else 0) for k, v in props.items()}
+    told = ", ".join(f"{k}: {v.get('type', 'string')}" + (f" ({v['description']})" if v.get("description") else "")
+                     for k, v in props.items())
+    return (f"{fn['name']}: {fn.get('description', '')} Call: {json.dumps({'name': fn['name'], 'arguments': shape})}"
+            + (f" ({told})" if told else ""))
+
+
 def tool_prompt_messages(messages: list[dict], tools: list[dict], tool_choice: Any = "required") -> list[dict]:
-    """``messages`` with the tools described (and a call shown for each) before the last user text.
+    """``messages`` with the tools described (arguments, types, descriptions) before the last user text.
 
     A chat template that cannot show tools (SmolLM2's) needs them in the text; measured on
     SmolLM2-135M, it fills arguments from the question far more often when the tools come
-    right before it in the same turn than in the system message.
+    right before it in the same turn than in the system message. No sample call is shown:
+    it copied a sample's ``"..."`` as the argument in most phrasings of a request.
     """
-    lines = ["Tools:"]
-    for fn in _functions(tools, tool_choice):
-        props = (fn.get("parameters") or {}).get("properties") or {}
-        shape = {k: ("..." if v.get("type", "string") == "string" else 0) for k, v in props.items()}
-        lines.append(f"- {fn['name']}: {fn.get('description', '')} Call: "
-                     + json.dumps({"name": fn["name"], "arguments": shape}))
-    lines.append("Answer with the one call that helps most with the user's question.")
+    lines = ["Tools:"] + [f"- {tool_signature(fn)}" for fn in _functions(tools, tool_choice)]
+    lines.append("Answer with the one call that helps most with the user's question, its arguments taken from the "
+                 "question.")
     out = [dict(m) for m in messages]
     last = max((i for i, m in enumerate(out) if m.get("role") == "user"), default=None)
     text = "\n".join(lines)
@@ -470,12 +504,17 @@ def tool_prompt_messages(messages: list[dict], tools: list[dict], tool_choice: A
     return out
 
 
-def calls_as_text(messages: list[dict]) -> list[dict]:
+def calls_as_text(messages: list[dict], as_json: bool = True) -> list[dict]:
     """Assistant tool calls written into their content (a GGUF chat template shows only content).
 
-    >>> calls_as_text([{"role": "assistant", "content": "", "tool_calls": [
-    ...     {"function": {"name": "go", "arguments": '{"x": 1}'}}]}])[0]["content"]
+    ``as_json=False`` writes them as a sentence: a reply that must be text, shown its own
+    calls as JSON, copies them (SmolLM2-135M did in 4 of 6 answers after a tool result; 0 of 6 so).
+
+    >>> calls = [{"role": "assistant", "content": "", "tool_calls": [{"function": {"name": "go", "arguments": '{"x": 1}'}}]}]
+    >>> calls_as_text(calls)[0]["content"]
     '{"name": "go", "arguments": {"x": 1}}'
+    >>> calls_as_text(calls, as_json=False)[0]["content"]
+    'I called go(x=1).'
     """
     out = []
     for m in messages:
@@ -489,7 +528,11 @@ def calls_as_text(messages: list[dict]) -> list[dict]:
                     args = json.loads(args) if isinstance(args, str) else args
                 except ValueError:
                     pass
-                shown.append(json.dumps({"name": fn.get("name"), "arguments": args}))
-            m = {**m, "content": "\n".join(shown)}
+                if as_json:
+                    shown.append(json.dumps({"name": fn.get("name"), "arguments": args}))
+                else:
+                    given = ", ".join(f"{k}={json.dumps(v)}" for k, v in args.items()) if isinstance(args, dict) else ""
+                    shown.append(f"I called {fn.get('name')}({given}).")
+            m = {**m, "content": ("\n" if as_json else " ").join(shown)}
         out.append(m)
     return out

@@ -264,6 +264,38 @@ def test_stale_input_counts_as_missing():
     assert c.missing_inputs(now=101.0) == ["camera/image"]
 
 
+def test_a_waiting_step_says_once_which_input_it_waits_for_and_can_run_with_what_is_there(caplog):
+    c = make(trigger=5.0)  # a rate: each tick calls execute()
+    attached(c)
+    with caplog.at_level(logging.INFO, "embagents.component.describer"):
+        assert c.execute() is False and c.execute() is False and c.steps == []
+    waits = [r.getMessage() for r in caplog.records if "waits for" in r.getMessage()]
+    assert len(waits) == 1 and "required input 'camera/image'" in waits[0] and "wait_for_inputs=False" in waits[0]
+    eager = make(trigger=5.0, wait_for_inputs=False)
+    attached(eager)
+    assert eager.execute() is True and eager.steps == [{"camera/image": None, "text": None}]
+
+
+def test_a_queued_input_gives_the_step_every_message_since_the_last_one_up_to_its_bound(caplog):
+    c = make(trigger=5.0, queued={TEXT: 3})
+    attached(c)
+    c.on_message("camera/image", Image())
+    for word in ("a", "b"):
+        c.on_message("text", String(word))
+    assert c.execute() and [m.data for m in c.steps[-1]["text"]] == ["a", "b"]
+    assert c.execute() and c.steps[-1]["text"] == []  # heard before, nothing new since
+    with caplog.at_level(logging.WARNING, "embagents.component.describer"):
+        for word in "cdefg":
+            c.on_message("text", String(word))
+    assert c.execute() and [m.data for m in c.steps[-1]["text"]] == ["e", "f", "g"]
+    assert c.dropped == {"text": 2} and len([r for r in caplog.records if "is full" in r.getMessage()]) == 1
+    assert make(trigger=5.0, queued=[TEXT]).queued == {"text": TEXT.queue_size}
+    with pytest.raises(ComponentError, match="queued topic 'audio' is not one of its inputs"):
+        make(queued={AUDIO: 5})
+    with pytest.raises(ComponentError, match=r"queued\['text'\]: the bound .* got 0"):
+        make(queued={TEXT: 0})
+
+
 def test_publish_checks_type_and_output_name():
     c = make()
     attached(c)

@@ -11,6 +11,7 @@ pytest.importorskip("pybullet")
 pytest.importorskip("urdf_parser_py")
 
 from embagents.components.joint_limits import Clipper, JointLimit, limits_from_urdf, merge_limits  # noqa: E402
+from embagents.components.sim import robot_path  # noqa: E402
 
 
 def test_the_pandas_urdf_gives_its_joint_limits() -> None:
@@ -18,6 +19,23 @@ def test_the_pandas_urdf_gives_its_joint_limits() -> None:
     assert limits["panda_joint4"] == JointLimit(-3.1416, 0.0, 2.175)
     assert limits["panda_finger_joint1"] == JointLimit(0.0, 0.04, 0.2)
     assert len([j for j in limits if j.startswith("panda_joint")]) == 7  # fixed joints have none
+
+
+def test_a_urdf_that_declares_its_encoding_is_read() -> None:
+    # xacro output and most vendors' URDFs (pybullet_data's xArm6 too) start with <?xml ... encoding="utf-8"?>
+    with open(robot_path("xarm/xarm6_robot.urdf"), encoding="utf-8") as f:
+        assert f.readline().startswith('<?xml version="1.0" encoding="utf-8"?>')
+    limits = limits_from_urdf("xarm/xarm6_robot.urdf")  # its transmissions do not parse: they are not needed
+    assert sorted(limits) == [f"joint{i}" for i in range(1, 7)]
+    assert limits["joint2"] == JointLimit(-2.059, 2.0944, 3.14)
+
+
+def test_a_written_urdf_with_a_utf8_declaration_and_a_non_ascii_name_is_read(tmp_path) -> None:  # noqa: ANN001
+    path = tmp_path / "arm.urdf"
+    path.write_text('<?xml version="1.0" encoding="utf-8"?>\n<robot name="bras_électrique"><link name="a"/>'
+                    '<link name="b"/><joint name="coude" type="revolute"><parent link="a"/><child link="b"/>'
+                    '<limit lower="-1.5" upper="1.5" velocity="2.0" effort="10"/></joint></robot>', encoding="utf-8")
+    assert limits_from_urdf(str(path)) == {"coude": JointLimit(-1.5, 1.5, 2.0)}
 
 
 def test_a_dict_overrides_the_urdf_joint_by_joint() -> None:

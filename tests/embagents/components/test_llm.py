@@ -10,6 +10,7 @@ import pytest
 from actors.codec import Codec
 from embagents.components import LLM, ComponentError, HealthStatus, LLMConfig
 from embagents.config import ConfigError
+from embagents.models.chat import tool_calls_from_text
 from embagents.msgs import StreamingString, String
 from embagents.topic import Topic
 
@@ -237,7 +238,36 @@ def test_tool_rounds_are_bounded():
     client = ScriptedClient(looping)
     llm, _ = make(client, tools={"ping": lambda: "pong"}, max_tool_rounds=2)
     ask(llm, "q")
-    assert [c[1]["tools"] is not None for c in client.calls] == [True, True, False]
+    assert [c[1]["tools"] is not None for c in client.calls] == [True, True, True]
+    assert [c[1].get("tool_choice") for c in client.calls] == [None, None, "none"]  # the last answers in text
+
+
+class CallsWheneverAllowed(ScriptedClient):
+    """A model that answers every request with a tool call unless tool_choice="none" (what SmolLM2 did)."""
+
+    def chat_stream(self, messages, **options):
+        if options.get("tool_choice") == "none":
+            return super().chat_stream(messages, **options)
+        call = {"name": "open_gate", "arguments": {"gate": "north"}}
+        self.calls.append((json.loads(json.dumps(messages)), options))
+        return iter([{"delta": json.dumps(call)}, {"done": True, "finish_reason": "tool_calls", "tool_calls": [call]}])
+
+
+def test_the_answer_after_a_tool_result_is_text_not_a_tool_call():
+    opened = []
+
+    def open_gate(gate: str) -> str:
+        """Open a gate of the yard."""
+        opened.append(gate)
+        return f"the {gate} gate is open"
+
+    client = CallsWheneverAllowed("The north gate is open now.")
+    llm, sent = make(client, tools={"open_gate": open_gate}, tool_choice="required")
+    ask(llm, "Open the north gate, please.")
+    assert opened == ["north"]  # called once: the reply after the result was not another call
+    assert [c[1].get("tool_choice") for c in client.calls] == ["required", "none"]
+    answer = sent[-1][1].data
+    assert answer == "The north gate is open now. " and tool_calls_from_text(answer, llm.tool_specs()) is None
 
 
 def test_tool_schemas_must_name_tools():
@@ -273,5 +303,49 @@ def test_llm_streams_from_a_real_llama_backend(tiny_gguf):
         assert llm.history[-1] == {"role": "assistant", "content": full}
         assert ask(llm, "And again")  # the history goes through the real chat template
         assert len(llm.history) == 4
+    finally:
+        backend.close()
+
+
+def switch_on(room: str) -> str:
+    """Switch on the lights in a room.
+
+    Args:
+        room: the room, as the user names it
+    """
+    return f"the lights in the {room} are on"
+
+
+def set_heating(room: str, celsius: float) -> str:
+    """Set the heating of a room to a temperature."""
+    return "ok"
+
+
+@pytest.mark.skipif(not _HAVE_LLAMA, reason="needs embagents.models.backends.llama, llama-cpp-python and gguf")
+@pytest.mark.llama_in_process  # see tests/conftest.py
+def test_smollm2_fills_a_held_out_request_and_answers_the_tool_result_in_a_sentence():
+    from embagents.modelfiles import default_llm_path
+    from embagents.models.backends.llama import LlamaBackend
+
+    backend = LlamaBackend(default_llm_path(progress=False))
+    calls: list[str] = []
+
+    def lights(room: str) -> str:
+        calls.append(room)
+        return switch_on(room)
+
+    lights.__doc__ = switch_on.__doc__
+    try:
+        llm, sent = make(backend, tools={"switch_on": lights, "set_heating": set_heating}, tool_choice="required",
+                         max_tool_rounds=1, temperature=0.0, max_new_tokens=48)
+        phrasings = ["Please switch on the lights in the garage.", "Switch on the garage lights.",
+                     "Turn the lights on in the garage, please.", "Can you switch the light on in the garage?"]
+        for text in phrasings:
+            assert ask(llm, text)
+        # The prompt showed a sample call with "..." for strings: SmolLM2 copied it in every phrasing.
+        assert calls == ["garage"] * 4
+        for _, msg in sent:
+            assert tool_calls_from_text(msg.data, llm.tool_specs()) is None and not msg.data.lstrip().startswith("{")
+            assert "garage" in msg.data, msg.data
     finally:
         backend.close()

@@ -106,6 +106,22 @@ def test_a_label_seen_again_at_the_same_place_is_not_stored_again(minilm: str, t
     assert mem.count() == 2 and mem.locate("cup")["position"] == [5.0, 1.0, 0.0]  # the latest sighting
 
 
+def test_locate_answers_the_newest_sighting_of_a_label_stored_more_than_twenty_times(minilm: str,
+                                                                                      tmp_path: Path) -> None:
+    mem = memory(minilm, tmp_path)
+    at(mem, 0.0, 0.0)
+    for _ in range(100):
+        mem.on_message("notes", String(data="face"))
+    assert mem.execute()
+    at(mem, 4.0, 2.0)
+    for _ in range(29):
+        mem.on_message("notes", String(data="face"))
+    assert mem.execute()
+    assert mem.count() == 129
+    found = mem.locate("face")
+    assert found["confident"] and found["position"] == [4.0, 2.0, 0.0], found["summary"]
+
+
 def test_a_query_before_anything_is_stored_says_so(minilm: str, tmp_path: Path) -> None:
     mem = memory(minilm, tmp_path)
     found = mem.locate("cup")

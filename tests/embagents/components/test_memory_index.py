@@ -36,3 +36,15 @@ def test_small_is_exact_and_large_uses_lists_that_find_the_same_neighbours() -> 
 def test_an_empty_index_finds_nothing() -> None:
     ids, dist = VectorIndex(4).search(np.ones(4, np.float32) / 2, 3)
     assert ids.size == 0 and dist.size == 0
+
+
+def test_within_finds_every_vector_as_close_as_asked_exact_or_through_lists() -> None:
+    rng = np.random.default_rng(2)
+    data = unit_rows(rng, 1000)
+    q = data[7]
+    want = set(np.flatnonzero(1.0 - data @ q <= 0.8).tolist())
+    for exact_below in (5000, 100):  # exact, then the probed lists (approximate: a subset, with q's own group)
+        idx = VectorIndex(32, exact_below=exact_below)
+        idx.add(np.arange(1000), data)
+        got = set(idx.within(q, 0.8).tolist())
+        assert 7 in got and got <= want and (idx.centroids is not None or got == want)
