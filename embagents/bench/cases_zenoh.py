@@ -86,7 +86,7 @@ class _RunB:
             raise
 
     def seen(self) -> list[tuple[int, int, int]]:
-        return [tuple(x) for x in self.recorder.ask("seen", timeout=30).get()]  # type: ignore[misc]
+        return [(int(a), int(b), int(c)) for a, b, c in self.recorder.ask("seen", timeout=30).get()]
 
     def wait_for(self, n: int, timeout: float) -> list[tuple[int, int, int]]:
         deadline = time.monotonic() + timeout

@@ -72,7 +72,7 @@ def topic_rows(system: System, run_dir: str) -> list[dict[str, Any]]:
             rows[i.topic]["publishers"].append(f"(remote {i.key})")
             rows[i.topic]["remote"] = i.key
     for e in getattr(bridge, "exports", ()):
-        if e.topic in rows:
+        if bridge is not None and e.topic in rows:
             rows[e.topic]["exported"] = bridge.key_of(e)
     rows.setdefault(EVENTS_TOPIC, {"name": EVENTS_TOPIC, "type": "SupervisorEvent", "wire": "", "keep": "latest",
                                    "queue_size": 100, "publishers": ["(supervisor)"]})

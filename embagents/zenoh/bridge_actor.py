@@ -24,6 +24,7 @@ way are in ``embagents status``; an endpoint without a link for
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import os
@@ -87,7 +88,7 @@ class _Blobs:
         start = _HEAD.size + len(body)
         out[_HEAD.size:start] = body
         for arr in self.arrays:
-            out[start:start + arr.nbytes] = memoryview(arr).cast("B")
+            out[start:start + arr.nbytes] = arr.data.cast("B")
             start += arr.nbytes
         self.arrays, self.size = [], 0
         return out
@@ -145,7 +146,7 @@ def zenoh_config(spec: ZenohBridge) -> Any:
         }
         conf.insert_json5("transport/link/tls", json.dumps(tls))
     if spec.peers is not None:
-        conf.insert_json5("access_control", json.dumps(access_rules(spec.peers)))
+        conf.insert_json5("access_control", json.dumps(access_rules({k: list(v) for k, v in spec.peers.items()})))
     return conf
 
 
@@ -262,14 +263,16 @@ class ZenohBridgeActor(Actor):
             spec = loaded_system(self.system_path).zenoh
             if spec is None:
                 raise RuntimeError(f"{self.system_path} declares no ZenohBridge (System(..., zenoh=ZenohBridge(...)))")
-            return spec  # type: ignore[no-any-return]
+            return spec
         assert self.raw_bridge is not None
         return ZenohBridge.from_dict(self.raw_bridge)
 
     # -- start -------------------------------------------------------------------------
     def on_start(self) -> None:
         import zenoh
-        import zenoh.ext as zext
+        import zenoh.ext
+
+        zext: Any = zenoh.ext  # its stubs require every optional config field by name
 
         self.spec = spec = self._spec()
         self.blobs = _Blobs()
@@ -298,6 +301,7 @@ class ZenohBridgeActor(Actor):
         self.link_listener = self.session.info.declare_link_events_listener(on_link, history=True)
         self.publishers: dict[str, Any] = {}
         self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
+        pub: Any
         for e in spec.exports:
             key = spec.key_of(e)
             if e.keep == "all":
@@ -308,11 +312,13 @@ class ZenohBridgeActor(Actor):
             else:
                 pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
-            ctx.subscribe(e.topic, lambda msg, p=pub, t=e.topic: self._out(p, msg, t), queue_size=max(10, min(e.window, 1000)),
+            ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic), queue_size=max(10, min(e.window, 1000)),
                           keep=e.keep)
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
+        sub: Any
         for i in spec.imports:
+            assert i.topic is not None  # Import fills it in from the key
             cb = self._in_callback(i.topic)
             if i.keep == "all":
                 sub = zext.declare_advanced_subscriber(
