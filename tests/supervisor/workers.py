@@ -228,3 +228,26 @@ class SlowConfigure(Managed):
         if not self.ready_ahead:
             time.sleep(self.configure_s)
         _append(self.log, f"on_configure {os.getpid()} ahead={self.ready_ahead}")
+
+
+class KeepAllRecorder(SlowConfigure):
+    """A SlowConfigure with a ``keep="all"`` input: appends ``<pid> <n>`` to ``out`` for each number on ``topic``.
+
+    One write per number: a SIGKILL loses no record of a number it handled.
+    """
+
+    def __init__(self, log: str, configure_s: float, topic: str, out: str) -> None:
+        super().__init__(log, configure_s)
+        self.topic, self.out = topic, out
+
+    def on_start(self) -> None:
+        super().on_start()
+        self.sub = self.context.subscribe(self.topic, self._on, queue_size=100, keep="all")
+
+    def _on(self, n: int) -> None:
+        _append(self.out, f"{os.getpid()} {n}")
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "sub":
+            return self.sub.stats()
+        return super().on_receive(message)
