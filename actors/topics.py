@@ -96,6 +96,8 @@ _COPY_THRESHOLD = zmq.COPY_THRESHOLD
 _HEADER = struct.Struct("<QQ")
 #: Set in the header's publisher id on a frame re-sent to a new incarnation (ids have 48 bits).
 _AGAIN = 1 << 63
+#: Bytes of frames kept for one keyed subscriber past which a send looks for its acknowledgements at once.
+_KEEP_BYTES = 8 << 20
 #: Publisher ids a subscription remembers sequence numbers for (restarted publishers get new ids).
 _MAX_PUBLISHERS = 1024
 _ids = itertools.count()
@@ -137,7 +139,7 @@ class _Ring:
 class _Reliable:
     """A publisher's PUSH to one ``keep="all"`` subscription, and its credit view."""
 
-    __slots__ = ("sub_id", "key", "sock", "credits", "unacked", "stalled", "dropped", "local", "gone_at")
+    __slots__ = ("sub_id", "key", "sock", "credits", "unacked", "kept", "stalled", "dropped", "local", "gone_at")
 
     def __init__(self, sub_id: str, sock: zmq.Socket | None, credits: CreditView, local: bool) -> None:
         self.sub_id = sub_id
@@ -146,6 +148,7 @@ class _Reliable:
         self.credits = credits
         # (sequence number, frame) sent and not acknowledged when last looked at; frames only when keyed.
         self.unacked: deque[tuple[int, bytes | None]] = deque()
+        self.kept = 0  # bytes of the frames in unacked
         self.stalled = False
         self.dropped = 0
         self.local = local  # its subscription lives in this thread: it cannot read while we wait
@@ -269,6 +272,7 @@ class Publisher:
             again = _HEADER.pack(self.id | _AGAIN, seq) + frame[_HEADER.size:]
             rel.sock.send(again, _NOBLOCK, copy=len(again) < _COPY_THRESHOLD)
             rel.unacked.append((seq, frame))
+            rel.kept += len(frame)
         self.resent += len(prev.unacked)
         rel.dropped = prev.dropped
         log.info("topic %s: keep-all subscriber %s is back as %s: re-sent the %d message(s) it had not acknowledged",
@@ -279,7 +283,9 @@ class Publisher:
         acked = rel.credits.handled(self.id)
         unacked = rel.unacked
         while unacked and unacked[0][0] <= acked:
-            unacked.popleft()
+            frame = unacked.popleft()[1]
+            if frame is not None:
+                rel.kept -= len(frame)
 
     def _hold(self, frame: bytes) -> None:
         """Keep ``frame`` (just published) for each dead keyed subscriber's successor, within the bounds."""
@@ -294,6 +300,7 @@ class Publisher:
                 continue
             if len(rel.unacked) < self.window:
                 rel.unacked.append((self.sent, frame))
+                rel.kept += len(frame)
                 continue
             if not rel.stalled:
                 rel.stalled = True
@@ -387,7 +394,13 @@ class Publisher:
                 rel.dropped += 1
                 return
         rel.sock.send(frame, _NOBLOCK, copy=copy)  # type: ignore[union-attr]  # SNDHWM 0: never refused
-        unacked.append((self.sent, frame if rel.key is not None else None))
+        if rel.key is None:
+            unacked.append((self.sent, None))
+        else:  # kept for its next incarnation until acknowledged; large ones let go as soon as they are
+            unacked.append((self.sent, frame))
+            rel.kept += len(frame)
+            if rel.kept > _KEEP_BYTES:
+                self._trim(rel)
         if rel.stalled:
             rel.stalled = False
             log.warning("topic %s: keep-all subscriber %s reads again (%d dropped for it)",
