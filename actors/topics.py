@@ -353,6 +353,11 @@ class Publisher:
         return sum(r.dropped for r in self._reliable.values()) + sum(r.dropped for r in self._orphans.values())
 
     @property
+    def kept(self) -> int:
+        """Bytes of frames kept for keyed ``keep="all"`` subscribers until they acknowledge them."""
+        return sum(r.kept for r in self._reliable.values()) + sum(r.kept for r in self._orphans.values())
+
+    @property
     def held(self) -> int:
         """Messages kept for keyed ``keep="all"`` subscribers that are gone, for their next incarnation."""
         return sum(len(r.unacked) for r in self._orphans.values())

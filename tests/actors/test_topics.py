@@ -220,3 +220,20 @@ def test_a_keep_all_subscriber_stopped_for_good_makes_its_publisher_hold_only_a_
             assert "did not come back within 1 s: dropped the 768 message(s)" in caplog.text
     finally:
         pub.close()
+
+
+def test_a_publisher_keeps_for_a_durable_subscriber_only_what_it_has_not_acknowledged(tmp_path: Path) -> None:
+    rt, loop, got = Runtime(str(tmp_path), "keep"), Loop(), []
+    sub = Subscription(rt, loop, "blobs", got.append, queue_size=4, keep="all", key="sink#0")
+    pub = TopicPublisher(rt, "blobs")
+    try:
+        blob = b"x" * (512 << 10)
+        for i in range(40):  # 20 MiB, read as it goes: past 8 MiB kept, the acknowledged ones are let go
+            pub.publish(blob)
+            assert loop.run(until=lambda i=i: len(got) == i + 1, timeout=5)
+        assert pub.kept <= (8 << 20) + len(blob) + 64, pub.kept
+        assert pub.kept > 0  # the window's frames are kept for its next incarnation until trimmed
+    finally:
+        pub.close()
+        sub.close()
+        rt.close()
