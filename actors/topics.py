@@ -34,7 +34,8 @@ what it sent to a keyed subscription until the subscription acknowledges it
 process dies, the publisher keeps those messages, and up to ``window`` in
 all of what it publishes after, for ``successor_timeout`` (30 s); when a
 subscription with the same key appears (the actor restarted, or its standby
-took over), they are re-sent to it first, in order. Delivery is
+took over), they are re-sent to it first, in order (on the publisher's next
+publish: a publisher notices subscriptions only then). Delivery is
 at-least-once, like a mailbox's: a message the dead incarnation had taken
 but whose callback had not returned is delivered again (re-sent frames are
 flagged and counted: the subscription's ``redelivered``, the publisher's

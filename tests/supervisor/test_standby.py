@@ -200,3 +200,29 @@ def test_a_keep_all_input_loses_nothing_when_its_actor_is_killed(
     # At-least-once: only what a dead incarnation had taken and not finished comes again, and is counted.
     assert len(every) - sent <= 2 * 100, len(every) - sent
     assert stats["dropped"] == 0, stats
+
+
+def test_a_keep_all_message_its_actor_died_handling_is_delivered_again_and_counted(
+        system: ActorSystem, events: EventLog, logfile: str, tmp_path: Any) -> None:
+    from actors.topics import Publisher, subscriber_pids
+
+    out = str(tmp_path / "numbers.txt")
+    start_supervisor(system, SupervisorSpec(intensity=10, period=10, children=[
+        ChildSpec("m", (KeepAllRecorder, (logfile, 0.0, "numbers", out, 5)), lifecycle="active")]), timeout=60)
+    first = ask(system, "m", timeout=30)
+    wait_until(lambda: first in subscriber_pids(system.run_dir, "numbers"), 10, "the subscription")
+    pub = system.rt.on_client(lambda: Publisher(system.rt, "numbers"))
+    try:
+        for n in range(10):  # 5 kills the incarnation inside its callback: taken, not acknowledged
+            system.rt.on_client(lambda n=n: pub.publish(n))
+        again = wait_until(lambda: (p := ask(system, "m", timeout=30)) != first and p, 30, "the next incarnation")
+        wait_until(lambda: again in subscriber_pids(system.run_dir, "numbers"), 10, "its subscription")
+        system.rt.on_client(lambda: pub.publish(10))  # a publisher re-sends when it next publishes
+        wait_until(lambda: len(read_lines(out)) >= 11, 10, "every number")
+        assert [int(line.split()[1]) for line in read_lines(out)] == list(range(11))  # 5 once, in its place
+        assert {int(line.split()[0]) for line in read_lines(out)[5:]} == {again}
+        stats = ask(system, "m", "sub")
+        assert stats["redelivered"] >= 1 and stats["dropped"] == 0, stats
+        assert system.rt.on_client(lambda: pub.resent) >= 1
+    finally:
+        system.rt.on_client(pub.close)

@@ -236,15 +236,18 @@ class KeepAllRecorder(SlowConfigure):
     One write per number: a SIGKILL loses no record of a number it handled.
     """
 
-    def __init__(self, log: str, configure_s: float, topic: str, out: str) -> None:
+    def __init__(self, log: str, configure_s: float, topic: str, out: str, die_on: int = -1) -> None:
         super().__init__(log, configure_s)
-        self.topic, self.out = topic, out
+        self.topic, self.out, self.die_on = topic, out, die_on
 
     def on_start(self) -> None:
         super().on_start()
         self.sub = self.context.subscribe(self.topic, self._on, queue_size=100, keep="all")
 
     def _on(self, n: int) -> None:
+        if n == self.die_on and not os.path.exists(self.out + ".died"):  # once: taken, never finished
+            _append(self.out + ".died", str(n))
+            os.kill(os.getpid(), signal.SIGKILL)
         _append(self.out, f"{os.getpid()} {n}")
 
     def on_receive(self, message: Any) -> Any:
