@@ -22,7 +22,10 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
 
 __all__ = ["BASE_ACTIONS", "actions", "call", "call_command", "parse_args"]
 
@@ -60,7 +63,7 @@ def actions(component: Any) -> list[str]:
                   and callable(getattr(component, n, None)))
 
 
-def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
+def call_command(asys: Any, system: System) -> Callable[[dict[str, Any]], dict[str, Any]]:
     """The root's handler of ``{"cmd": "call", "component", "method", "args", "kwargs", "timeout"}``."""
     from actors import ActorRef
     from actors.errors import RemoteError, Timeout
@@ -70,7 +73,7 @@ def call_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str,
         name, method = req.get("component"), req.get("method")
         by_name = {str(c.name): c for c in system.components}
         comp = by_name.get(name) if isinstance(name, str) else None
-        if comp is None:
+        if comp is None or not isinstance(name, str):
             return {"ok": False, "error": f"system {system.name!r} has no component {name!r}; "
                     f"its components: {', '.join(sorted(by_name)) or 'none'}"}
         if not isinstance(method, str) or method.startswith("_") or not callable(getattr(comp, method, None)):

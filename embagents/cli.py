@@ -267,6 +267,11 @@ def _register_runtime_commands() -> None:
         _lazy("embagents.serve_model", "serve_model_arguments"), _lazy("embagents.serve_model", "run"),
         "serve a model actor to other machines over TCP with CURVE (only allowed keys get in)",
     )
+    COMMANDS["serve-policy"] = Command(
+        _lazy("embagents.tools.serve_policy_cli", "serve_policy_arguments"),
+        _lazy("embagents.tools.serve_policy_cli", "run"),
+        "serve a policy over openpi's WebSocket protocol (openpi clients drive our policies)",
+    )
     for name, module, what, helptext in (
         ("topic", "topic_cli", "topic", "list, echo, measure (hz) and publish the topics of the running system"),
         ("logs", "logs_cli", "logs", "show (and follow with -f) one actor's log lines"),

@@ -18,9 +18,12 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import attrs
+
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
 
 __all__ = ["publish", "publish_command"]
 
@@ -38,7 +41,7 @@ def _message(topic: Any, fields: dict[str, Any]) -> Any:
         raise ValueError(f"topic {topic.name!r}: {exc}") from None
 
 
-def publish_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[str, Any]]:
+def publish_command(asys: Any, system: System) -> Callable[[dict[str, Any]], dict[str, Any]]:
     """The root's handler of ``{"cmd": "publish", "topic": NAME, "fields": {...}}`` for ``system``."""
     from actors.topics import Publisher
 
@@ -48,7 +51,7 @@ def publish_command(asys: Any, system: Any) -> Callable[[dict[str, Any]], dict[s
         name, fields = req.get("topic"), req.get("fields") or {}
         topics = system.topics
         topic = topics.get(name) if isinstance(name, str) else None
-        if topic is None:
+        if topic is None or not isinstance(name, str):
             return {"ok": False, "error": f"system {system.name!r} has no topic {name!r}; "
                     f"its topics: {', '.join(sorted(topics)) or 'none'}"}
         if not isinstance(fields, dict):

@@ -1,4 +1,4 @@
-"""``embagents serve-model MODEL --bind tcp://HOST:PORT --allow KEY ... --key SECRET``.
+"""``embagents serve-model MODEL --bind tcp://HOST:PORT --allow KEY [KEY ...] --key SECRET``.
 
 Runs one supervised :class:`~embagents.models.remote.RemoteModelActor` (the
 supervisor restarts it as ``embagents supervise`` does; ``embagents status``

@@ -16,13 +16,16 @@ Example::
 from __future__ import annotations
 
 from collections.abc import Collection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from embagents.models import models_of
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
 from embagents.runtime.model_actor import ModelActor
 from embagents.runtime.requests import EVENTS_ACTOR
+
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
 
 __all__ = ["EVENTS_NAME", "HEARTBEAT_S", "MODEL_HEARTBEAT_S", "build_spec", "uses_events_actor", "wiring"]
 
@@ -33,14 +36,14 @@ HEARTBEAT_S = 30.0
 MODEL_HEARTBEAT_S = 120.0
 
 
-def uses_events_actor(system: Any) -> bool:
+def uses_events_actor(system: System) -> bool:
     """Whether the system runs the events actor (events, fallbacks, LLM tools, route actions)."""
     from embagents.llm_tools import uses_events_actor as needs_it
 
     return bool(system.events) or any(getattr(c, "fallback", None) or needs_it(c) for c in system.components)
 
 
-def wiring(system: Any) -> dict[str, dict[str, tuple[str, ...]]]:
+def wiring(system: System) -> dict[str, dict[str, tuple[str, ...]]]:
     """The components that wait for their subscribers: name -> {output topic: the children declared to subscribe}.
 
     Subscribers are the other components and managers that read the topic, the
@@ -82,7 +85,7 @@ def wiring(system: Any) -> dict[str, dict[str, tuple[str, ...]]]:
     return out
 
 
-def build_spec(system: Any, path: str, resolved: dict[str, str] | None = None, *,
+def build_spec(system: System, path: str, resolved: dict[str, str] | None = None, *,
                activate_later: Collection[str] = ()) -> Any:
     """The supervision tree of a System: model actors, the ROS bridge, components, events.
 

@@ -13,6 +13,13 @@ every command clipped to the Panda's limits from its URDF. An event starts
 the task when the first joint state arrives. ``report`` prints the largest
 joint error each second; within ``TOLERANCE`` it saves the camera frame
 (``$EMBAGENTS_ARM_OUT``, default ``./arm_out``) and stops the system (exit 0).
+With ``EMBAGENTS_POLICY=openpi`` (``pip install -e ".[sim,vla]"``) the same policy runs behind openpi's
+WebSocket protocol, as a policy server on a GPU box would: its model actor serves it on
+``ws://127.0.0.1:$EMBAGENTS_POLICY_PORT`` (default 8765), as ``embagents serve-policy`` does, and the VLA
+reaches it with an ``OpenPIPolicyClient``, asking on a worker thread (``async_inference``) so no tick waits.
+With ``EMBAGENTS_ARM_DATASET=DIR`` (``pip install -e ".[sim,dataset]"``) a ``DatasetRecorder`` records the
+reach as a LeRobot dataset (v3 layout: joint states, commands as actions, the camera as a video) in DIR,
+replacing it; ``embagents call recorder start_episode "another"`` / ``end_episode`` record more.
 With a VLM (``pip install -e ".[sim,llm]"``; ``EMBAGENTS_VLM_MODEL``, ``EMBAGENTS_VLM_PROJECTOR``,
 ``EMBAGENTS_VLM_HANDLER`` as in examples/vlm.py) an event asks the VLM on its question topic when the first camera
 frame comes (the VLM answers about its latest frame, holding the question until it has one)
@@ -27,11 +34,27 @@ from typing import Any
 
 import numpy as np
 
-from embagents.components import VLA, VLM, Component, Sim, SimConfig, VLAConfig, VLMConfig
+from embagents.components import (
+    VLA,
+    VLM,
+    Component,
+    DatasetRecorder,
+    DatasetRecorderConfig,
+    Sim,
+    SimConfig,
+    VLAConfig,
+    VLMConfig,
+)
 from embagents.components.sim import PANDA_READY
 from embagents.events import Event, call, on, publish
 from embagents.launch import SYSTEM_STOP
-from embagents.models import LocalModelClient, LocalPolicyClient, PolicyModel, VLMModel
+from embagents.models import (
+    LocalModelClient,
+    LocalPolicyClient,
+    OpenPIPolicyClient,
+    PolicyModel,
+    VLMModel,
+)
 from embagents.msgs import Image, JointState, String, TaskFeedback
 from embagents.system import System
 from embagents.topic import Topic
@@ -44,6 +67,10 @@ TOLERANCE = 0.01  # rad
 GIVE_UP_S = 60.0
 VLM_FILE = os.environ.get("EMBAGENTS_VLM_MODEL")  # a VLM's language model (its projector beside it, or named)
 DESCRIBE_WAIT_S = 120.0  # after the reach, wait at most this long for the VLM's answer
+DATASET = os.environ.get("EMBAGENTS_ARM_DATASET")  # a directory: the reach recorded as a LeRobot dataset
+POLICY = os.environ.get("EMBAGENTS_POLICY", "local")  # local: a model actor of this run; openpi: over WebSocket
+if POLICY not in ("local", "openpi"):
+    raise ValueError(f"EMBAGENTS_POLICY={POLICY!r}: use 'local' (a model actor) or 'openpi' (openpi's WebSocket)")
 
 
 def reach_policy() -> str:
@@ -126,12 +153,19 @@ feedback = Topic("vla/feedback", TaskFeedback)
 task = Topic("vla/task", String)  # `embagents publish vla/task "reach again"` starts a task too
 stop = Topic(SYSTEM_STOP, String)
 
-reach = PolicyModel(name="reach", local_model_path=reach_policy())
+if POLICY == "openpi":  # served over openpi's protocol by its model actor, as `embagents serve-policy` serves it
+    url = f"ws://127.0.0.1:{int(os.environ.get('EMBAGENTS_POLICY_PORT', '8765'))}"
+    reach = PolicyModel(name="reach", local_model_path=reach_policy(), openpi_bind=url)
+    policy: Any = OpenPIPolicyClient(url, name="reach")  # observation.state -> observation/state, task -> prompt
+else:
+    reach = PolicyModel(name="reach", local_model_path=reach_policy())
+    policy = LocalPolicyClient(reach)
 vla = VLA(
-    name="vla", inputs=[joint_states, image, task], outputs=[command, feedback], policy=LocalPolicyClient(reach),
+    name="vla", inputs=[joint_states, image, task], outputs=[command, feedback], policy=policy,
     config=VLAConfig(joint_names_map={f"joint{i + 1}": j for i, j in enumerate(JOINTS)},
                      camera_inputs_map={"front": image.name}, urdf="franka_panda/panda.urdf",
-                     observation_rate_hz=10.0, actions_per_chunk=10, chunk_merge="newest", max_steps=3000),
+                     observation_rate_hz=10.0, actions_per_chunk=10, chunk_merge="newest", max_steps=3000,
+                     async_inference=POLICY == "openpi"),
     trigger=50.0,
 )
 first_state = Event("arm_ready", on(joint_states).field("stamp") > 0, once=True)
@@ -152,11 +186,21 @@ if VLM_FILE:  # a describe of the camera by a vision-language model (examples/vl
     events[Event("first_frame", on(image).field("stamp") >= 0, once=True)] = publish(
         question, String(data="Describe what you see."))
 
+recording: list[Component] = []
+if DATASET:  # joint states, commands and the camera, 10 frames a second, from the first joint state on
+    recorder = DatasetRecorder(name="recorder", inputs=[joint_states, command, image], trigger=10.0,
+                               config=DatasetRecorderConfig(root=DATASET, fps=10.0, camera_inputs_map={"front": image.name},
+                                                            overwrite=True, robot_type="franka_panda"))
+    recording = [recorder]
+    events[Event("record_ready", on(joint_states).field("stamp") > 0, once=True)] = call(
+        recorder, "start_episode", "reach the target pose")
+
 system = System(
     [
         Sim(name="sim", inputs=[command], outputs=[joint_states, image], config=SimConfig(camera_hz=5.0), trigger=240.0),
         vla,
         *seeing,
+        *recording,
         Report(name="report", inputs=[joint_states, image, feedback, said], outputs=[stop], trigger=1.0),
     ],
     events=events,

@@ -5,7 +5,7 @@ The GPU component is spawned (``start_method="spawn"``: CUDA does not survive ``
 warm standby (``standby=True``, unless ``GPU_STANDBY=0``): the standby has built and warmed its own
 network in its own CUDA context, so the restart after the poisoned context is a takeover, not a
 6.7 s start. Without torch and CUDA the same code runs a numpy stand-in (what CI runs); the bench
-case ``gpu_pipeline`` runs it on a GPU (docs/gpu.md).
+case ``gpu_pipeline`` runs it on a GPU (docs/guides/gpu.md).
 
 Install: ``pip install -e .`` (the numpy stand-in needs no extra; on a GPU machine add torch and
 torchvision yourself). Run: ``embagents supervise examples/gpu_pipeline.py`` (env: GPU_FRAMES, GPU_POISON_AT, GPU_OUT,

@@ -7,6 +7,7 @@ the other extras' modules are hidden from its processes."""
 from __future__ import annotations
 
 import ast
+import json
 import os
 import re
 import signal
@@ -56,7 +57,7 @@ def test_each_example_names_its_extras_and_the_readme_names_the_same() -> None:
     assert {n for n, _ in said} >= {"chat.py", "listen.py", "voice.py", "vision.py", "arm.py", "memory.py",
                                     "ros_chat.py"}, said
     for name, extras in said:
-        assert sorted(extras.split(",")) == sorted(documented_extras(name)), (
+        assert sorted(extras.split(",") if extras else []) == sorted(documented_extras(name)), (
             f"the README installs {extras!r} for examples/{name}; its docstring: {documented_extras(name)}")
 
 
@@ -246,6 +247,52 @@ def test_arm_example_reaches_its_target_and_exits_0(tmp_path: Path) -> None:
     assert lines[-1] == "done: reached the target" and any(x.startswith("describe: skipped: ") for x in lines)
     assert (tmp_path / "out" / "arm.png").stat().st_size > 1000
     assert "task 'reach the target pose' started" in out.stderr  # the event called manipulate in the VLA's process
+
+
+def test_arm_example_reaches_its_target_with_its_policy_behind_openpis_websocket(tmp_path: Path) -> None:
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "cv2", "websockets"):
+        pytest.importorskip(module, reason="the example's openpi mode needs the sim and vla extras")
+    from tests.helpers import free_port
+
+    env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache"),
+           "EMBAGENTS_POLICY": "openpi", "EMBAGENTS_POLICY_PORT": str(free_port())}
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
+                         capture_output=True, text=True, timeout=180,
+                         env=as_installed("arm.py", tmp_path, env, extras=["sim", "vla"]))  # as its docstring says
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    assert out.stdout.splitlines()[-1] == "done: reached the target"
+    assert "serving policy reach over openpi's protocol on ws://127.0.0.1:" in out.stderr
+    assert "reach: connected to ws://127.0.0.1:" in out.stderr  # the VLA's OpenPIPolicyClient, not a local client
+
+
+def test_arm_example_records_its_reach_as_a_lerobot_dataset_that_reads_back_frame_for_frame(tmp_path: Path) -> None:
+    for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "cv2", "pyarrow", "av"):
+        pytest.importorskip(module, reason="the example's recording needs the sim and dataset extras")
+    import av
+    import cv2
+    import pyarrow.parquet as pq
+
+    root = tmp_path / "dataset"
+    env = {**os.environ, "EMBAGENTS_ARM_OUT": str(tmp_path / "out"), "EMBAGENTS_CACHE_DIR": str(tmp_path / "cache"),
+           "EMBAGENTS_ARM_DATASET": str(root)}
+    out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "arm.py")],
+                         capture_output=True, text=True, timeout=180,
+                         env=as_installed("arm.py", tmp_path, env, extras=["sim", "dataset"]))  # as its docstring says
+    assert out.returncode == 0, out.stdout + out.stderr[-3000:]
+    info = json.loads((root / "meta" / "info.json").read_text())
+    assert info["features"]["observation.state"]["names"] == [f"panda_joint{i}" for i in range(1, 8)]
+    assert info["total_episodes"] == 1 and info["fps"] == 10.0 and info["robot_type"] == "franka_panda"
+    (episode,) = pq.read_table(root / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()
+    assert episode["tasks"] == ["reach the target pose"] and episode["length"] > 10
+    data = pq.read_table(root / "data" / "chunk-000" / "file-000.parquet").to_pydict()
+    with av.open(str(root / "videos" / "observation.images.front" / "chunk-000" / "file-000.mp4")) as c:
+        frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert len(data["index"]) == len(frames) == episode["length"]  # one video frame per row
+    state, action = np.array(data["observation.state"]), np.array(data["action"])
+    assert state.shape == action.shape == (len(frames), 7)
+    assert np.abs(state[-1] - [1.0, 0.4, -0.5, -1.4, 0.5, 2.3, 0.2]).max() < 0.05  # it reached the example's target
+    saved = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / "arm.png")), cv2.COLOR_BGR2RGB)
+    assert frames[-1].shape == saved.shape and float(np.abs(frames[-1].astype(int) - saved.astype(int)).mean()) < 6
 
 
 def test_arm_example_describes_its_camera_with_a_vlm_when_one_is_present(tmp_path: Path) -> None:

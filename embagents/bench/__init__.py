@@ -60,6 +60,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_manager,
     cases_memory,
     cases_mpqueue,
+    cases_policy,
     cases_pyzmq,
     cases_rclpy,
     cases_remote,

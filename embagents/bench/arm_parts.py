@@ -29,7 +29,8 @@ from embagents.rate import next_deadline
 from embagents.topic import Topic
 
 __all__ = [
-    "GIL_SCRIPT", "INPROCESS_VLA_SCRIPT", "Busy", "Ticker", "TimedSim", "gil_system", "jitter_ms", "vla_system",
+    "GIL_SCRIPT", "INPROCESS_VLA_SCRIPT", "Busy", "Ticker", "TimedSim", "gil_system", "jitter_ms", "vla_openpi_system",
+    "vla_system",
 ]
 
 #: Far enough from the ready pose that the arm moves during the whole measurement.
@@ -37,7 +38,7 @@ TARGET = [2.0, 1.0, 2.0, -0.5, 2.0, 3.0, 2.0]
 
 
 def jitter_ms(stamps: list[float], period_s: float) -> list[float]:
-    """|interval - period| in ms for each pair of consecutive ``stamps`` (seconds)."""
+    """``|interval - period|`` in ms for each pair of consecutive ``stamps`` (seconds)."""
     return [round(abs(b - a - period_s) * 1000.0, 6) for a, b in zip(stamps, stamps[1:], strict=False)]
 
 
@@ -73,6 +74,25 @@ def vla_system(policy: str) -> Any:
             config=VLAConfig(joint_names_map={f"j{i}": j for i, j in enumerate(joints)}, urdf="franka_panda/panda.urdf",
                              actions_per_chunk=10, observation_rate_hz=10.0, max_steps=10**9, realtime=True)),
     ], models=[model], name="bench_arm")
+
+
+def vla_openpi_system(url: str, chunk: int = 10, observation_rate_hz: float = 10.0, async_inference: bool = False,
+                      policy_timeout_s: float = 0.2) -> Any:
+    """``vla_system`` with its policy behind ``url`` (openpi's protocol: ``embagents serve-policy``)."""
+    from embagents.models.openpi import OpenPIPolicyClient
+    from embagents.system import System
+
+    states, command = Topic("bench_arm/joint_states", JointState), Topic("bench_arm/command", JointState)
+    joints = list(PANDA_READY)
+    return System([
+        TimedSim(name="bench_sim", inputs=[command], outputs=[states], trigger=240.0,
+                 config=SimConfig(joint_state_hz=50.0, realtime=True)),
+        VLA(name="bench_vla", inputs=[states], outputs=[command], trigger=50.0,
+            policy=OpenPIPolicyClient(url, name="bench_openpi"),
+            config=VLAConfig(joint_names_map={f"j{i}": j for i, j in enumerate(joints)}, urdf="franka_panda/panda.urdf",
+                             actions_per_chunk=chunk, observation_rate_hz=observation_rate_hz, max_steps=10**9,
+                             realtime=True, async_inference=async_inference, policy_timeout_s=policy_timeout_s)),
+    ], name="bench_arm")
 
 
 class Ticker(Component):

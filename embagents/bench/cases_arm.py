@@ -4,7 +4,7 @@
   (:func:`embagents.bench.arm_parts.vla_system`): joint states from the Sim's
   process -> the VLA's process -> the ONNX policy's model actor (a chunk of 10
   every 5 ticks) -> a clipped command -> the Sim, at 50 Hz. ``p99_jitter_ms``
-  = p99 of |period - 20 ms| between command arrivals at the Sim;
+  = p99 of ``|period - 20 ms|`` between command arrivals at the Sim;
   ``inprocess_p99_jitter_ms``: the same physics, policy and clipping in one
   process, one loop. Bar: p99 jitter <= 2 ms, and <= in-process + 1 ms.
 - ``gil_isolation``: a 100 Hz control component's tick jitter (how late each
@@ -65,32 +65,43 @@ def _system_file(tmp: str, factory: str, args: str = "") -> str:
     return path
 
 
-@case("vla_control_loop", transport="embagents", kind="arm", needs="pybullet")
-def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
+def arm_loop(path: str, seconds: float, model: tuple[Any, ...]) -> tuple[list[float], dict[str, Any]]:
+    """The policy's model actor (``model``: its args; ``bench_reach``, as the systems name it) and the system at
+    ``path``; a task run for ``seconds``: the command arrival times at the Sim, and the VLA's status over them."""
     from actors import ActorSystem
-    from embagents.bench.arm_parts import INPROCESS_VLA_SCRIPT, TARGET, jitter_ms
-    from embagents.models.backends.reach_policy import write_reach_policy
     from embagents.runtime.component_actor import ComponentActor
     from embagents.runtime.model_actor import ModelActor
     from embagents.runtime.requests import Call
 
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "bench_reach", *model, wait=60, heartbeat=None)
+        sim = asys.spawn(ComponentActor, "bench_sim", path, "bench_sim", wait=60, heartbeat=None)
+        vla = asys.spawn(ComponentActor, "bench_vla", path, "bench_vla", wait=60, heartbeat=None)
+        time.sleep(0.5)  # subscriptions connected, first joint states in
+        vla.ask(Call("manipulate", ["bench", 10**9]), timeout=10).get()
+        time.sleep(0.5)  # warm: the first chunks are in
+        sim.ask(Call("arrivals"), timeout=10).get()
+        before = vla.ask(Call("status"), timeout=10).get()
+        time.sleep(seconds)
+        stamps = sim.ask(Call("arrivals"), timeout=10).get()
+        status = vla.ask(Call("status"), timeout=10).get()
+        vla.ask(Call("stop"), timeout=10).get()
+    status["queue_empty"] -= before["queue_empty"]  # counted over the measurement only
+    status["chunks"] -= before["chunks"]
+    return stamps, status
+
+
+
+@case("vla_control_loop", transport="embagents", kind="arm", needs="pybullet")
+def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.bench.arm_parts import INPROCESS_VLA_SCRIPT, TARGET, jitter_ms
+    from embagents.models.backends.reach_policy import write_reach_policy
+
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
         policy = write_reach_policy(os.path.join(tmp, "reach.onnx"), TARGET, gain=0.02, chunk=10)
-        path = _system_file(tmp, "vla_system", repr(policy))
-        with ActorSystem() as asys:
-            asys.spawn(ModelActor, "bench_reach", "policy", policy, {"threads": 1, "realtime": True}, True, wait=60,
-                       heartbeat=None)
-            sim = asys.spawn(ComponentActor, "bench_sim", path, "bench_sim", wait=60, heartbeat=None)
-            vla = asys.spawn(ComponentActor, "bench_vla", path, "bench_vla", wait=60, heartbeat=None)
-            time.sleep(0.5)  # subscriptions connected, first joint states in
-            vla.ask(Call("manipulate", ["bench", 10**9]), timeout=10).get()
-            time.sleep(0.5)  # warm: the first chunks are in
-            sim.ask(Call("arrivals"), timeout=10).get()
-            time.sleep(seconds)
-            stamps = sim.ask(Call("arrivals"), timeout=10).get()
-            status = vla.ask(Call("status"), timeout=10).get()
-            vla.ask(Call("stop"), timeout=10).get()
+        stamps, status = arm_loop(_system_file(tmp, "vla_system", repr(policy)), seconds,
+                                  ("policy", policy, {"threads": 1, "realtime": True}, True))
         ours = jitter_ms(stamps, 0.02)
         base = jitter_ms([float(x) for x in _script(INPROCESS_VLA_SCRIPT, policy, str(seconds), timeout=seconds + 60)],
                          0.02)

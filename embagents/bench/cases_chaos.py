@@ -16,7 +16,7 @@ SIGSTOPs it (the supervisor must see the silent heartbeat and kill it), makes
 it allocate past its ``max_rss_mb`` or makes it raise in a told message (the
 last two only the bench's workers understand), then waits until the
 supervisor has restarted it. What is counted is in
-:mod:`embagents.bench.chaos_tally` and the README's Benchmark section.
+:mod:`embagents.bench.chaos_tally` and docs/benchmarks.md (Chaos).
 
 Example::
 

@@ -15,7 +15,7 @@ result of the new process with and without the standby, the longest gap
 between results and the frames missing. Without ``torch.cuda.is_available()``
 the case is skipped; CI runs the same pipeline on its numpy stand-in
 (:func:`run_pipeline`, ``tests/embagents/test_gpu_pipeline.py``). How to run it
-and the numbers of GPU runs: ``docs/gpu.md``.
+and the numbers of GPU runs: ``docs/guides/gpu.md``.
 
 Example::
 

@@ -69,7 +69,7 @@ def _bar(name: str, value: float | None, op: str, target: float, unit: str) -> d
 
 
 def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
-    """The issue's bars, each with its measured value and ``pass`` (None if not measured or not ``grade``d)."""
+    """The issue's bars, each with its measured value and ``pass`` (None if not measured, or with ``grade=False``)."""
     bars = []
     for size in SIZES:
         ours, raw = _find(rows, "embagents", "ask", size), _find(rows, "pyzmq", "ask", size)
@@ -130,6 +130,12 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("vla_control_loop", "VLA p99 jitter minus in-process", "jitter_over_inprocess_ms", "<=", 1.0, "ms", 1.0),
         ("gil_isolation", "100 Hz tick p99 jitter next to a GIL-heavy neighbour: processes / threads", "ratio", "<=",
          0.2, "x", 1.0),
+        ("policy_openpi", "VLA 50 Hz p99 jitter, policy over openpi's WebSocket (serve-policy)", "p99_jitter_ms", "<=",
+         2.0, "ms", 1.0),
+        ("policy_openpi", "VLA chunk p50 over openpi's WebSocket / through the local model actor", "chunk_ratio", "<=",
+         1.5, "x", 1.0),
+        ("policy_openpi_async", "VLA ticks without an action, 100 ms policy, async refill", "queue_empty", "<=", 0,
+         "ticks", 1.0),
         ("router_latency", "router: String in -> routed String out, runtime / in-process", "ratio", "<=", 1.15, "x", 1.0),
         ("memory_scale", "memory: query p50 at 100,000 items", "query_p50_ms_100k", "<=", 20.0, "ms", 1.0),
         ("memory_scale", "memory: query p50 at 100,000 / at 1,000 items", "growth", "<", 10.0, "x", 1.0),

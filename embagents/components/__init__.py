@@ -24,6 +24,7 @@ from embagents.components.component import (
     HealthStatus,
     lenient_construction,
 )
+from embagents.components.dataset_recorder import DatasetRecorder, DatasetRecorderConfig
 from embagents.components.joint_limits import Clipper, JointLimit, limits_from_urdf
 from embagents.components.llm import LLM, LLMConfig, tool_schema
 from embagents.components.memory import MapConfig, MapEncoding, MapLayer, Memory, MemoryConfig
@@ -55,6 +56,8 @@ __all__ = [
     "Clipper",
     "Component",
     "ComponentError",
+    "DatasetRecorder",
+    "DatasetRecorderConfig",
     "Health",
     "HealthStatus",
     "JointLimit",

@@ -3,7 +3,7 @@
 :func:`parse_boxes` reads, in this order:
 
 - Qwen2.5-VL JSON: ``[{"bbox_2d": [x1, y1, x2, y2], "label": "cup"}]`` in pixels
-  (also ``"bbox"`` / ``"box"`` keys, inside a ```json fence or not);
+  (also ``"bbox"`` / ``"box"`` keys, inside a Markdown ``json`` code fence or not);
 - Qwen2-VL tokens: ``<|object_ref_start|>cup<|object_ref_end|><|box_start|>(x1,y1),(x2,y2)<|box_end|>``,
   coordinates in 0..1000;
 - PaliGemma: ``<loc0256><loc0128><loc0768><loc0512> cup`` (y1, x1, y2, x2 in 0..1023 bins);

@@ -8,7 +8,7 @@ Durability: WAL mode with ``synchronous=NORMAL`` (default) makes every
 committed item survive a SIGKILL of the process: a commit has written the
 item to the WAL file (the OS keeps it, whatever happens to the process);
 only a power loss can lose the last commits. ``durability="full"`` adds an
-fsync per commit for that too (slower, see the README's numbers).
+fsync per commit for that too (slower: the numbers are in docs/guides/memory-router.md).
 
 Semantic search runs in RAM over the unit float32 vectors (read back from
 the file on open: 150 MB per 100,000 items of 384 dimensions): exact
@@ -284,7 +284,8 @@ class MemoryStore:
 
     def between(self, t0: float, t1: float, layer: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
         """Items stored in the time window [t0, t1], oldest first."""
-        sql, args = f"SELECT {self._COLS} FROM items i WHERE i.t BETWEEN ? AND ?", [float(t0), float(t1)]
+        sql = f"SELECT {self._COLS} FROM items i WHERE i.t BETWEEN ? AND ?"
+        args: list[object] = [float(t0), float(t1)]
         if layer is not None:
             sql += " AND i.layer = ?"
             args.append(layer)

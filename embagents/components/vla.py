@@ -22,6 +22,17 @@ Safety first, on every tick:
   why, and the next tick tries again.
 - :meth:`VLA.stop` (or ``stop_event``) halts at once.
 
+``async_inference``: the policy is asked on a worker thread, so no tick ever
+waits on it (a policy server 100 ms away at 50 Hz): a chunk that comes back
+is aligned to the tick of its observation (its actions for ticks already
+past are dropped), and a tick that finds no action holds the arm and counts a
+``queue_empty`` event. Synchronously (the default) a tick whose queue is empty
+waits for the chunk; ``queue_empty`` counts those. ``status()`` also gives
+the policy's latency (p50 of observation sent -> chunk received) and the
+server's own ``server_timing`` when its client reports one
+(:class:`~embagents.models.openpi.OpenPIPolicyClient`); a ``String`` output
+gets the same as JSON with each chunk (a metrics topic).
+
 A task ends after ``max_steps`` steps, on ``done_event``, or on a stop; its
 progress (step, done, outcome) is published as ``TaskFeedback``.
 
@@ -39,8 +50,11 @@ Example::
 
 from __future__ import annotations
 
+import json
 import time
+from collections import deque
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -92,6 +106,7 @@ class VLAConfig(BaseComponentConfig):
     - ``urdf`` / ``joint_limits``: where limits come from (a dict per joint wins over the URDF).
     - ``max_steps``: a task's default length.
     - ``realtime``: its process at a control loop's priority (:func:`~embagents.priority.raise_priority`).
+    - ``async_inference``: ask the policy on a worker thread; ticks never wait for it.
 
     >>> VLAConfig(joint_names_map={"a": "b"}, chunk_merge="average").merge_weight
     0.5
@@ -111,6 +126,7 @@ class VLAConfig(BaseComponentConfig):
     joint_limits: dict[str, dict[str, float]] = field(factory=dict)
     max_steps: int = field(default=500, converter=int_at_least(1))
     realtime: bool = field(default=False, converter=to_bool)
+    async_inference: bool = field(default=False, converter=to_bool)
 
 
 class _Halt(Exception):
@@ -125,7 +141,7 @@ class VLA(Component):
     """Runs a policy in a closed loop on an arm, safely (see the module docstring)."""
 
     allowed_inputs = {"Required": [JointState], "Optional": [Image, String]}
-    allowed_outputs = {"Required": [JointState], "Optional": [JointTrajectory, TaskFeedback]}
+    allowed_outputs = {"Required": [JointState], "Optional": [JointTrajectory, TaskFeedback, String]}
     config_class = VLAConfig
 
     def __init__(self, *, name: str, policy: Any = None, stop_event: Event | None = None,
@@ -144,6 +160,13 @@ class VLA(Component):
         self._previous: np.ndarray | None = None  # the last position command sent
         self._halted_for = ""
         self._sent_at = -1  # the tick of the last command
+        self.queue_empty = 0  # ticks that found no action, after the task's first chunk
+        self.chunks = 0
+        self._had_chunk = False
+        self._latency_ms: deque[float] = deque(maxlen=200)  # observation sent -> chunk received
+        self._worker: ThreadPoolExecutor | None = None
+        self._inflight: tuple[Future[np.ndarray], int, int] | None = None  # (answer, its tick, its generation)
+        self._generation = 0  # a task's start or a halt makes answers still on their way stale
         super().__init__(name=name, **kw)
 
     def default_trigger(self) -> float:
@@ -218,9 +241,18 @@ class VLA(Component):
         return self.status()
 
     def status(self) -> dict[str, Any]:
-        """``{"task", "step", "max_steps", "running", "outcome", "clipped"}``."""
+        """``{"task", "step", "max_steps", "running", "outcome", "clipped"}`` and the policy's metrics:
+        ``chunks``, ``queue_empty``, ``policy_latency_ms`` (p50 of the last 200), ``server_timing``."""
         return {"task": self.task, "step": self.step, "max_steps": self.task_max_steps, "running": self.running,
-                "outcome": self.outcome, "clipped": dict(self.clipper.counts) if self.clipper else {}}
+                "outcome": self.outcome, "clipped": dict(self.clipper.counts) if self.clipper else {},
+                **self.policy_metrics()}
+
+    def policy_metrics(self) -> dict[str, Any]:
+        """Chunks received, ``queue_empty`` ticks, the policy's latency and the server's own timing."""
+        latency = round(float(np.median(self._latency_ms)), 3) if self._latency_ms else None
+        timing = getattr(self.policy, "server_timing", None)
+        return {"chunks": self.chunks, "queue_empty": self.queue_empty, "policy_latency_ms": latency,
+                "server_timing": dict(timing) if isinstance(timing, dict) else {}}
 
     @property
     def running(self) -> bool:
@@ -238,6 +270,8 @@ class VLA(Component):
         self._queue.clear()
         self._previous = None
         self._next_obs = self._tick
+        self._had_chunk = False
+        self._generation += 1  # an answer on its way is for what was before
 
     def _feedback(self) -> None:
         fb = TaskFeedback(task=self.task or "", step=self.step, max_steps=self.task_max_steps, done=not self.running,
@@ -264,15 +298,11 @@ class VLA(Component):
             return
         try:
             obs, q = self._observation(inputs)
-            if self._tick not in self._queue:  # at the start, or after a halt: nothing to send yet
-                self._ask(obs)
-            self._send(self._queue.pop(self._tick), q)
-            for k in [k for k in self._queue if k <= self._tick]:
-                del self._queue[k]
-            if self._tick >= self._next_obs:
-                # After this tick's command went out: the policy's latency never delays a command. The new
-                # chunk's first action is for this tick (its observation's), already served: from the next on.
-                self._ask(obs)
+            if self.config.async_inference:
+                if not self._async_tick(obs, q):
+                    return
+            else:
+                self._sync_tick(obs, q)
         except _Halt as halt:
             self._halt(halt, inputs)
             return
@@ -288,6 +318,42 @@ class VLA(Component):
             self._end("max_steps")
         else:
             self._feedback()
+
+    def _sync_tick(self, obs: dict[str, np.ndarray], q: np.ndarray) -> None:
+        if self._tick not in self._queue:  # at the start, or after a halt: nothing to send yet
+            self.queue_empty += self._had_chunk
+            self._ask(obs)
+        self._send(self._queue.pop(self._tick), q)
+        for k in [k for k in self._queue if k <= self._tick]:
+            del self._queue[k]
+        if self._tick >= self._next_obs:
+            # After this tick's command went out: the policy's latency never delays a command. The new
+            # chunk's first action is for this tick (its observation's), already served: from the next on.
+            self._ask(obs)
+
+    def _async_tick(self, obs: dict[str, np.ndarray], q: np.ndarray) -> bool:
+        """One tick that never waits on the policy; False when it had no action (the arm held)."""
+        inflight = self._inflight
+        if inflight is not None and inflight[0].done():
+            self._inflight = None
+            future, tick, generation = inflight
+            if generation == self._generation:
+                self._merge(future.result(), tick)  # a _Halt from the worker is raised here, on the loop's thread
+        if self._inflight is None and (self._tick >= self._next_obs or self._tick not in self._queue):
+            if self._worker is None:
+                self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{self.name}-policy")
+            self._inflight = (self._worker.submit(self._request, obs), self._tick, self._generation)
+            every = max(1, round((self.rate_hz or self.config.loop_rate_hz) / self.config.observation_rate_hz))
+            self._next_obs = self._tick + every
+        action = self._queue.pop(self._tick, None)
+        for k in [k for k in self._queue if k <= self._tick]:
+            del self._queue[k]
+        if action is None:
+            self.queue_empty += self._had_chunk
+            self._send_stop()  # hold (or zero velocity) until the chunk is in
+            return False
+        self._send(action, q)
+        return True
 
     def _observation(self, inputs: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], np.ndarray]:
         now = time.monotonic()
@@ -321,8 +387,15 @@ class VLA(Component):
         return obs, q
 
     def _ask(self, obs: dict[str, np.ndarray]) -> None:
+        self._merge(self._request(obs), self._tick)
+        every = max(1, round((self.rate_hz or self.config.loop_rate_hz) / self.config.observation_rate_hz))
+        self._next_obs = self._tick + every
+
+    def _request(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's chunk for ``obs`` (checked); a _Halt says why there is none. Runs on the worker when async."""
         cfg = self.config
         name = getattr(self.policy, "name", type(self.policy).__name__)
+        start = time.monotonic()
         try:
             chunk = self.policy.infer(obs, self.task or "", cfg.policy_timeout_s)
         except PolicyLate as exc:
@@ -340,9 +413,16 @@ class VLA(Component):
         if chunk.ndim != 2 or chunk.shape[1] != n or chunk.shape[0] < 1 or not np.isfinite(chunk).all():
             raise _Halt(f"policy {name!r} answered actions of shape {tuple(chunk.shape)}; expected "
                         f"({cfg.actions_per_chunk}, {n}) = (actions_per_chunk, joints {self.joints}) of finite numbers")
-        chunk = chunk[: cfg.actions_per_chunk].astype(np.float64)
+        self._latency_ms.append((time.monotonic() - start) * 1000.0)
+        return chunk[: cfg.actions_per_chunk].astype(np.float64)
+
+    def _merge(self, chunk: np.ndarray, base: int) -> None:
+        """Chunk action i is for tick ``base + i`` (its observation's tick): those still ahead go in the queue."""
+        cfg = self.config
+        self.chunks += 1
+        self._had_chunk = True
         for i, action in enumerate(chunk):
-            k = self._tick + i
+            k = base + i
             if k < self._tick or (k == self._tick and self._sent_at == self._tick):
                 continue  # its time is past
             old = self._queue.get(k)
@@ -350,9 +430,13 @@ class VLA(Component):
                 self._queue[k] = action
             else:
                 self._queue[k] = cfg.merge_weight * action + (1.0 - cfg.merge_weight) * old
-        every = max(1, round((self.rate_hz or cfg.loop_rate_hz) / cfg.observation_rate_hz))
-        self._next_obs = self._tick + every
         self._publish_chunk()
+        metrics = [t for t in self.outputs if t.msg_type is String]
+        if metrics:
+            text = json.dumps({"policy": getattr(self.policy, "name", ""), "stamp": time.time(), **self.policy_metrics(),
+                               "last_latency_ms": round(self._latency_ms[-1], 3) if self._latency_ms else None})
+            for t in metrics:
+                self.publish(t, String(data=text))
 
     def _publish_chunk(self) -> None:
         outs = [t for t in self.outputs if t.msg_type is JointTrajectory]
@@ -409,5 +493,8 @@ class VLA(Component):
         (self.set_system_failure if halt.status == "system" else self.set_algorithm_failure)(str(halt))
 
     def on_shutdown(self) -> None:
+        if self._worker is not None:
+            self._worker.shutdown(wait=False, cancel_futures=True)
+            self._worker = None
         if self.policy is not None and callable(getattr(self.policy, "close", None)):
             self.policy.close()

@@ -80,11 +80,13 @@ class AgentFuture(concurrent.futures.Future[Any]):
         self._drive = drive
 
     def result(self, timeout: float | None = None) -> Any:
+        """The call's return value, waiting at most ``timeout`` s (an attached agent's call runs here)."""
         if not self.done() and self._drive is not None:
             self._drive(timeout)
         return super().result(timeout=0 if self._drive is not None and not self.done() else timeout)
 
     def exception(self, timeout: float | None = None) -> BaseException | None:
+        """The exception the call raised, or None, waiting at most ``timeout`` s."""
         if not self.done() and self._drive is not None:
             self._drive(timeout)
         return super().exception(timeout=0 if self._drive is not None and not self.done() else timeout)

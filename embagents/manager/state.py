@@ -45,75 +45,75 @@ class State(MutableMapping[str, Any]):
     @property
     def lock(self) -> threading.RLock:
         """Re-entrant lock guarding every read and write; hold it for compound updates."""
-        return self._lock  # type: ignore[attr-defined]
+        return self._lock
 
     @property
     def received(self) -> Mapping[str, bool]:
         """Read-only view: ``received[key]`` is True once :meth:`receive` stored ``key``."""
-        return MappingProxyType(self._received)  # type: ignore[attr-defined]
+        return MappingProxyType(self._received)
 
     @property
     def revision(self) -> int:
         """Counts writes of values (not :meth:`receive`), so a snapshot is taken only after a change."""
-        return self._version  # type: ignore[attr-defined,no-any-return]
+        return self._version
 
     def _bump(self) -> None:
-        object.__setattr__(self, "_version", self._version + 1)  # type: ignore[attr-defined]
+        object.__setattr__(self, "_version", self._version + 1)
 
     def mark_received(self, key: str) -> None:
         """Mark ``key`` received without storing anything (a topic's first message, say)."""
         with self.lock:
-            self._received[key] = True  # type: ignore[attr-defined]
+            self._received[key] = True
 
     def kept(self) -> dict[str, Any]:
         """The values handlers wrote, without received messages (they are stale after a restart)."""
         with self.lock:
-            received = self._received  # type: ignore[attr-defined]
-            return {k: v for k, v in self._data.items() if k not in received}  # type: ignore[attr-defined]
+            received = self._received
+            return {k: v for k, v in self._data.items() if k not in received}
 
     def receive(self, key: str, message: Any) -> None:
         """Store an incoming ``message`` under ``key`` and mark it received."""
         with self.lock:
-            self._data[key] = message  # type: ignore[attr-defined]
-            self._received[key] = True  # type: ignore[attr-defined]
+            self._data[key] = message
+            self._received[key] = True
 
-    def update(self, values: Any = (), /, **kwargs: Any) -> None:  # type: ignore[override]
+    def update(self, values: Any = (), /, **kwargs: Any) -> None:
         """Set several values at once, atomically (readers never see half of them)."""
         new = dict(values, **kwargs)
         with self.lock:
-            self._data.update(new)  # type: ignore[attr-defined]
+            self._data.update(new)
             self._bump()
 
     def snapshot(self) -> dict[str, Any]:
         """A plain-dict copy of the values (shallow), consistent at one instant."""
         with self.lock:
-            return dict(self._data)  # type: ignore[attr-defined]
+            return dict(self._data)
 
     def get(self, key: str, default: Any = None) -> Any:
         with self.lock:
-            return self._data.get(key, default)  # type: ignore[attr-defined]
+            return self._data.get(key, default)
 
     def setdefault(self, key: str, default: Any = None) -> Any:
         with self.lock:
-            if key not in self._data:  # type: ignore[attr-defined]
+            if key not in self._data:
                 self._bump()
-            return self._data.setdefault(key, default)  # type: ignore[attr-defined]
+            return self._data.setdefault(key, default)
 
     # Mapping protocol ----------------------------------------------------
 
     def __getitem__(self, key: str) -> Any:
         with self.lock:
-            return self._data[key]  # type: ignore[attr-defined]
+            return self._data[key]
 
     def __setitem__(self, key: str, value: Any) -> None:
         with self.lock:
-            self._data[key] = value  # type: ignore[attr-defined]
+            self._data[key] = value
             self._bump()
 
     def __delitem__(self, key: str) -> None:
         with self.lock:
-            del self._data[key]  # type: ignore[attr-defined]
-            self._received.pop(key, None)  # type: ignore[attr-defined]
+            del self._data[key]
+            self._received.pop(key, None)
             self._bump()
 
     def __iter__(self) -> Iterator[str]:
@@ -121,7 +121,7 @@ class State(MutableMapping[str, Any]):
         return iter(self.snapshot())
 
     def __len__(self) -> int:
-        return len(self._data)  # type: ignore[attr-defined]
+        return len(self._data)
 
     # Attribute access ----------------------------------------------------
 
@@ -133,7 +133,7 @@ class State(MutableMapping[str, Any]):
         try:
             return self[name]
         except KeyError:
-            known = ", ".join(sorted(self._data)) or "none"  # type: ignore[attr-defined]
+            known = ", ".join(sorted(self._data)) or "none"
             raise AttributeError(f"state has no value {name!r} (keys: {known})") from None
 
     def __setattr__(self, name: str, value: Any) -> None:

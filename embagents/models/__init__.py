@@ -11,7 +11,10 @@ CURVE (:mod:`embagents.models.remote`); :mod:`embagents.clients` reach servers e
 interface (:mod:`embagents.models.chat`). Backends live in
 :mod:`embagents.models.backends` (llama.cpp, onnxruntime), model files in
 :mod:`embagents.modelfiles`. A :class:`LeRobotPolicyClient` reaches a LeRobot
-policy server over its async-inference gRPC protocol (:mod:`embagents.models.lerobot`).
+policy server over its async-inference gRPC protocol (:mod:`embagents.models.lerobot`);
+:class:`OpenPIPolicyClient` an openpi (pi0, pi0.5) server over its WebSocket protocol
+(:mod:`embagents.models.openpi`; ``embagents serve-policy`` serves ours with it) and
+:class:`Gr00tPolicyClient` an Isaac GR00T server over ZeroMQ (:mod:`embagents.models.gr00t`).
 
 Example::
 
@@ -32,8 +35,10 @@ from embagents.models.declarations import (
     TextToSpeechModel,
     VLMModel,
 )
+from embagents.models.gr00t import Gr00tPolicyClient
 from embagents.models.inventory import models_of
 from embagents.models.lerobot import LeRobotPolicyClient, PolicyError, PolicyUnavailable
+from embagents.models.openpi import OpenPIPolicyClient
 from embagents.models.policy import LocalPolicyClient, PolicyClient, PolicyLate, PolicyModel
 from embagents.models.protocol import (
     BadRequest,
@@ -50,6 +55,7 @@ __all__ = [
     "DetectorModel",
     "LeRobotPolicyClient",
     "EmbeddingModel",
+    "Gr00tPolicyClient",
     "LlamaModel",
     "LocalModelClient",
     "LocalPolicyClient",
@@ -57,6 +63,7 @@ __all__ = [
     "ModelCrashed",
     "ModelError",
     "ModelUnavailable",
+    "OpenPIPolicyClient",
     "StaleInput",
     "PolicyClient",
     "PolicyError",

@@ -10,15 +10,18 @@ Example::
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 from embagents.models.client import LocalModelClient
 from embagents.models.declarations import Model
 
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
+
 __all__ = ["models_of"]
 
 
-def models_of(system: Any) -> list[Model]:
+def models_of(system: System) -> list[Model]:
     """Every model ``system`` declares or a component's client refers to, once each.
 
     Raises ``ValueError`` for a client whose model the system does not declare.

@@ -55,6 +55,7 @@ __all__ = [
     "CHUNK_BYTES",
     "LeRobotPolicyClient",
     "PolicyError",
+    "check_chunk",
     "PolicyUnavailable",
     "decode_payload",
     "encode_payload",
@@ -189,6 +190,28 @@ def decode_payload(data: bytes) -> dict[str, Any]:
 
 
 # -- the client --------------------------------------------------------------------------------------------------
+
+
+def check_chunk(actions: Any, observation: Mapping[str, np.ndarray], length: int | None, source: str) -> np.ndarray:
+    """``actions`` as a float32 ``(length, n_joints)`` chunk (n_joints: the state's size); a
+    :class:`PolicyError` naming both shapes otherwise. ``length`` None: any length.
+
+    >>> check_chunk(np.zeros((8, 7)), {STATE_KEY: np.zeros(7)}, 10, "policy server gpu:8080")
+    Traceback (most recent call last):
+    ...
+    embagents.models.lerobot.PolicyError: policy server gpu:8080 sent a chunk of shape (8, 7); expected (10, 7) (actions_per_chunk, n_joints)
+    """
+    actions = np.asarray(actions)
+    state = observation.get(STATE_KEY)
+    joints = int(np.size(state)) if state is not None else None
+    numbers = actions.dtype.kind in "iuf"
+    if actions.ndim != 2 or actions.shape[0] < 1 or not numbers or (length is not None and actions.shape[0] != length) \
+            or (joints is not None and actions.shape[1] != joints):
+        want = f"({length if length is not None else 'T'}, {joints if joints is not None else 'n_joints'})"
+        raise PolicyError(f"{source} sent a chunk of shape {tuple(actions.shape)}"
+                          f"{'' if numbers else f' dtype {actions.dtype}'}; expected {want} (actions_per_chunk, n_joints)"
+                          f"{'' if numbers else ' of numbers'}")
+    return np.ascontiguousarray(actions, np.float32)
 
 
 def is_loopback(address: str) -> bool:
@@ -361,13 +384,7 @@ class LeRobotPolicyClient:
         return PolicyError(f"policy server {self.address} failed: {code.name}: {details}{hint}")
 
     def _check_chunk(self, actions: np.ndarray, observation: Mapping[str, np.ndarray]) -> np.ndarray:
-        state = observation.get(STATE_KEY)
-        joints = int(np.size(state)) if state is not None else None
-        want = f"({self.actions_per_chunk}, {joints if joints is not None else 'n_joints'})"
-        if actions.ndim != 2 or actions.shape[0] != self.actions_per_chunk or (joints is not None and actions.shape[1] != joints):
-            raise PolicyError(f"policy server {self.address} sent a chunk of shape {tuple(actions.shape)}; "
-                              f"expected {want} (actions_per_chunk, n_joints)")
-        return np.ascontiguousarray(actions, np.float32)
+        return check_chunk(actions, observation, self.actions_per_chunk, f"policy server {self.address}")
 
     # -- payloads -----------------------------------------------------------------------------------------------
     def _encode_setup(self) -> bytes:

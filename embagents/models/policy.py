@@ -73,7 +73,10 @@ class PolicyModel(Model):
     ``threads``: intra-op threads (policies are small: 1 keeps latency steady);
     ``providers``: execution providers (None: TensorRT or CUDA when present, else CPU);
     ``realtime``: its actor's process at a control loop's priority (:func:`~embagents.priority.raise_priority`),
-    as a VLA with ``realtime=True`` waits on it.
+    as a VLA with ``realtime=True`` waits on it;
+    ``openpi_bind``: its model actor also serves it over openpi's WebSocket protocol there
+    (``ws://127.0.0.1:PORT``; beyond loopback with ``openpi_api_key_file``), for
+    :class:`~embagents.models.openpi.OpenPIPolicyClient` and openpi's own clients.
     """
 
     kind: ClassVar[str] = "policy"
@@ -81,6 +84,14 @@ class PolicyModel(Model):
     threads: int | None = 1
     providers: list[str] | None = None
     realtime: bool = False
+    openpi_bind: str | None = None
+    openpi_api_key_file: str | None = None
+
+    def __attrs_post_init__(self) -> None:
+        if self.openpi_bind is not None and not self.openpi_bind.startswith("ws://"):
+            # (who may listen where is checked when its model actor binds: loopback, else a key)
+            raise ValueError(f"policy {self.name!r}: openpi_bind {self.openpi_bind!r} must be ws://HOST:PORT; for "
+                             "wss:// serve it with embagents serve-policy --tls-cert/--tls-key")
 
     def resolve(self) -> str:
         from embagents.modelfiles import resolve_model_path
@@ -102,7 +113,9 @@ class PolicyModel(Model):
         return problem
 
     def options(self) -> dict[str, Any]:
-        return {"threads": self.threads, "providers": self.providers, "realtime": self.realtime}
+        openpi = {"openpi": {"bind": self.openpi_bind, "api_key_file": self.openpi_api_key_file, "name": self.name}} \
+            if self.openpi_bind else {}
+        return {"threads": self.threads, "providers": self.providers, "realtime": self.realtime, **openpi}
 
 
 class PolicyServing:

@@ -170,6 +170,10 @@ def _tts(path: str, options: dict[str, Any]) -> Any:
 
 
 def _policy(path: str, options: dict[str, Any]) -> Any:
+    if options.get("openpi"):  # also served over openpi's WebSocket protocol (embagents serve-policy)
+        from embagents.models.openpi_server import OpenPIPolicyServing
+
+        return OpenPIPolicyServing(path, options)
     from embagents.models.policy import PolicyServing
 
     return PolicyServing(path, options)
@@ -235,4 +239,4 @@ def make_serving(kind: str, path: str, options: dict[str, Any]) -> Serving:
         factory = _KINDS[kind]
     except KeyError:
         raise ValueError(f"no backend serves model kind {kind!r}; known: {', '.join(serving_kinds())}") from None
-    return factory(path, options)  # type: ignore[no-any-return]
+    return factory(path, options)

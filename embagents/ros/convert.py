@@ -134,7 +134,7 @@ def _slot_path_works() -> bool:
 
         try:
             probe = RosImage()
-            probe._data = memoryview(b"\x01\x02\x03")  # type: ignore[attr-defined]
+            probe._data = memoryview(b"\x01\x02\x03")
             back = deserialize_message(serialize_message(probe), RosImage)
             _fast_slot = bytes(back.data) == b"\x01\x02\x03"
         except Exception:  # noqa: BLE001 - any failure means: use the public setter

@@ -17,16 +17,16 @@ Example::
 
 Supported pairs (:data:`SUPPORTED`, ROS type -> our message class):
 
-==============================  =====================================
-``std_msgs/msg/String``         :class:`~embagents.msgs.String`
-``sensor_msgs/msg/Image``       :class:`~embagents.msgs.Image`
+===================================  =============================================
+``std_msgs/msg/String``              :class:`~embagents.msgs.String`
+``sensor_msgs/msg/Image``            :class:`~embagents.msgs.Image`
 ``sensor_msgs/msg/CompressedImage``  :class:`~embagents.msgs.CompressedImage`
-``geometry_msgs/msg/Twist``     :class:`~embagents.msgs.Twist`
-``nav_msgs/msg/Odometry``       :class:`~embagents.msgs.Odometry`
-``nav_msgs/msg/OccupancyGrid``  :class:`~embagents.msgs.OccupancyGrid`
-``sensor_msgs/msg/JointState``  :class:`~embagents.msgs.JointState`
-``sensor_msgs/msg/PointCloud``  :class:`~embagents.msgs.Detections` (see below)
-==============================  =====================================
+``geometry_msgs/msg/Twist``          :class:`~embagents.msgs.Twist`
+``nav_msgs/msg/Odometry``            :class:`~embagents.msgs.Odometry`
+``nav_msgs/msg/OccupancyGrid``       :class:`~embagents.msgs.OccupancyGrid`
+``sensor_msgs/msg/JointState``       :class:`~embagents.msgs.JointState`
+``sensor_msgs/msg/PointCloud``       :class:`~embagents.msgs.Detections` (see below)
+===================================  =============================================
 
 Outgoing only: :class:`~embagents.msgs.StreamingString` goes out as
 ``std_msgs/msg/String``, one ROS message per chunk carrying the chunk's

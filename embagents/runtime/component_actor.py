@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from actors import Actor
 from actors.errors import UnknownMessage
 from embagents.rate import next_deadline
 from embagents.runtime.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
+
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
 
 __all__ = ["ComponentActor", "loaded_system", "remember_system"]
 
@@ -28,7 +31,7 @@ _EARLY_S = 0.001
 _SYSTEMS: dict[str, Any] = {}
 
 
-def remember_system(path: str, system: Any) -> None:
+def remember_system(path: str, system: System) -> None:
     """Keep the loaded System so forked actor processes find it without re-importing."""
     _SYSTEMS[path] = system
 

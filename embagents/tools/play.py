@@ -162,7 +162,8 @@ def run(args: argparse.Namespace) -> int:
         skip = _Skips(rows, [t.removeprefix("/") for t in args.topics or []], getattr(args, "all", False))
         stopped: list[Stopped] = []
         publishers: dict[str, Publisher] = {}
-        count, start, last = 0, [], None
+        start: list[float] = []  # the first message's (wall clock, log time): set by _pace
+        count, last = 0, None
         with Attached(found) as seat:
             for path in args.files:
                 for topic, log_time, msg in read_messages(path, stopped):

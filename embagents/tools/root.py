@@ -26,11 +26,14 @@ import contextlib
 import os
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from actors.codec import message_name
 from actors.topics import topic_dir
 from embagents.tools.recorder import RecorderActor, rotation_files
+
+if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
+    from embagents.system import System
 
 __all__ = ["EVENTS_TOPIC", "install", "topic_rows"]
 
@@ -54,9 +57,9 @@ def _received(rows: list[dict[str, Any]]) -> dict[str, int]:
     return out
 
 
-def topic_rows(system: Any, run_dir: str) -> list[dict[str, Any]]:
+def topic_rows(system: System, run_dir: str) -> list[dict[str, Any]]:
     """The topics of ``system`` (and the runtime's own under ``run_dir``), without rates."""
-    rows = {}
+    rows: dict[str, dict[str, Any]] = {}
     for name, t in sorted(system.topics.items()):
         pubs = sorted(str(c.name) for c in system.components if any(o.name == name for o in c.outputs))
         if any(x.name == name for x in getattr(system, "external", []) or []):
@@ -73,7 +76,7 @@ def topic_rows(system: Any, run_dir: str) -> list[dict[str, Any]]:
 class _Topics:
     """``topics``: rows with rates from two looks at the subscribers' counters."""
 
-    def __init__(self, control: Any, system: Any) -> None:
+    def __init__(self, control: Any, system: System) -> None:
         self.control, self.system = control, system
         self.prev: tuple[float, dict[str, int]] | None = None
         self.lock = threading.Lock()  # requests run side by side: one look at the counters at a time
@@ -106,7 +109,7 @@ class _Topics:
 class _Recorders:
     """``record_start`` / ``record_stop``: recorder children of the root."""
 
-    def __init__(self, sup: Any, control: Any, system: Any) -> None:
+    def __init__(self, sup: Any, control: Any, system: System) -> None:
         self.sup, self.control, self.system = sup, control, system
         self.active: dict[str, str] = {}  # path -> child name
         self.lock = threading.Lock()
@@ -155,10 +158,10 @@ class _Recorders:
                     f"{', '.join(self.active) or 'nothing'}"}
         self.sup.terminate_child(name)
         self.sup.delete_child(name)
-        return {"ok": True, "files": rotation_files(path)}
+        return {"ok": True, "files": rotation_files(str(path))}
 
 
-def install(sup: Any, control: Any, system: Any) -> _Topics:
+def install(sup: Any, control: Any, system: System) -> _Topics:
     """Serve ``topics``, ``record_start`` and ``record_stop`` on ``control`` for ``system``; returns the topics table."""
     topics = _Topics(control, system)
     control.add_command("topics", topics)

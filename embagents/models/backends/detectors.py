@@ -207,7 +207,7 @@ class MtcnnDetector:
 
     def _scales(self, h: int, w: int) -> list[float]:
         m = 12.0 / self.min_face
-        side, scales = min(h, w) * m, []
+        side, scales = min(h, w) * m, list[float]()
         while side >= 12:
             scales.append(m * self.scale_factor ** len(scales))
             side *= self.scale_factor

@@ -71,7 +71,7 @@ class _FramesMixin:
         if image_url in self.frames:
             return self.frames[image_url]
         if image_url.startswith("data:"):
-            return super().load_image(image_url)  # type: ignore[misc, no-any-return]
+            return super().load_image(image_url)  # type: ignore[misc]
         raise ValueError(f"image {image_url[:80]!r} is neither a frame of this request nor a data: URL; "
                          "a model actor fetches no URLs: send the pixels (images=[array])")
 

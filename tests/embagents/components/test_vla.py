@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +25,7 @@ from embagents.msgs import Image, JointState, JointTrajectory, String, TaskFeedb
 from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 from tests.embagents.conftest import PANDA_TARGET  # noqa: E402
+from tests.helpers import wait_until  # noqa: E402
 
 JOINTS = list(PANDA_READY)
 states, command, camera = Topic("arm/joint_states", JointState), Topic("arm/command", JointState), Topic("camera", Image)
@@ -257,8 +259,10 @@ def test_a_string_on_a_task_input_starts_that_task() -> None:
               config=VLAConfig(joint_names_map={"j": "panda_joint1"}, urdf="franka_panda/panda.urdf", max_steps=7))
     assert not vla.running
     vla.on_message(task.name, String("wave"))
-    assert vla.status() == {"task": "wave", "step": 0, "max_steps": 7, "running": True, "outcome": "running",
-                            "clipped": {"panda_joint1": 0}}
+    status = vla.status()
+    assert {k: status[k] for k in ("task", "step", "max_steps", "running", "outcome", "clipped")} == {
+        "task": "wave", "step": 0, "max_steps": 7, "running": True, "outcome": "running", "clipped": {"panda_joint1": 0}}
+    assert status["chunks"] == status["queue_empty"] == 0 and status["policy_latency_ms"] is None
 
 
 def test_a_done_event_ends_the_task_as_succeeded_and_a_new_task_replaces_a_running_one(policies: ActorSystem) -> None:
@@ -327,5 +331,58 @@ def test_any_policy_client_failure_stops_motion_and_is_named(policies: ActorSyst
         assert lp.vla.health.status == HealthStatus.SYSTEM_FAILURE
         assert "policy 'broken' failed: RuntimeError: StatusCode.UNAVAILABLE" in lp.vla.health.text
         assert lp.commands() and lp.vla.step == 0  # only holds went out
+    finally:
+        lp.close()
+
+
+class GatedPolicy:
+    """A PolicyClient whose answers wait for the test's go: a slow policy server, made deterministic.
+
+    Action i of a chunk is the observed state plus (i + 1) mrad on every joint, so a command
+    tells which action of which chunk it was.
+    """
+
+    name = "gated"
+
+    def __init__(self, permits: int = 0) -> None:
+        self.gate = threading.Semaphore(permits)
+        self.asked = 0
+
+    def infer(self, observation: dict[str, np.ndarray], task: str, timeout_s: float) -> np.ndarray:
+        self.asked += 1
+        assert self.gate.acquire(timeout=10), "the test never let the policy answer"
+        q = observation["observation.state"].astype(np.float32)
+        return q[None, :] + 0.001 * np.arange(1, 51, dtype=np.float32)[:, None]
+
+    def close(self) -> None:
+        pass
+
+
+def test_async_inference_keeps_ticking_while_the_policy_thinks_and_aligns_the_chunk_to_its_observation() -> None:
+    policy = GatedPolicy()
+    lp = Loop(policy=policy, async_inference=True, actions_per_chunk=50, observation_rate_hz=10.0)
+    try:
+        lp.vla.manipulate("reach", 1000)
+        q0 = lp.q().copy()
+        lp.tick(5)  # the policy has not answered: every tick still went out (a hold), none waited
+        assert len(lp.commands()) == 5 and lp.vla.step == 0 and policy.asked == 1
+        np.testing.assert_allclose(lp.commands()[-1].position, q0, atol=2e-3)
+        policy.gate.release(1000)
+        wait_until(lambda: lp.vla._inflight is not None and lp.vla._inflight[0].done(), 10.0, "the chunk in")
+        lp.tick(1)  # tick 6: action 5 of the chunk asked on tick 1 (actions for ticks 1-5 are past)
+        np.testing.assert_allclose(lp.commands()[-1].position, q0 + 0.006, atol=2e-4)
+        lp.tick(60)  # chunks keep coming (one every 5 ticks) before the queue runs dry
+        assert lp.vla.queue_empty == 0 and lp.vla.step == 61 and lp.vla.chunks >= 2
+        assert lp.vla.status()["policy_latency_ms"] is not None
+    finally:
+        lp.close()
+
+
+def test_a_synchronous_ask_when_empty_loop_counts_each_refill_as_queue_empty() -> None:
+    lp = Loop(policy=GatedPolicy(permits=1000), actions_per_chunk=50, observation_rate_hz=1.0)
+    try:
+        lp.vla.manipulate("reach", 1000)
+        lp.tick(120)  # chunks of 50 asked when used up: on ticks 1 (the start), 51 and 101
+        assert lp.vla.chunks == 3 and lp.vla.queue_empty == 2 and lp.vla.step == 120
     finally:
         lp.close()
