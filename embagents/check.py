@@ -16,8 +16,9 @@ component it is about. Levels:
   (``cuda-in-root``: CUDA does not survive ``fork``, and every actor process
   is forked from the root's memory, so each would fail later with CUDA's
   "initialization error"; the problem names the line and the fix).
-- **warning** (it may run, but look): an input topic nothing in the system
-  publishes. It may come from outside (another system, a test harness): say
+- **warning** (it may run, but look): a component of the system file with inputs
+  but no trigger (its step never runs); an input topic nothing in the system
+  publishes (an event's ``publish`` action counts as a publisher). It may come from outside (another system, a test harness): say
   so with ``System(external=[topic])`` and the warning goes away.
 
 Example::
@@ -100,21 +101,46 @@ def _ros_available_elsewhere() -> tuple[bool, str]:
 
 def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
     """(topics the bridge provides, RosOutputs, problems)."""
-    from embagents.ros.spec import RosInput, RosOutput, check_bridge
+    from embagents.msgs import RosMessage
+    from embagents.ros.spec import (
+        RosAction,
+        RosInput,
+        RosLifecycle,
+        RosOutput,
+        RosService,
+        check_bridge,
+    )
 
     provided, outs, problems = [], [], []
     ins = [d for d in system.ros if isinstance(d, RosInput)]
     outs = [d for d in system.ros if isinstance(d, RosOutput)]
+    services = [d for d in system.ros if isinstance(d, RosService)]
+    by_name = {str(c.name): c for c in system.components}
     for d in system.ros:
-        if not isinstance(d, (RosInput, RosOutput)):
-            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput or RosOutput"))
+        if not isinstance(d, (RosInput, RosOutput, RosService, RosLifecycle, RosAction)):
+            problems.append(Problem(None, "ros", f"ROS bridge: {d!r} is not a RosInput, RosOutput, RosService, "
+                                    "RosAction or RosLifecycle"))
+        elif isinstance(d, RosLifecycle):
+            for c in d.components or ():
+                if c not in by_name:
+                    problems.append(Problem(None, "ros", f"RosLifecycle names component {c!r}, which this system "
+                                            f"does not have; components: {', '.join(by_name) or 'none'}"))
+    for sv in services:
+        comp = by_name.get(sv.component)
+        if comp is None:
+            problems.append(Problem(None, "ros", f"RosService {sv.ros_name}: no component is named {sv.component!r}; "
+                                    f"components: {', '.join(by_name) or 'none'}"))
+        elif not callable(getattr(comp, sv.method, None)):
+            problems.append(Problem(sv.component, "ros", f"RosService {sv.ros_name}: {type(comp).__name__} "
+                                    f"{sv.component!r} has no method {sv.method!r}"))
     provided = [(d.topic, d.msg_type) for d in ins]
+    provided += [(t, RosMessage) for d in system.ros if isinstance(d, RosAction) for t in d.provides]
     if system.ros:
         ok, why = _ros_available_elsewhere()
         if not ok:
             problems.append(Problem(None, "ros-missing", f"ROS bridge: {why}"))
     try:
-        check_bridge(ins, outs)
+        check_bridge(ins, outs, services)
     except (TypeError, ValueError) as exc:
         problems.append(Problem(None, "ros", f"ROS bridge: {exc}"))
     return provided, outs, problems
@@ -159,6 +185,7 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
     provided = {t.name for c in system.components for t in c.outputs}
     provided |= {name for name, _ in ros_provided} | {t.name for t in system.external}
     provided |= {t for m in system.managers for node in m.nodes for t in node.outputs}
+    provided |= {a.args["topic"] for _, actions in system.events for a in actions if a.kind == "publish"}
     for m in system.managers:
         heard = {t.name for node in m.nodes for t in node.subscriptions}
         for rule in m.handshake:
@@ -181,6 +208,13 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
                                    f"component {c.name!r}: input topic {t.name!r} ({t.type_name}) has no publisher "
                                    "in this system (no component output, RosInput or external topic); if it "
                                    "comes from outside, list it in System(external=[...])", "warning"))
+    for c in system.components:
+        if (c.trigger_kind == "none" and c.subscriptions and not type(c).__module__.startswith("embagents.")
+                and type(c).on_message is Component.on_message):
+            out.append(Problem(str(c.name), "never-runs",
+                               f"component {c.name!r} ({type(c).__name__}) has inputs but no trigger, so its step "
+                               f"never runs; give it trigger={c.subscriptions[0].name} (its Topic), a list of "
+                               "topics, a rate in Hz or an Event", "warning"))
     for event, _ in system.events:
         for t in event.topics:
             if t.name not in provided:
@@ -343,7 +377,8 @@ def cuda_in_process(read_maps: Callable[[], str] = _read_maps) -> str | None:
 def _system_file(system: System) -> str | None:
     """The file ``system`` was loaded from (the module of :func:`load_system` that holds it)."""
     for name, module in list(sys.modules.items()):
-        if name.startswith("_embagents_system_") and any(v is system for v in vars(module).values()):
+        if name.startswith("_embagents_system_") and any(
+                v is system for v in [*vars(module).values(), *getattr(module, "__embagents_registered__", [])]):
             return getattr(module, "__file__", None)
     return None
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
@@ -47,12 +48,16 @@ def _system_argument(parser: argparse.ArgumentParser) -> None:
 
 def _check_arguments(parser: argparse.ArgumentParser) -> None:
     _system_argument(parser)
+    parser.add_argument("--offline", action="store_true",
+                        help="embagents.compat recipes: replace model servers by the offline default models")
 
 
 def _check(args: argparse.Namespace) -> int:
     from embagents.check import check_file, errors
     from embagents.system import counted
 
+    if getattr(args, "offline", False):
+        os.environ["EMBAGENTS_OFFLINE"] = "1"  # read by embagents.compat's clients
     system, problems = check_file(args.system)
     for p in problems:
         print(p)
@@ -139,6 +144,8 @@ def _supervise_arguments(parser: argparse.ArgumentParser) -> None:
     loud.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     loud.add_argument("-q", "--quiet", action="store_true",
                       help="only warnings and errors on stderr (the answers are on stdout; `embagents logs` has the rest)")
+    parser.add_argument("--offline", action="store_true",
+                        help="embagents.compat recipes: replace model servers by the offline default models")
     parser.add_argument("--dashboard", action="store_true", help="serve the dashboard page and its JSON/WebSocket API")
     parser.add_argument("--dashboard-host", default="127.0.0.1", help="the dashboard's address (default: this machine only)")
     parser.add_argument("--dashboard-port", type=int, default=8420, help="the dashboard's port (default 8420)")

@@ -38,6 +38,11 @@ _IMPORT_NAMES = {
     "ros-sensor-msgs": "sensor_msgs",
     "ros-geometry-msgs": "geometry_msgs",
     "ros-nav-msgs": "nav_msgs",
+    "ros-trajectory-msgs": "trajectory_msgs",
+    "ros-std-srvs": "std_srvs",
+    "ros-lifecycle-msgs": "lifecycle_msgs",
+    "ros-action-msgs": "action_msgs",
+    "ros-test-msgs": "test_msgs",
     "ros-rmw-fastrtps-cpp": "rmw_fastrtps_cpp",
 }
 _REQUIREMENT = re.compile(r"^\s*([A-Za-z0-9][A-Za-z0-9._-]*).*?extra\s*==\s*['\"]([^'\"]+)['\"]")

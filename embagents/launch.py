@@ -395,6 +395,8 @@ def run(args: argparse.Namespace) -> int:
                       logging.WARNING if quiet else logging.NOTSET)
     early = _EarlyLines()
     logging.getLogger().addHandler(early)
+    if getattr(args, "offline", False):
+        os.environ["EMBAGENTS_OFFLINE"] = "1"  # embagents.compat's clients: servers -> offline defaults (children too)
     try:
         dashboard = (args.dashboard_host, args.dashboard_port) if getattr(args, "dashboard", False) else None
         return run_system(args.system, dashboard, quiet=quiet, early=early,

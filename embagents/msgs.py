@@ -31,10 +31,18 @@ __all__ = [
     "Health",
     "HealthStatus",
     "Image",
+    "Imu",
     "JointState",
     "JointTrajectory",
+    "LaserScan",
     "Odometry",
     "OccupancyGrid",
+    "Point",
+    "PointCloud2",
+    "Pose",
+    "PoseStamped",
+    "Quaternion",
+    "RosMessage",
     "String",
     "StreamingString",
     "TaskFeedback",
@@ -317,11 +325,229 @@ class Health:
     switches: int = 0
 
 
+# Converters of nested fields: the class itself, a tuple, or a dict of its fields (JSON, YAML).
+def _point(v: object) -> Point:
+    if isinstance(v, dict):
+        return Point(**v)
+    return v if isinstance(v, Point) else Point(*_vec3(v))
+
+
+def _quaternion(v: object) -> Quaternion:
+    if isinstance(v, dict):
+        return Quaternion(**v)
+    return v if isinstance(v, Quaternion) else Quaternion(*_quat(v))
+
+
+def _pose(v: object) -> Pose:
+    if isinstance(v, dict):
+        return Pose(**v)
+    if isinstance(v, Pose):
+        return v
+    position, orientation = v  # type: ignore[misc]
+    return Pose(position, orientation)
+
+
+@message("embagents/Point")
+@attrs.define
+class Point:
+    """A position in metres (``geometry_msgs/Point``)."""
+
+    x: float = attrs.field(default=0.0, converter=float)
+    y: float = attrs.field(default=0.0, converter=float)
+    z: float = attrs.field(default=0.0, converter=float)
+
+
+@message("embagents/Quaternion")
+@attrs.define
+class Quaternion:
+    """An orientation as a unit quaternion x, y, z, w (``geometry_msgs/Quaternion``)."""
+
+    x: float = attrs.field(default=0.0, converter=float)
+    y: float = attrs.field(default=0.0, converter=float)
+    z: float = attrs.field(default=0.0, converter=float)
+    w: float = attrs.field(default=1.0, converter=float)
+
+
+@message("embagents/Pose")
+@attrs.define
+class Pose:
+    """Position and orientation (``geometry_msgs/Pose``); tuples are accepted.
+
+    >>> Pose((1, 2, 0)).position
+    Point(x=1.0, y=2.0, z=0.0)
+    """
+
+    position: Point = attrs.field(factory=Point, converter=_point)
+    orientation: Quaternion = attrs.field(factory=Quaternion, converter=_quaternion)
+
+
+@message("embagents/PoseStamped")
+@attrs.define
+class PoseStamped:
+    """A pose in ``frame_id`` at ``stamp`` (``geometry_msgs/PoseStamped``; a Nav2 goal on ``/goal_pose``).
+
+    >>> PoseStamped(Pose((2.0, 0.5, 0.0))).pose.position.x
+    2.0
+    """
+
+    pose: Pose = attrs.field(factory=Pose, converter=_pose)
+    frame_id: str = "map"
+    stamp: float = 0.0
+
+
+def _cov3() -> Any:  # an attrs field: a 3x3 covariance, row-major as ROS sends it
+    return attrs.field(factory=lambda: np.zeros((3, 3)), converter=lambda v: np.asarray(v, np.float64).reshape(3, 3))
+
+
+@message("embagents/Imu")
+@attrs.define(eq=False)
+class Imu:
+    """An IMU sample (``sensor_msgs/Imu``): orientation quaternion x, y, z, w, angular velocity (rad/s),
+    linear acceleration (m/s^2), their 3x3 covariances (``[0, 0] == -1`` marks a missing estimate)."""
+
+    orientation: Quat = attrs.field(default=(0.0, 0.0, 0.0, 1.0), converter=_quat)
+    angular_velocity: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    linear_acceleration: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
+    orientation_covariance: np.ndarray = _cov3()
+    angular_velocity_covariance: np.ndarray = _cov3()
+    linear_acceleration_covariance: np.ndarray = _cov3()
+    frame_id: str = "imu_link"
+    stamp: float = 0.0
+
+
+@message("embagents/LaserScan")
+@attrs.define(eq=False)
+class LaserScan:
+    """A planar laser scan (``sensor_msgs/LaserScan``): ``ranges`` (N,) metres from ``angle_min``
+    in steps of ``angle_increment`` (rad); readings outside [range_min, range_max] are invalid."""
+
+    ranges: np.ndarray = _column("float32")
+    intensities: np.ndarray = _column("float32")
+    angle_min: float = 0.0
+    angle_max: float = 0.0
+    angle_increment: float = 0.0
+    time_increment: float = 0.0
+    scan_time: float = 0.0
+    range_min: float = 0.0
+    range_max: float = 0.0
+    frame_id: str = "laser"
+    stamp: float = 0.0
+
+    @property
+    def angles(self) -> np.ndarray:
+        """The angle (rad) of each reading."""
+        return self.angle_min + self.angle_increment * np.arange(len(self.ranges))
+
+
+@message("embagents/PointCloud2")
+@attrs.define(eq=False)
+class PointCloud2:
+    """A point cloud (``sensor_msgs/PointCloud2``) as the ROS bytes plus their layout.
+
+    ``data`` is (height, width, point_step) uint8 as it came; ``fields`` lists
+    ``(name, offset, numpy dtype str, count)``. :attr:`points` views it as a
+    numpy structured array without a copy (``cloud.points["x"]``);
+    :meth:`from_points` builds one from a structured array.
+
+    >>> import numpy as np
+    >>> pts = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    >>> PointCloud2.from_points(pts).points["z"].shape
+    (1, 3)
+    """
+
+    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0, 0), np.uint8), converter=_array("uint8", 3))
+    fields: list[tuple[str, int, str, int]] = attrs.field(
+        factory=list, converter=lambda v: [(str(n), int(o), str(t), int(c)) for n, o, t, c in v]
+    )
+    is_dense: bool = True
+    frame_id: str = ""
+    stamp: float = 0.0
+
+    @property
+    def dtype(self) -> np.dtype:
+        """The structured dtype of one point (``itemsize`` is the point step)."""
+        names, formats, offsets = [], [], []
+        for name, offset, dt, count in self.fields:
+            names.append(name)
+            formats.append(np.dtype(dt) if count == 1 else np.dtype((dt, (count,))))
+            offsets.append(offset)
+        return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.data.shape[2]})
+
+    @property
+    def points(self) -> np.ndarray:
+        """(height, width) structured array viewing ``data``."""
+        h, w, step = self.data.shape
+        flat = np.ascontiguousarray(self.data).reshape(-1)
+        return flat.view(self.dtype).reshape(h, w) if flat.size else np.zeros((h, w), self.dtype)
+
+    @classmethod
+    def from_points(cls, points: np.ndarray, frame_id: str = "", stamp: float = 0.0) -> PointCloud2:
+        """A cloud of a (N,) or (H, W) structured array (fields of plain numeric dtypes)."""
+        pts = np.ascontiguousarray(points)
+        if pts.dtype.names is None:
+            raise ValueError(f"PointCloud2.from_points needs a structured array (fields x, y, z, ...), got {pts.dtype}")
+        if pts.ndim == 1:
+            pts = pts.reshape(1, -1)
+        fields = []
+        for name in pts.dtype.names:
+            dt, offset = pts.dtype.fields[name][:2]
+            base, count = (dt.base, int(np.prod(dt.shape))) if dt.shape else (dt, 1)
+            fields.append((name, int(offset), base.str, count))
+        data = pts.view(np.uint8).reshape(pts.shape[0], pts.shape[1], pts.dtype.itemsize)
+        return cls(data=data, fields=fields, frame_id=frame_id, stamp=stamp)
+
+
+@message("embagents/RosMessage")
+@attrs.define(eq=False)
+class RosMessage:
+    """Any ROS message without a class of its own, as the bridge introspects it.
+
+    ``ros_type`` is ``pkg/msg/Name``; ``fields`` holds the ROS field names:
+    nested messages are RosMessages, numeric arrays numpy arrays, strings str,
+    ``builtin_interfaces/Time`` and ``Duration`` (``header.stamp``) float
+    seconds. Fields read as attributes, as on the ROS message.
+
+    >>> m = RosMessage("sensor_msgs/msg/Temperature", {"temperature": 21.5, "variance": 0.0})
+    >>> m.temperature
+    21.5
+    >>> m.humidity
+    Traceback (most recent call last):
+    ...
+    AttributeError: sensor_msgs/msg/Temperature has no field 'humidity'; its fields: temperature, variance
+    """
+
+    ros_type: str = ""
+    fields: dict[str, Any] = attrs.field(factory=dict)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        try:
+            return self.fields[name]
+        except KeyError:
+            have = ", ".join(self.fields) or "none"
+            raise AttributeError(f"{self.ros_type or 'RosMessage'} has no field {name!r}; its fields: {have}") from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dicts and lists (arrays as lists): for JSON and printing."""
+        return {k: _plain(v) for k, v in self.fields.items()}
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, RosMessage):
+        return v.to_dict()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v
+
 
 MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (
         String, StreamingString, Image, CompressedImage, Audio, Detections, Trackings, Video, Twist, Odometry,
-        OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health,
+        OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health, Point, Quaternion, Pose, PoseStamped,
+        Imu, LaserScan, PointCloud2, RosMessage,
     )
 }

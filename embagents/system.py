@@ -35,12 +35,30 @@ from embagents.components.component import Component, ComponentError, lenient_co
 from embagents.events import Action, Event
 from embagents.topic import Topic
 
-__all__ = ["SUPERVISION_DEFAULTS", "System", "SystemFileError", "counted", "load_system"]
+__all__ = ["SUPERVISION_DEFAULTS", "System", "SystemFileError", "counted", "load_system", "loading", "register"]
 
 #: Supervision policy of the system's root supervisor (OTP's meaning of each key).
 SUPERVISION_DEFAULTS: dict[str, Any] = {"strategy": "one_for_one", "intensity": 3, "period": 5.0}
 
 _module_ids = itertools.count()
+#: Systems registered by the file being loaded (``register``); None: no file is being loaded.
+_registered: list[System] | None = None
+
+
+def loading() -> bool:
+    """Whether a system file is being loaded by :func:`load_system` (``embagents check`` / ``supervise``)."""
+    return _registered is not None
+
+
+def register(system: System) -> None:
+    """Make ``system`` the one :func:`load_system` returns for the file being loaded.
+
+    For a file that builds its System inside a call instead of at top level (a compatibility
+    layer's ``Launcher().bringup()``); outside a load it raises.
+    """
+    if _registered is None:
+        raise RuntimeError("register(system) is for a system file being loaded by embagents check/supervise")
+    _registered.append(system)
 
 
 def counted(n: int, noun: str) -> str:
@@ -238,8 +256,11 @@ def _import(path: str) -> Any:
     if folder not in sys.path:
         sys.path.insert(0, folder)  # stays: the file's lazy local imports need it later too
     sys.modules[module_name] = module  # classes defined there must find their module
+    global _registered
+    outer, _registered = _registered, []
     try:
         spec.loader.exec_module(module)
+        module.__embagents_registered__ = _registered
     except BaseException as exc:
         sys.modules.pop(module_name, None)
         if isinstance(exc, KeyboardInterrupt):
@@ -250,6 +271,8 @@ def _import(path: str) -> Any:
         if isinstance(exc, ComponentError):
             raise SystemFileError(path, f"invalid component:\n{exc}{shown}", line, exc) from exc
         raise SystemFileError(path, f"{_exception_line(exc)}{shown}", line, exc) from exc
+    finally:
+        _registered = outer
     return module
 
 
@@ -289,6 +312,10 @@ def load_system(path: str | os.PathLike[str], *, lenient: bool = False) -> Syste
     for var, value in vars(module).items():
         if isinstance(value, System):
             found.setdefault(id(value), []).append(var)
+            systems[id(value)] = value
+    for value in getattr(module, "__embagents_registered__", []):
+        if id(value) not in systems:
+            found.setdefault(id(value), []).append(f"registered {value.name!r}")
             systems[id(value)] = value
     if not systems:
         raise SystemFileError(path, "no System found: define `system = System(...)` at top level")

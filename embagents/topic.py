@@ -23,7 +23,7 @@ Example::
 from __future__ import annotations
 
 import re
-from typing import Literal
+from typing import Any, Literal
 
 import attrs
 
@@ -33,6 +33,7 @@ from embagents.msgs import MESSAGE_TYPES
 
 __all__ = [
     "KEEP_POLICIES",
+    "FixedInput",
     "Topic",
     "TopicError",
     "add_message_type",
@@ -148,3 +149,38 @@ class Topic:
 
     def __str__(self) -> str:
         return f"{self.name} ({self.type_name})"
+
+
+def _fixed_message(msg_type: type, value: Any, name: str) -> Any:
+    """The message a FixedInput gives every step: ``value`` itself, or a str wrapped in a String-like type."""
+    if isinstance(value, msg_type):
+        return value
+    if isinstance(value, str) and "data" in attrs.fields_dict(msg_type):
+        return msg_type(data=value)
+    raise TopicError(f"FixedInput {name!r}: fixed must be a {msg_type.__name__} (or, for a text type, a str), "
+                     f"got {value!r}")
+
+
+@attrs.frozen
+class FixedInput(Topic):
+    """A constant input: every step of the component gets ``fixed`` on it, and nothing subscribes.
+
+    For a component triggered by an event or a rate that asks the same thing each time
+    (``FixedInput("prompt", String, fixed="What do you see?")``); ``fixed`` is a message of
+    ``msg_type`` or, for a text type, a str. It is never published and needs no publisher.
+
+    >>> from embagents.msgs import String
+    >>> FixedInput("prompt", "String", fixed="What do you see?").message
+    String(data='What do you see?')
+    """
+
+    fixed: Any = attrs.field(default=None, kw_only=True, eq=False)
+
+    def __attrs_post_init__(self) -> None:
+        super().__attrs_post_init__()
+        object.__setattr__(self, "fixed", _fixed_message(self.msg_type, self.fixed, self.name))
+
+    @property
+    def message(self) -> Any:
+        """The message each step gets."""
+        return self.fixed

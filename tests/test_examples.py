@@ -63,7 +63,7 @@ def test_each_example_names_its_extras_and_the_readme_names_the_same() -> None:
 
 @pytest.mark.parametrize("name", ["chat.py", "chat_memory.py", "ros_chat.py", "vision.py", "listen.py", "voice.py",
                                   "manager_pick_place.py", "manager_modes.py", "arm.py", "memory.py",
-                                  "gpu_pipeline.py"])
+                                  "gpu_pipeline.py", "ros_goto.py"])
 def test_example_systems_check_clean(name: str, tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "check", str(EXAMPLES / name)],
                          capture_output=True, text=True, timeout=120, env=as_installed(name, tmp_path))

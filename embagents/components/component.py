@@ -40,11 +40,11 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
-from embagents.config import BaseComponentConfig, ConfigError, apply_config
+from embagents.config import BaseComponentConfig, ConfigError, apply_config, config_fields
 from embagents.events import Event, Fallback
 from embagents.extras import install_hint
 from embagents.msgs import Health, HealthStatus
-from embagents.topic import Topic
+from embagents.topic import FixedInput, Topic
 
 __all__ = [
     "UNSET",
@@ -54,6 +54,8 @@ __all__ = [
     "HealthStatus",
     "ComponentProblem",
     "lenient_construction",
+    "component_arguments",
+    "unknown_argument",
 ]
 
 #: A component problem: (code, message); the message names the component.
@@ -96,6 +98,63 @@ def lenient_construction() -> Iterator[None]:
         yield
     finally:
         _lenient.reset(token)
+
+
+#: EmbodiedAgents' spellings of component arguments -> ours (named when one is given to a component here).
+EMBODIED_AGENTS_ARGUMENTS: dict[str, str] = {
+    "component_name": "name",
+    "additional_model_clients": "extra_clients",
+    "db_client": "embedding_client (a client with embed(), e.g. LocalModelClient(EmbeddingModel(name='minilm')))",
+    "callback_group": "nothing: each component is its own process here",
+}
+
+
+def component_arguments(cls: type) -> list[str]:
+    """The keyword arguments ``cls(...)`` takes by name, from every ``__init__`` of its classes.
+
+    >>> component_arguments(Component)[:3]
+    ['name', 'inputs', 'outputs']
+    """
+    import inspect
+
+    names: list[str] = []
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None or klass is object:
+            continue
+        for p in inspect.signature(init).parameters.values():
+            if p.name != "self" and p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name not in names:
+                names.append(p.name)
+    return names
+
+
+def unknown_argument(cls: type, key: str, config_class: type | None = None) -> str:
+    """The one line refusing ``cls(key=...)``: its arguments, its config keys, and ours for an EmbodiedAgents spelling."""
+    ours = EMBODIED_AGENTS_ARGUMENTS.get(key)
+    if key == "model_client" and "policy" in component_arguments(cls):
+        ours = "policy"
+    hint = f"EmbodiedAgents' {key} is {ours} here; " if ours else ""
+    config = f"; or a key of {config_class.__name__}: {', '.join(config_fields(config_class))}" if config_class else ""
+    return (f"unknown argument {key!r}; {hint}{cls.__name__} takes {', '.join(component_arguments(cls))}{config}")
+
+
+def _named_culprit(cls: type, init: Callable[..., None]) -> Callable[..., None]:
+    """``init``, refusing EmbodiedAgents' ``component_name=`` (without ``name=``) in words, not Python's
+    "missing 1 required keyword-only argument: 'name'"."""
+    import functools
+    import inspect
+
+    if "component_name" in inspect.signature(init).parameters:
+        return init  # it takes EmbodiedAgents' spelling itself (MapEncoding)
+
+    @functools.wraps(init)
+    def wrapper(self: Any, *args: Any, **kw: Any) -> None:
+        if "component_name" in kw and "name" not in kw and not args:
+            raise TypeError(f"{cls.__name__}(component_name={kw['component_name']!r}): "
+                            f"{unknown_argument(cls, 'component_name')}")
+        init(self, *args, **kw)
+
+    return wrapper
 
 
 def _type_names(entry: Sequence[type]) -> str:
@@ -154,6 +213,8 @@ class Component:
 
     def __init_subclass__(cls, **kw: Any) -> None:
         super().__init_subclass__(**kw)
+        if "__init__" in cls.__dict__:
+            cls.__init__ = _named_culprit(cls, cls.__dict__["__init__"])  # type: ignore[method-assign]
         _check_allowed_spec(cls.__name__, "allowed_inputs", cls.allowed_inputs)
         _check_allowed_spec(cls.__name__, "allowed_outputs", cls.allowed_outputs)
 
@@ -244,6 +305,11 @@ class Component:
             self._problem("bad-config", f"config must be a {cls.__name__}, got {type(config).__name__}")
             config = cls()
         config = copy.deepcopy(config)  # never share a config object between components
+        valid = set(config_fields(cls))
+        unknown = [k for k in overrides if k not in valid]
+        for key in unknown:
+            self._problem("unknown-argument", unknown_argument(type(self), key, cls))
+        overrides = {k: v for k, v in overrides.items() if k in valid}
         if overrides:
             try:
                 config = apply_config(config, overrides)
@@ -289,7 +355,7 @@ class Component:
     @property
     def subscriptions(self) -> tuple[Topic, ...]:
         """Every topic the runtime must subscribe to: the inputs plus an event trigger's topics."""
-        seen = {t.name: t for t in self.inputs}
+        seen = {t.name: t for t in self.inputs if not isinstance(t, FixedInput)}  # a constant: nothing to hear
         if self.trigger_event is not None:
             for t in self.trigger_event.topics:
                 seen.setdefault(t.name, t)
@@ -334,9 +400,13 @@ class Component:
         if self.allowed_inputs is not None:
             problems += self._match(self.allowed_inputs, self.inputs, "input")[0]
         if self.allowed_outputs is not None:
-            problems += self._match(self.allowed_outputs, self.outputs, "output")[0]
+            problems += self._match(self.allowed_outputs, self._typed_outputs(), "output")[0]
         by_name = {t.name: t for t in self.inputs}
         for t in self.trigger_topics:
+            if isinstance(t, FixedInput):
+                problems.append(("bad-trigger", f"{self._label()}: trigger topic {t.name!r} is a FixedInput, which "
+                                                "never changes; trigger on a topic, a rate or an Event"))
+                continue
             if t.name not in by_name or by_name[t.name].msg_type is not t.msg_type:
                 inputs = ", ".join(by_name) or "none"
                 problems.append(("trigger-not-input", f"{self._label()}: trigger topic {t.name!r} is not one of "
@@ -351,6 +421,10 @@ class Component:
         elif self.fallback is not None:
             problems += self._validate_fallback(self.fallback)
         return problems
+
+    def _typed_outputs(self) -> tuple[Topic, ...]:
+        """The outputs held to ``allowed_outputs`` (all of them here; an LLM leaves out converted ones)."""
+        return self.outputs
 
     def _validate_fallback(self, fallback: Fallback) -> list[ComponentProblem]:
         return [
@@ -414,6 +488,9 @@ class Component:
         now = time.monotonic() if now is None else now
         out: dict[str, Any] = {}
         for t in self.inputs:
+            if isinstance(t, FixedInput):
+                out[t.name] = t.message
+                continue
             msg = self._latest.get(t.name)
             if msg is not None and max_age is not None and now - self._received_at[t.name] > max_age:
                 msg = None
@@ -441,6 +518,7 @@ class Component:
         if self.missing_inputs(inputs=inputs):
             return False
         self._health_set_in_step = False
+        self._fresh |= {t.name for t in self.inputs if isinstance(t, FixedInput)}  # new at every step
         try:
             self._execution_step(**inputs)
         except ModuleNotFoundError as exc:

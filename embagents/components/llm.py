@@ -41,6 +41,7 @@ import uuid
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import attrs
 from attrs import define, field
 
 from embagents.components.component import ComponentProblem
@@ -167,7 +168,9 @@ class LLMConfig(BaseComponentConfig):
       ``max_tool_rounds``: tool rounds before the model must answer;
       ``tool_choice``: ``"auto"`` (the model decides) or ``"required"`` (its first
       reply must be a tool call: with llama.cpp, held to a JSON schema by a grammar,
-      so even SmolLM2-135M makes a valid call; later rounds answer freely).
+      so even SmolLM2-135M makes a valid call; later rounds answer freely);
+      ``tools_answer_directly``: tools whose result is the answer itself (published
+      as is, the model is not asked again: EmbodiedAgents' ``send_tool_response_to_model=False``).
 
     >>> LLMConfig(history_size="4", stream="true").history_size
     4
@@ -186,11 +189,15 @@ class LLMConfig(BaseComponentConfig):
     max_tool_rounds: int = field(default=3, converter=int_at_least(0))
     tool_choice: str = field(default="auto", converter=one_of(
         "tool_choice", "auto", "required", meanings={"required": "the first reply must call a tool"}))
+    tools_answer_directly: list[str] = field(factory=list, converter=list)
 
     def __attrs_post_init__(self) -> None:
         extra = sorted(set(self.tool_schemas) - set(self.tools))
         if extra:
             raise ConfigError(f"tool_schemas names tools that are not in tools: {', '.join(extra)}")
+        extra = sorted(set(self.tools_answer_directly) - set(self.tools))
+        if extra:
+            raise ConfigError(f"tools_answer_directly names tools that are not in tools: {', '.join(extra)}")
 
 
 def _placeholder(topic: Topic) -> str:
@@ -201,7 +208,10 @@ class LLM(ModelComponent):
     """Answers text with a language model (see the module docstring).
 
     The trigger defaults to the first input topic; a step answers the newest
-    message of the first fresh trigger topic. :meth:`answer` is also callable
+    message of the first fresh trigger topic. ``output_converters`` maps an output
+    topic (or its name) to a function of the answer's text returning the message to
+    publish there (``None``: nothing this time), so an answer can become a typed
+    message, a goal ``PoseStamped`` say, without a component of its own. :meth:`answer` is also callable
     directly (e.g. by a ``call(llm, "answer", "...")`` action on a server LLM).
     ``snapshot()`` / ``restore()`` carry the chat history across restarts.
     """
@@ -210,16 +220,39 @@ class LLM(ModelComponent):
     allowed_outputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString]}
     config_class = LLMConfig
 
-    def __init__(self, *, name: str, **kw: Any) -> None:
+    def __init__(self, *, name: str, output_converters: Mapping[Topic | str, Callable[[str], Any]] | None = None,
+                 **kw: Any) -> None:
         self._history: list[dict[str, Any]] = []
         self._stream_count = 0
+        self.output_converters: dict[str, Callable[[str], Any]] = {
+            (k.name if isinstance(k, Topic) else str(k).lstrip("/")): fn for k, fn in (output_converters or {}).items()}
         super().__init__(name=name, **kw)
+
+    def _typed_outputs(self) -> tuple[Topic, ...]:
+        # A converted output carries whatever its converter makes: not held to allowed_outputs.
+        return tuple(t for t in self.outputs if t.name not in self.output_converters)
+
+    def register_tool(self, tool: Callable[..., Any], schema: Mapping[str, Any] | None = None, *,
+                      name: str | None = None, send_tool_response_to_model: bool = True) -> None:
+        """Offer ``tool`` to the model (``schema``: the JSON schema of its parameters, else its signature's).
+
+        ``send_tool_response_to_model=False``: the tool's result is the answer (published, no second request).
+        """
+        key = name or tool.__name__
+        cfg = self.config
+        tools, schemas = {**cfg.tools, key: tool}, dict(cfg.tool_schemas)
+        if schema is not None:
+            schemas[key] = dict(schema)
+        direct = [t for t in cfg.tools_answer_directly if t != key] + ([] if send_tool_response_to_model else [key])
+        self.config = attrs.evolve(cfg, tools=tools, tool_schemas=schemas, tools_answer_directly=direct)
 
     def default_trigger(self) -> Topic | None:
         return self.inputs[0] if self.inputs else None
 
     def validate(self) -> list[ComponentProblem]:
         problems = super().validate()
+        if self.output_converters:  # a converted output is an output: no text topic is required then
+            problems = [p for p in problems if p[0] != "missing-output"]
         cfg = self.config
         if cfg.prompt_template is not None:
             allowed = ["text", *(_placeholder(t) for t in self.inputs)]
@@ -229,6 +262,11 @@ class LLM(ModelComponent):
                                                    f"not an input; allowed: {', '.join(dict.fromkeys(allowed))}"))
         if cfg.stream and not any(t.msg_type is StreamingString for t in self.outputs):
             problems.append(("bad-config", f"{self._label()}: stream=True needs a StreamingString output topic"))
+        outputs = {t.name for t in self.outputs}
+        for topic, fn in self.output_converters.items():
+            if topic not in outputs or not callable(fn):
+                problems.append(("bad-converter", f"{self._label()}: output_converters[{topic!r}] must be a function "
+                                 f"of an output topic; outputs: {', '.join(sorted(outputs)) or 'none'}"))
         return problems
 
     # --- history ----------------------------------------------------------------------------
@@ -298,7 +336,11 @@ class LLM(ModelComponent):
             return  # nothing new to answer (e.g. a rate tick with no new question)
         context = {_placeholder(t): inputs[t.name].data for t in self.inputs
                    if t is not question and inputs.get(t.name) is not None}
-        self.answer(inputs[question.name].data, context)
+        self.answer(self.question_text(question, inputs), context)
+
+    def question_text(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
+        """The text a step asks about when ``topic`` brought the question: its message's ``data``."""
+        return str(inputs[topic.name].data)
 
     def answer(self, text: str, context: Mapping[str, str] | None = None) -> str:
         """Answer ``text``: query the model (running tools), publish, update history; returns the answer."""
@@ -306,7 +348,7 @@ class LLM(ModelComponent):
         turn = [messages[-1]]
         self._stream_count += 1
         stream_id = f"{self.name}-{uuid.uuid4().hex[:8]}-{self._stream_count}"
-        streams = [t for t in self.outputs if t.msg_type is StreamingString]
+        streams = [t for t in self.outputs if t.msg_type is StreamingString and t.name not in self.output_converters]
         try:
             answer = self._converse(messages, turn, streams if self.config.stream else [], stream_id)
             if not self.config.stream:
@@ -317,12 +359,22 @@ class LLM(ModelComponent):
             for t in streams:
                 self.publish(t, StreamingString(data="", done=True, stream_id=stream_id))
         for t in self.outputs:
-            if t.msg_type is String:
+            if t.name in self.output_converters:
+                self._publish_converted(t, answer)
+            elif t.msg_type is String:
                 self.publish(t, String(data=answer))
         if self.config.chat_history:
             self._history += turn + [{"role": "assistant", "content": answer}]
             self._trim_history()
         return answer
+
+    def _publish_converted(self, topic: Topic, answer: str) -> None:
+        msg = self.output_converters[topic.name](answer)
+        if msg is None:
+            return  # the converter found nothing to publish in this answer
+        if isinstance(msg, str) and topic.msg_type in (String, StreamingString):
+            msg = topic.msg_type(data=msg)
+        self.publish(topic, msg)
 
     def _converse(self, messages: list[dict[str, Any]], turn: list[dict[str, Any]],
                   streams: list[Topic], stream_id: str) -> str:
@@ -353,6 +405,10 @@ class LLM(ModelComponent):
             messages += new
             turn += new
             rounds += 1
+            direct = [m["content"] for c, m in zip(calls, new[1:], strict=True)
+                      if c["function"]["name"] in cfg.tools_answer_directly]
+            if direct and len(direct) == len(calls):
+                return "\n".join(direct)  # the tools' results are the answer: the model is not asked again
 
     def _model_inputs(self) -> dict[str, Any]:
         """More inputs of each model request besides the messages (a VLM's images); none here."""

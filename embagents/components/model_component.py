@@ -80,6 +80,17 @@ class ModelComponent(Component):
         self.warmup = bool(warmup)
         super().__init__(name=name, **kw)
 
+    @property
+    def additional_model_clients(self) -> dict[str, Any]:
+        """EmbodiedAgents' spelling, refused when set: standby clients are ``extra_clients=`` here."""
+        return {k: c for k, c in self.clients.items() if k != self.client_name}
+
+    @additional_model_clients.setter
+    def additional_model_clients(self, value: Any) -> None:
+        raise AttributeError(f"{self._label()}: additional_model_clients does nothing here; give standby clients "
+                             f"as {type(self).__name__}(..., extra_clients={{'name': client}}) and switch with "
+                             "a Fallback(on_algorithm_fail=switch_model_client('name'))")
+
     def _add_client(self, key: str, client: Any) -> str:
         if not _is_client(client):
             self._client_problems.append(("bad-client", f"model client {client!r} has neither chat_stream() nor chat()"))

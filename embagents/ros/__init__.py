@@ -1,4 +1,4 @@
-"""The ROS 2 bridge: declarations here, rclpy only in ``convert`` and ``node``.
+"""The ROS 2 bridge: declarations here, ROS packages only in ``convert``, ``generic`` and ``node``.
 
 This package imports without rclpy: ``system.py`` declares ROS topics with
 :class:`RosInput` / :class:`RosOutput` on any machine. Only the bridge actor
@@ -19,11 +19,16 @@ from embagents.ros.spec import (
     ROS_EXTRA_HINT,
     SUPPORTED,
     QoS,
+    RosAction,
+    RosCall,
     RosInput,
+    RosLifecycle,
     RosOutput,
+    RosService,
     check_bridge,
     normalize_ros_type,
     ros_available,
+    ros_call,
     ros_type_for,
 )
 
@@ -31,12 +36,17 @@ __all__ = [
     "DEFAULT_ROS_TYPE",
     "OUTGOING",
     "QoS",
+    "RosAction",
     "ROS_EXTRA_HINT",
+    "RosCall",
     "RosInput",
+    "RosLifecycle",
     "RosOutput",
+    "RosService",
     "SUPPORTED",
     "check_bridge",
     "normalize_ros_type",
     "ros_available",
+    "ros_call",
     "ros_type_for",
 ]

@@ -23,19 +23,59 @@ participant gets a new immediate answer), up to ``REDISCOVER_TRIES`` times.
 
 from __future__ import annotations
 
+import json
 import logging
+import time
 from typing import Any
 
-from actors import Actor
+from actors import Actor, ActorRef
 from actors.errors import UnknownMessage
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
+from embagents.ros.spec import BRIDGE_NAME
 
-__all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActor"]
+__all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActor", "lifecycle_services"]
 
 log = logging.getLogger("embagents.ros.bridge")
-BRIDGE_NAME = "_ros_bridge"
 REDISCOVER_AFTER = 0.3  # s; a live local peer matches within 0.01-0.15 s when no answer is lost
 REDISCOVER_TRIES = 5  # a lost answer is ~1 in 4-8 tries here: 5 in a row is rare
+
+
+# lifecycle_msgs ids: states, and transitions (id -> our transition, the state it starts from).
+_STATE_ID = {"unconfigured": 1, "inactive": 2, "active": 3, "finalized": 4}
+_TRANSITIONS = {
+    1: ("configure", "unconfigured"), 2: ("cleanup", "inactive"), 3: ("activate", "inactive"),
+    4: ("deactivate", "active"), 5: ("shutdown", "unconfigured"), 6: ("shutdown", "inactive"),
+    7: ("shutdown", "active"),
+}
+_GOAL = {"configure": "inactive", "cleanup": "unconfigured", "activate": "active", "deactivate": "inactive",
+         "shutdown": "finalized"}
+_AVAILABLE = {state: tuple(i for i, (_, start) in _TRANSITIONS.items() if start == state) for state in _STATE_ID}
+_LIFECYCLE_METHODS = ("_ros_get_state", "_ros_change_state", "_ros_get_available_transitions")
+
+
+def lifecycle_services(components: list[str]) -> list[Any]:
+    """The ``lifecycle_msgs`` services that make each component a ROS managed node (see RosLifecycle)."""
+    from embagents.ros.spec import RosService
+
+    out = []
+    for c in components:
+        for suffix, srv, method in (("get_state", "GetState", "_ros_get_state"),
+                                    ("change_state", "ChangeState", "_ros_change_state"),
+                                    ("get_available_transitions", "GetAvailableTransitions",
+                                     "_ros_get_available_transitions")):
+            out.append(RosService(f"/{c}/{suffix}", f"lifecycle_msgs/{srv}", component=c, method=method))
+    return out
+
+
+def _describe(response: Any, tid: int) -> Any:
+    from embagents.ros.spec import ros_interface_class
+
+    d = ros_interface_class("lifecycle_msgs/msg/TransitionDescription")()
+    what, start = _TRANSITIONS[tid]
+    d.transition.id, d.transition.label = tid, what
+    d.start_state.id, d.start_state.label = _STATE_ID[start], start
+    d.goal_state.id, d.goal_state.label = _STATE_ID[_GOAL[what]], _GOAL[what]
+    return d
 
 
 class RosBridgeActor(Actor):
@@ -52,17 +92,27 @@ class RosBridgeActor(Actor):
         node_name: str = "embagents_bridge",
         inputs: list[dict[str, Any]] | None = None,
         outputs: list[dict[str, Any]] | None = None,
+        services: list[dict[str, Any]] | None = None,
     ) -> None:
         self.system_path = system_path
         self.node_name = node_name
         self.raw_inputs = inputs or []
         self.raw_outputs = outputs or []
+        self.raw_services = services or []
         # Set by restore() from the last incarnation's snapshot:
         self.peer_ros_topics: frozenset[str] = frozenset()
         self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
-    def _declarations(self) -> tuple[list[Any], list[Any]]:
-        from embagents.ros.spec import QoS, RosInput, RosOutput
+    def _declarations(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
+        from embagents.ros.spec import (
+            DEFAULT_ROS_TYPE,
+            QoS,
+            RosAction,
+            RosInput,
+            RosLifecycle,
+            RosOutput,
+            RosService,
+        )
 
         if self.system_path is not None:
             from embagents.runtime.component_actor import loaded_system
@@ -70,9 +120,18 @@ class RosBridgeActor(Actor):
             system = loaded_system(self.system_path)
             ins = [d for d in system.ros if isinstance(d, RosInput)]
             outs = [d for d in system.ros if isinstance(d, RosOutput)]
+            services = [d for d in system.ros if isinstance(d, RosService)]
+            for d in system.ros:
+                if isinstance(d, RosLifecycle):
+                    services += lifecycle_services(d.components or [str(c.name) for c in system.components])
             topics = system.topics
-            outs = [o.resolved(topics[o.topic].msg_type) if o.ros_type is None and o.topic in topics else o for o in outs]
-            return ins, outs
+            outs = [
+                o.resolved(topics[o.topic].msg_type)
+                if o.ros_type is None and o.topic in topics and topics[o.topic].msg_type in DEFAULT_ROS_TYPE
+                else o
+                for o in outs
+            ]
+            return ins, outs, services, [d for d in system.ros if isinstance(d, RosAction)]
 
         def build(cls: type, d: dict[str, Any]) -> Any:
             d = dict(d)
@@ -80,7 +139,13 @@ class RosBridgeActor(Actor):
                 d["qos"] = QoS(**d["qos"])
             return cls(**d)
 
-        return [build(RosInput, d) for d in self.raw_inputs], [build(RosOutput, d) for d in self.raw_outputs]
+        return (
+            [build(RosInput, d) for d in self.raw_inputs],
+            [build(RosOutput, d) for d in self.raw_outputs],
+            [build(RosService, d) for d in self.raw_services if "lifecycle" not in d]
+            + lifecycle_services([d["lifecycle"] for d in self.raw_services if "lifecycle" in d]),
+            [],
+        )
 
     def on_start(self) -> None:
         from embagents.ros.node import RosBridgeCore
@@ -91,10 +156,11 @@ class RosBridgeActor(Actor):
             clean_zombie_fastdds_segments(min_age=0, names=self.predecessor_dds_files)
         self.dds_files: set[str] = set()
 
-        ins, outs = self._declarations()
+        ins, outs, services, actions = self._declarations()
         self.forwarded_in = 0
         self.forwarded_out = 0
-        self.core = RosBridgeCore(ins, outs)
+        self.served = 0
+        self.core = RosBridgeCore(ins, outs, services, self._serve, actions)
         ctx = self.context
         expected, self.peers = set(self.peer_ros_topics), set(self.peer_ros_topics)
 
@@ -115,6 +181,10 @@ class RosBridgeActor(Actor):
         ctx.changed()
         for o in outs:
             ctx.subscribe(o.topic, lambda msg, t=o.topic: self._to_ros(t, msg), queue_size=o.qos.depth, keep="all")
+        for a in actions:
+            ctx.subscribe(a.goal, lambda msg, t=a.goal: self._send_goal(t, msg), queue_size=10, keep="all")
+            if a.cancel:
+                ctx.subscribe(a.cancel, lambda _msg, t=a.goal: self.core.cancel_goals(t), queue_size=10, keep="all")
         if expected:
             ctx.call_later(REDISCOVER_AFTER, lambda: self._rediscover(expected, 1))
 
@@ -163,13 +233,109 @@ class RosBridgeActor(Actor):
             self.forwarded_out += 1
             if self.forwarded_out == 1:
                 log.info("first message to ROS from %s", topic)
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:  # a message ROS cannot carry: say so, keep bridging
             log.error("not sent to ROS: %s", exc)
 
+    def _serve(self, decl: Any, request: Any, response: Any) -> Any:
+        """One request of a RosService (the core's service thread): ask the component, fill the response."""
+        if decl.method in _LIFECYCLE_METHODS:
+            return self._lifecycle(decl, request, response)
+        from embagents.msgs import RosMessage
+        from embagents.ros.generic import generic_from_ros, generic_to_ros
+        from embagents.runtime.requests import Call
+
+        names = response.get_fields_and_field_types()
+        status = "success" in names and "message" in names  # std_srvs/Trigger, SetBool and the like
+        where = f"ROS service {decl.ros_name} -> {decl.component}.{decl.method}"
+        try:
+            call = Call(decl.method, kwargs=generic_from_ros(request).fields, deadline=time.monotonic() + decl.timeout)
+            value = ActorRef(decl.component).ask(call, timeout=decl.timeout).get()
+        except Exception as exc:  # noqa: BLE001 - every failure is the caller's answer, not our crash
+            text = f"no answer within {decl.timeout} s" if "Timeout" in type(exc).__name__ else str(exc)
+            text = getattr(exc, "remote_message", text)  # a RemoteError: the method's own error, no traceback
+            log.warning("%s failed: %s", where, text)
+            if status:
+                response.success, response.message = False, f"{decl.component}.{decl.method}: {text}"[:4000]
+            return response
+        self.served += 1
+        if isinstance(value, (dict, RosMessage)):
+            try:
+                return generic_to_ros(value, type(response))
+            except ValueError as exc:  # a type mismatch: the method's answer does not fit the response
+                log.error("%s: its answer does not fit %s: %s", where, decl.srv_type, exc)
+                if status:
+                    response.success, response.message = False, f"answer does not fit {decl.srv_type}: {exc}"
+                return response
+        if status:
+            response.success = value if isinstance(value, bool) else True
+            response.message = "" if value is None or isinstance(value, bool) else (
+                value if isinstance(value, str) else json.dumps(value, default=str))
+            return response
+        log.error("%s returned a %s; a %s response needs a dict of its fields (%s)",
+                  where, type(value).__name__, decl.srv_type, ", ".join(names))
+        return response
+
+    def _lifecycle(self, decl: Any, request: Any, response: Any) -> Any:
+        """``lifecycle_msgs`` services of a component, answered from (and driving) the supervisor's lifecycle."""
+        comp, t = ActorRef(decl.component), decl.timeout
+        try:
+            state = comp.control("lifecycle_state", timeout=t).get()
+        except Exception as exc:  # noqa: BLE001 - not up (restarting): ROS's unknown state
+            log.warning("lifecycle state of %s unknown: %s", decl.component, exc)
+            state = "unknown"
+        if decl.method == "_ros_get_state":
+            response.current_state.id, response.current_state.label = _STATE_ID.get(state, 0), state
+            return response
+        if decl.method == "_ros_get_available_transitions":
+            response.available_transitions = [_describe(response, tid) for tid in _AVAILABLE.get(state, ())]
+            return response
+        tid, label = request.transition.id, request.transition.label
+        if not tid and label:  # given by label only
+            tid = next((i for i in _AVAILABLE.get(state, ()) if _TRANSITIONS[i][0] == label), 0)
+        if tid not in _AVAILABLE.get(state, ()):
+            log.warning("%s: transition %s (%r) is not valid from %s", decl.component, tid, label, state)
+            response.success = False
+            return response
+        what = _TRANSITIONS[tid][0]
+        try:
+            new = comp.control("lifecycle", what, timeout=t).get()
+        except Exception as exc:  # noqa: BLE001 - a hook failed or returned False: ROS's failure result
+            log.warning("%s: %s failed: %s", decl.component, what, getattr(exc, "remote_message", exc))
+            response.success = False
+            return response
+        response.success = True
+        self._transition_event(decl.component, tid, state, new)
+        return response
+
+    def _transition_event(self, component: str, tid: int, start: str, goal: str) -> None:
+        from embagents.ros.spec import ros_interface_class
+
+        event = ros_interface_class("lifecycle_msgs/msg/TransitionEvent")()
+        event.timestamp = time.time_ns()
+        event.transition.id, event.transition.label = tid, _TRANSITIONS[tid][0]
+        event.start_state.id, event.start_state.label = _STATE_ID.get(start, 0), start
+        event.goal_state.id, event.goal_state.label = _STATE_ID.get(goal, 0), goal
+        try:
+            self.core.publish_ros(f"/{component}/transition_event", event)
+        except Exception:  # noqa: BLE001 - the transition happened; a lost event is only logged
+            log.exception("transition_event of %s not published", component)
+
+    def _send_goal(self, goal_topic: str, msg: Any) -> None:
+        try:
+            self.core.send_goal(goal_topic, msg)
+        except (TypeError, ValueError) as exc:  # a goal that does not fit the Goal type
+            log.error("goal on %s not sent: %s", goal_topic, exc)
+
     def on_receive(self, message: Any) -> Any:
+        from embagents.ros.spec import RosCall
+
+        if isinstance(message, RosCall):
+            from embagents.ros.generic import generic_from_ros
+
+            return generic_from_ros(self.core.call(message.ros_name, message.srv_type, message.fields, message.timeout))
         if message == "stats":
-            return {"in": self.forwarded_in, "out": self.forwarded_out}
-        raise UnknownMessage("the ROS bridge", message, "it answers 'stats'")
+            return {"in": self.forwarded_in, "out": self.forwarded_out, "served": self.served}
+        raise UnknownMessage("the ROS bridge", message, "it answers 'stats' and RosCall")
 
     def on_stop(self) -> None:
         self.core.stop()

@@ -32,7 +32,6 @@ Copies (6,220,800-byte rgb8 frame, this machine, p50):
 from __future__ import annotations
 
 import array
-import importlib
 import math
 import sys
 from collections.abc import Callable
@@ -53,14 +52,30 @@ from embagents.msgs import (
     CompressedImage,
     Detections,
     Image,
+    Imu,
     JointState,
+    JointTrajectory,
+    LaserScan,
     OccupancyGrid,
     Odometry,
+    Point,
+    PointCloud2,
+    Pose,
+    PoseStamped,
+    Quaternion,
+    RosMessage,
     StreamingString,
     String,
     Twist,
 )
-from embagents.ros.spec import DEFAULT_ROS_TYPE, OUTGOING, SUPPORTED, normalize_ros_type
+from embagents.ros.generic import generic_from_ros, generic_to_ros
+from embagents.ros.spec import (
+    DEFAULT_ROS_TYPE,
+    OUTGOING,
+    SUPPORTED,
+    normalize_ros_type,
+    ros_interface_class,
+)
 
 __all__ = [
     "ENCODINGS",
@@ -94,9 +109,8 @@ _DETECTION_LAYOUT = (
 
 
 def ros_msg_class(ros_type: str) -> type:
-    """The rclpy message class for ``"pkg/msg/Name"`` (or ``"pkg/Name"``)."""
-    pkg, _, name = normalize_ros_type(ros_type).split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+    """The rclpy message class for ``"pkg/msg/Name"`` (or ``"pkg/Name"``); ValueError names a missing wheel."""
+    return ros_interface_class(normalize_ros_type(ros_type))
 
 
 # --- stamps -----------------------------------------------------------------
@@ -378,6 +392,190 @@ def _detections_from(m: PointCloud) -> Detections:
     )
 
 
+def _point_to(msg: Point) -> Any:
+    return ros_msg_class("geometry_msgs/msg/Point")(x=msg.x, y=msg.y, z=msg.z)
+
+
+def _point_from(m: Any) -> Point:
+    return Point(m.x, m.y, m.z)
+
+
+def _quaternion_to(msg: Quaternion) -> Any:
+    return ros_msg_class("geometry_msgs/msg/Quaternion")(x=msg.x, y=msg.y, z=msg.z, w=msg.w)
+
+
+def _quaternion_from(m: Any) -> Quaternion:
+    return Quaternion(m.x, m.y, m.z, m.w)
+
+
+def _pose_to(msg: Pose) -> Any:
+    return ros_msg_class("geometry_msgs/msg/Pose")(
+        position=_point_to(msg.position), orientation=_quaternion_to(msg.orientation)
+    )
+
+
+def _pose_from(m: Any) -> Pose:
+    return Pose(_point_from(m.position), _quaternion_from(m.orientation))
+
+
+def _pose_stamped_to(msg: PoseStamped) -> Any:
+    m = ros_msg_class("geometry_msgs/msg/PoseStamped")(pose=_pose_to(msg.pose))
+    m.header.stamp = stamp_to_time(msg.stamp)
+    m.header.frame_id = msg.frame_id
+    return m
+
+
+def _pose_stamped_from(m: Any) -> PoseStamped:
+    return PoseStamped(_pose_from(m.pose), frame_id=m.header.frame_id, stamp=time_to_stamp(m.header.stamp))
+
+
+def _imu_to(msg: Imu) -> Any:
+    m = ros_msg_class("sensor_msgs/msg/Imu")()
+    m.header.stamp = stamp_to_time(msg.stamp)
+    m.header.frame_id = msg.frame_id
+    o, av, la = m.orientation, m.angular_velocity, m.linear_acceleration
+    o.x, o.y, o.z, o.w = msg.orientation
+    av.x, av.y, av.z = msg.angular_velocity
+    la.x, la.y, la.z = msg.linear_acceleration
+    m.orientation_covariance = np.ascontiguousarray(msg.orientation_covariance, np.float64).reshape(9)
+    m.angular_velocity_covariance = np.ascontiguousarray(msg.angular_velocity_covariance, np.float64).reshape(9)
+    m.linear_acceleration_covariance = np.ascontiguousarray(msg.linear_acceleration_covariance, np.float64).reshape(9)
+    return m
+
+
+def _imu_from(m: Any) -> Imu:
+    o, av, la = m.orientation, m.angular_velocity, m.linear_acceleration
+    return Imu(
+        orientation=(o.x, o.y, o.z, o.w),
+        angular_velocity=(av.x, av.y, av.z),
+        linear_acceleration=(la.x, la.y, la.z),
+        orientation_covariance=m.orientation_covariance,
+        angular_velocity_covariance=m.angular_velocity_covariance,
+        linear_acceleration_covariance=m.linear_acceleration_covariance,
+        frame_id=m.header.frame_id,
+        stamp=time_to_stamp(m.header.stamp),
+    )
+
+
+_SCAN_FLOATS = ("angle_min", "angle_max", "angle_increment", "time_increment", "scan_time", "range_min", "range_max")
+
+
+def _scan_to(msg: LaserScan) -> Any:
+    m = ros_msg_class("sensor_msgs/msg/LaserScan")()
+    m.header.stamp = stamp_to_time(msg.stamp)
+    m.header.frame_id = msg.frame_id
+    for name in _SCAN_FLOATS:
+        setattr(m, name, float(getattr(msg, name)))
+    m.ranges = _float_array(msg.ranges, "f")
+    m.intensities = _float_array(msg.intensities, "f")
+    return m
+
+
+def _scan_from(m: Any) -> LaserScan:
+    return LaserScan(
+        ranges=np.frombuffer(m.ranges, np.float32),
+        intensities=np.frombuffer(m.intensities, np.float32),
+        frame_id=m.header.frame_id,
+        stamp=time_to_stamp(m.header.stamp),
+        **{name: _f32(getattr(m, name)) for name in _SCAN_FLOATS},
+    )
+
+
+# sensor_msgs/PointField datatypes -> numpy dtype characters (byte order added per cloud).
+_POINT_FIELD = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+_POINT_FIELD_CODE = {v: k for k, v in _POINT_FIELD.items()}
+
+
+def _cloud_to(msg: PointCloud2) -> Any:
+    m = ros_msg_class("sensor_msgs/msg/PointCloud2")()
+    field_cls = ros_msg_class("sensor_msgs/msg/PointField")
+    m.header.stamp = stamp_to_time(msg.stamp)
+    m.header.frame_id = msg.frame_id
+    data = np.ascontiguousarray(msg.data)
+    h, w, step = data.shape
+    big = set()
+    fields = []
+    for name, offset, dt, count in msg.fields:
+        d = np.dtype(dt)
+        code = _POINT_FIELD_CODE.get(f"{d.kind}{d.itemsize}")
+        if code is None:
+            raise ValueError(f"PointCloud2 field {name!r}: dtype {dt} has no sensor_msgs/PointField datatype "
+                             f"(int8..int32, uint8..uint32, float32, float64)")
+        if d.itemsize > 1:
+            big.add(d.byteorder == ">" or (d.byteorder == "=" and not _LITTLE))
+        fields.append(field_cls(name=name, offset=offset, datatype=code, count=count))
+    if len(big) > 1:
+        raise ValueError("PointCloud2 fields mix byte orders; ROS has one is_bigendian per cloud")
+    m.fields = fields
+    m.height, m.width, m.point_step, m.row_step = h, w, step, w * step
+    m.is_bigendian = bool(big.pop()) if big else not _LITTLE
+    m.is_dense = bool(msg.is_dense)
+    _put_buffer(m, "data", data, "B")
+    return m
+
+
+def _cloud_from(m: Any) -> PointCloud2:
+    h, w, step, row = m.height, m.width, m.point_step, m.row_step
+    order = ">" if m.is_bigendian else "<"
+    fields = []
+    for f in m.fields:
+        code = _POINT_FIELD.get(f.datatype)
+        if code is None:
+            raise ValueError(f"PointCloud2 field {f.name!r} has unknown datatype {f.datatype} (1..8 are defined)")
+        fields.append((f.name, f.offset, (order if code[1] != "1" else "|") + code, max(1, f.count)))
+    raw = np.frombuffer(m.data, np.uint8)
+    if raw.size < h * row or row < w * step:
+        raise ValueError(f"PointCloud2 data has {raw.size} bytes; {h} rows of {row} (width {w} x point_step {step}) "
+                         "are needed")
+    data = raw[: h * row].reshape(h, row)[:, : w * step].reshape(h, w, step) if h * w else np.zeros((h, w, step), np.uint8)
+    return PointCloud2(data=data, fields=fields, is_dense=bool(m.is_dense), frame_id=m.header.frame_id,
+                       stamp=time_to_stamp(m.header.stamp))
+
+
+def _duration(seconds: float) -> Any:
+    t = stamp_to_time(float(seconds))
+    return ros_msg_class("builtin_interfaces/msg/Duration")(sec=t.sec, nanosec=t.nanosec)
+
+
+def _trajectory_to(msg: JointTrajectory) -> Any:
+    m = ros_msg_class("trajectory_msgs/msg/JointTrajectory")()
+    point_cls = ros_msg_class("trajectory_msgs/msg/JointTrajectoryPoint")
+    m.header.stamp = stamp_to_time(msg.stamp)
+    m.joint_names = list(msg.joint_names)
+    n = len(msg.time_from_start)
+    for name, arr in (("positions", msg.positions), ("velocities", msg.velocities)):
+        if len(arr) not in (0, n):
+            raise ValueError(f"JointTrajectory has {n} time_from_start entries but {len(arr)} rows of {name}")
+    points = []
+    for t in range(n):
+        p = point_cls(time_from_start=_duration(msg.time_from_start[t]))
+        if len(msg.positions):
+            p.positions = _float_array(msg.positions[t], "d")
+        if len(msg.velocities):
+            p.velocities = _float_array(msg.velocities[t], "d")
+        points.append(p)
+    m.points = points
+    return m
+
+
+def _rows(points: list[Any], name: str, n: int) -> np.ndarray:
+    rows = [np.frombuffer(getattr(p, name), np.float64) for p in points]
+    if rows and all(len(r) == n for r in rows):
+        return np.stack(rows)
+    return np.zeros((0, n))
+
+
+def _trajectory_from(m: Any) -> JointTrajectory:
+    n = len(m.joint_names)
+    return JointTrajectory(
+        joint_names=list(m.joint_names),
+        positions=_rows(m.points, "positions", n),
+        velocities=_rows(m.points, "velocities", n),
+        time_from_start=np.array([time_to_stamp(p.time_from_start) for p in m.points], np.float64),
+        stamp=time_to_stamp(m.header.stamp),
+    )
+
+
 _TO: dict[type, Callable[[Any], Any]] = {
     String: _string_to,
     StreamingString: _string_to,
@@ -388,6 +586,14 @@ _TO: dict[type, Callable[[Any], Any]] = {
     OccupancyGrid: _grid_to,
     JointState: _joints_to,
     Detections: _detections_to,
+    Point: _point_to,
+    Quaternion: _quaternion_to,
+    Pose: _pose_to,
+    PoseStamped: _pose_stamped_to,
+    Imu: _imu_to,
+    LaserScan: _scan_to,
+    PointCloud2: _cloud_to,
+    JointTrajectory: _trajectory_to,
 }
 
 _FROM: dict[str, Callable[[Any], Any]] = {
@@ -399,6 +605,14 @@ _FROM: dict[str, Callable[[Any], Any]] = {
     "nav_msgs/msg/OccupancyGrid": _grid_from,
     "sensor_msgs/msg/JointState": _joints_from,
     "sensor_msgs/msg/PointCloud": _detections_from,
+    "geometry_msgs/msg/Point": _point_from,
+    "geometry_msgs/msg/Quaternion": _quaternion_from,
+    "geometry_msgs/msg/Pose": _pose_from,
+    "geometry_msgs/msg/PoseStamped": _pose_stamped_from,
+    "sensor_msgs/msg/Imu": _imu_from,
+    "sensor_msgs/msg/LaserScan": _scan_from,
+    "sensor_msgs/msg/PointCloud2": _cloud_from,
+    "trajectory_msgs/msg/JointTrajectory": _trajectory_from,
 }
 assert set(_FROM) == set(SUPPORTED) and set(_TO) == set(DEFAULT_ROS_TYPE)
 
@@ -412,21 +626,29 @@ def to_ros(msg: object, ros_type: str | None = None) -> Any:
     >>> to_ros(String(data="hi"))
     std_msgs.msg.String(data='hi')
     """
+    if isinstance(msg, RosMessage):
+        full = normalize_ros_type(ros_type or msg.ros_type)
+        if msg.ros_type and normalize_ros_type(msg.ros_type) != full:
+            raise TypeError(f"a RosMessage of {msg.ros_type} cannot go out as {full}")
+        return generic_to_ros(msg, ros_msg_class(full))
     fn = _TO.get(type(msg))
     if fn is None:
         names = ", ".join(sorted(c.__name__ for c in _TO))
-        raise TypeError(f"cannot convert {type(msg).__name__} to ROS; convertible classes: {names}")
+        raise TypeError(f"cannot convert {type(msg).__name__} to ROS; convertible classes: {names}, RosMessage")
     if ros_type is not None:
         full = normalize_ros_type(ros_type)
-        if type(msg) not in OUTGOING[full]:
+        if type(msg) not in OUTGOING.get(full, ()):
             raise TypeError(
-                f"{full} carries {', '.join(c.__name__ for c in OUTGOING[full])}, got {type(msg).__name__}"
+                f"{full} carries {', '.join(c.__name__ for c in OUTGOING.get(full, (RosMessage,)))}, "
+                f"got {type(msg).__name__}"
             )
     return fn(msg)
 
 
 def from_ros(ros_msg: Any, ros_type: str) -> Any:
     """A ROS message of ``ros_type`` -> our message (arrays are views where possible).
+
+    Types without a class of their own come as a :class:`~embagents.msgs.RosMessage`.
 
     >>> from std_msgs.msg import String as RosString
     >>> from_ros(RosString(data="hi"), "std_msgs/String")
@@ -436,4 +658,5 @@ def from_ros(ros_msg: Any, ros_type: str) -> Any:
     cls = ros_msg_class(full)
     if not isinstance(ros_msg, cls):
         raise TypeError(f"expected a {full} message, got {type(ros_msg).__module__}.{type(ros_msg).__name__}")
-    return _FROM[full](ros_msg)
+    fn = _FROM.get(full)
+    return fn(ros_msg) if fn is not None else generic_from_ros(ros_msg, full)

@@ -25,24 +25,41 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import attrs
 import rclpy
+from rclpy.action import ActionClient
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.context import Context
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.guard_condition import GuardCondition
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.service import Service
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from actors import private_file
-from embagents.msgs import StreamingString
+from embagents.msgs import RosMessage, StreamingString
 from embagents.ros.convert import from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
-from embagents.ros.spec import QoS, RosInput, RosOutput, check_bridge, ros_type_for
+from embagents.ros.generic import generic_from_ros, generic_to_ros
+from embagents.ros.spec import (
+    QoS,
+    RosAction,
+    RosInput,
+    RosOutput,
+    RosService,
+    check_bridge,
+    normalize_ros_type,
+    ros_interface_class,
+    ros_type_for,
+)
 
 __all__ = ["RosBridgeCore", "configure_fastdds_shm", "qos_profile"]
 
@@ -50,6 +67,8 @@ log = logging.getLogger("embagents.ros")
 
 OnMessage = Callable[[str, object], None]
 OnMatched = Callable[[str, int], None]
+#: Serves one request of a RosService: (declaration, ROS request, empty ROS response) -> filled response.
+OnRequest = Callable[[RosService, Any, Any], Any]
 
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
@@ -82,6 +101,21 @@ class _Running:
     publishers: dict[str, Any]  # internal topic -> rclpy Publisher
     subscriptions: dict[str, Any]  # ROS topic (as declared) -> rclpy Subscription
     on_matched: OnMatched | None
+    services_thread: threading.Thread | None = None
+    wake_services: GuardCondition | None = None
+    clients: dict[tuple[str, str], Any] = attrs.field(factory=dict)  # (service, type) -> rclpy Client
+    raw_publishers: dict[str, Any] = attrs.field(factory=dict)  # ROS topic -> publisher of publish_ros
+    # goal topic -> (declaration, ActionClient, running goal handles by id(): they are not hashable)
+    actions: dict[str, tuple[RosAction, Any, dict[int, Any]]] = attrs.field(factory=dict)
+    on_message: OnMessage | None = None
+
+
+class _ServedElsewhere(ReentrantCallbackGroup):
+    """The group of our services: the executor leaves them to :meth:`RosBridgeCore._serve`,
+    whose thread may wait for a component's answer without holding up topics."""
+
+    def can_execute(self, entity: Any) -> bool:
+        return not isinstance(entity, Service)
 
 
 class RosBridgeCore:
@@ -93,10 +127,22 @@ class RosBridgeCore:
     stopped and started again, and several can coexist in one process.
     """
 
-    def __init__(self, inputs: Sequence[RosInput] = (), outputs: Sequence[RosOutput] = ()) -> None:
+    def __init__(
+        self,
+        inputs: Sequence[RosInput] = (),
+        outputs: Sequence[RosOutput] = (),
+        services: Sequence[RosService] = (),
+        on_request: OnRequest | None = None,
+        actions: Sequence[RosAction] = (),
+    ) -> None:
         self.inputs = list(inputs)
         self.outputs = list(outputs)
-        check_bridge(self.inputs, self.outputs)
+        self.services = list(services)
+        self.actions = list(actions)
+        self.on_request = on_request
+        check_bridge(self.inputs, self.outputs, self.services)
+        if self.services and on_request is None:
+            raise ValueError("RosBridgeCore: services need on_request (what answers them)")
         self._outputs = {o.topic: o for o in self.outputs}
         self._lock = threading.Lock()
         self._run: _Running | None = None
@@ -178,12 +224,30 @@ class RosBridgeCore:
                     target=self._spin, args=(executor, context, stopping), name=f"ros-spin-{node_name}", daemon=True
                 )
                 self._run = _Running(context, node, executor, thread, stopping, publishers, subscriptions, on_matched)
+                self._run.on_message = on_message
+                for a in self.actions:
+                    client = ActionClient(node, ros_interface_class(a.action_type), a.ros_name)
+                    self._run.actions[a.goal] = (a, client, {})
+                if self.services:
+                    group = _ServedElsewhere()
+                    served = [
+                        (sv, node.create_service(ros_interface_class(sv.srv_type), sv.ros_name, _never_called,
+                                                 callback_group=group))
+                        for sv in self.services
+                    ]
+                    wake = self._run.wake_services = GuardCondition(None, None, context=context)
+                    self._run.services_thread = threading.Thread(
+                        target=self._serve, args=(served, context, wake, stopping),
+                        name=f"ros-srv-{node_name}", daemon=True,
+                    )
                 self._started_with = {
                     "node_name": node_name, "on_message": on_message, "domain_id": domain_id, "namespace": namespace,
                     "clean_shm": clean_shm, "shm_segment_mb": shm_segment_mb, "participant_id": participant_id,
                     "on_matched": on_matched,
                 }
                 thread.start()
+                if self._run.services_thread is not None:
+                    self._run.services_thread.start()
             except BaseException:
                 self._run = None
                 _teardown(context, node, executor)
@@ -213,6 +277,89 @@ class RosBridgeCore:
 
         return cb
 
+    def _serve(self, served: list[tuple[RosService, Any]], context: Context, wake: GuardCondition,
+               stopping: Future) -> None:
+        """Take requests of our services and answer each with ``on_request`` (in this thread)."""
+        assert self.on_request is not None
+        try:
+            with context.handle:
+                wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(served), 0, context.handle)
+            while not stopping.done() and context.ok():
+                wait_set.clear_entities()
+                for _, srv in served:
+                    wait_set.add_service(srv.handle)
+                wait_set.add_guard_condition(wake.handle)
+                wait_set.wait(-1)  # releases the GIL
+                if stopping.done():
+                    break
+                ready = wait_set.get_ready_entities("service")
+                for decl, srv in served:
+                    if srv.handle.pointer not in ready:
+                        continue
+                    with srv.handle:
+                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                    if header is None:
+                        continue
+                    response = self.on_request(decl, request, srv.srv_type.Response())
+                    srv.send_response(response, header)
+        except Exception:
+            if not stopping.done() and context.ok():
+                log.exception("ROS service thread failed; services stop answering")
+
+    def call(self, ros_name: str, srv_type: str, fields: dict[str, Any], timeout: float) -> Any:
+        """Call ROS service ``ros_name`` and return its ROS response (blocks up to ``timeout`` s).
+
+        Raises TimeoutError naming what is wrong when no answer comes (no
+        server, or a server of another type), ValueError for request fields
+        the type lacks, RuntimeError when not started.
+        """
+        srv_cls = ros_interface_class(normalize_ros_type(srv_type, "srv"))
+        request = generic_to_ros(fields, srv_cls.Request)
+        with self._lock:
+            run = self._run
+            if run is None:
+                raise RuntimeError(f"cannot call {ros_name}: RosBridgeCore is not started")
+            key = (ros_name, srv_type)
+            client = run.clients.get(key)
+            if client is None:
+                mismatch = self._other_types(run.node, ros_name, srv_type)
+                if mismatch:
+                    raise ValueError(f"ROS service {ros_name} is a {mismatch}, not a {srv_type} (a type mismatch)")
+                client = run.clients[key] = run.node.create_client(srv_cls, ros_name)
+        deadline = time.monotonic() + timeout
+        # A request sent before the server is matched is lost. rclpy has no event for that match
+        # (its own wait_for_service sleeps 0.25 s steps, rclpy issue 58): check every 20 ms, only
+        # until the first match of this client (clients are kept).
+        while not client.service_is_ready() and time.monotonic() < deadline and run.context.ok():
+            time.sleep(0.02)
+        done = threading.Event()
+        future = client.call_async(request)
+        future.add_done_callback(lambda _f: done.set())
+        run.executor.wake()
+        if not done.wait(max(0.0, deadline - time.monotonic())):
+            future.cancel()
+            client.remove_pending_request(future)
+            raise TimeoutError(self._no_answer(run.node, client, ros_name, srv_type, timeout))
+        if future.exception() is not None:
+            raise RuntimeError(f"ROS service {ros_name}: {future.exception()}")
+        return future.result()
+
+    @staticmethod
+    def _other_types(node: Node, ros_name: str, srv_type: str) -> str:
+        """The types ROS knows ``ros_name`` by, when ``srv_type`` is not among them ('' otherwise)."""
+        types = dict(node.get_service_names_and_types()).get("/" + ros_name.lstrip("/"))
+        return ", ".join(types) if types and srv_type not in types else ""
+
+    def _no_answer(self, node: Node, client: Any, ros_name: str, srv_type: str, timeout: float) -> str:
+        mismatch = self._other_types(node, ros_name, srv_type)
+        if mismatch:
+            return (f"ROS service {ros_name} did not answer within {timeout} s: it is a {mismatch}, "
+                    f"not a {srv_type} (a type mismatch)")
+        if not client.service_is_ready():
+            return (f"ROS service {ros_name} did not answer within {timeout} s: no server for it is up "
+                    f"(`ros2 service list` shows the ones that are)")
+        return f"ROS service {ros_name} did not answer within {timeout} s: its server took the request and went silent"
+
     @staticmethod
     def _spin(executor: SingleThreadedExecutor, context: Context, stopping: Future) -> None:
         # Waiting on a future (not spin_once in a loop) lets stop() wake the
@@ -238,6 +385,8 @@ class RosBridgeCore:
         if out is None:
             declared = ", ".join(sorted(self._outputs)) or "none"
             raise ValueError(f"no RosOutput is declared for internal topic {internal_topic!r}; declared: {declared}")
+        if out.ros_type is None and isinstance(msg, RosMessage) and msg.ros_type:
+            out = attrs.evolve(out, ros_type=normalize_ros_type(msg.ros_type))
         ros_type = out.ros_type or self._ros_type_of(out, msg)
         accepted = out.accepts if out.ros_type else (type(msg),)
         if type(msg) not in accepted:
@@ -254,10 +403,82 @@ class RosBridgeCore:
                 raise RuntimeError(f"cannot publish on {internal_topic!r}: RosBridgeCore is not started")
             pub = run.publishers.get(internal_topic)
             if pub is None:  # output declared without ros_type: its first message fixes the type
-                out = self._outputs[internal_topic] = out.resolved(type(msg))
+                out = self._outputs[internal_topic] = out if out.ros_type else out.resolved(type(msg))
                 pub = run.publishers[internal_topic] = _create_publisher(run.node, out, run.on_matched)
             pub.publish(ros_msg)
         self.counts[internal_topic].published += 1
+
+    def send_goal(self, goal_topic: str, msg: Any, wait_server: float = 5.0) -> None:
+        """Send ``msg`` (a RosMessage or dict of the Goal's fields) as a goal of the RosAction on ``goal_topic``.
+
+        Returns at once: a short-lived thread waits (up to ``wait_server`` s) for the
+        server to be matched, then sends; feedback and the outcome reach ``on_message``
+        on the action's topics (``status`` "no_server" when none was matched).
+        """
+        run = self._run
+        if run is None:
+            raise RuntimeError(f"cannot send a goal from {goal_topic!r}: RosBridgeCore is not started")
+        decl, client, goals = run.actions[goal_topic]
+        fields = msg.fields if isinstance(msg, RosMessage) else msg
+        goal = generic_to_ros(fields, ros_interface_class(decl.action_type).Goal)  # a bad field raises here
+        on_message = run.on_message
+        assert on_message is not None
+
+        def outcome(status: str, result: Any = None) -> None:
+            on_message(decl.result, RosMessage(decl.action_type, {"status": status, "result": result}))
+
+        def on_result(handle: Any, fut: Any) -> None:
+            goals.pop(id(handle), None)
+            res = fut.result()
+            outcome(_GOAL_STATUS.get(res.status, str(res.status)) if res else "aborted",
+                    generic_from_ros(res.result) if res else None)
+
+        def on_accepted(fut: Any) -> None:
+            handle = fut.result()
+            if handle is None or not handle.accepted:
+                outcome("rejected")
+                return
+            goals[id(handle)] = handle
+            handle.get_result_async().add_done_callback(lambda f: on_result(handle, f))
+            run.executor.wake()
+
+        def feedback(fb: Any) -> None:
+            if decl.feedback:
+                on_message(decl.feedback, generic_from_ros(fb.feedback))
+
+        def send() -> None:
+            deadline = time.monotonic() + wait_server
+            while not client.server_is_ready() and time.monotonic() < deadline and run.context.ok():
+                time.sleep(0.02)  # as in call(): rclpy has no event for a server being matched
+            if not client.server_is_ready():
+                outcome("no_server")
+                return
+            client.send_goal_async(goal, feedback_callback=feedback).add_done_callback(on_accepted)
+            run.executor.wake()
+
+        threading.Thread(target=send, name=f"ros-goal-{decl.ros_name}", daemon=True).start()
+
+    def cancel_goals(self, goal_topic: str) -> int:
+        """Cancel the running goals of the RosAction on ``goal_topic``; returns how many were asked to cancel."""
+        run = self._run
+        if run is None:
+            return 0
+        _, _, goals = run.actions[goal_topic]
+        for handle in list(goals.values()):
+            handle.cancel_goal_async()
+        run.executor.wake()
+        return len(goals)
+
+    def publish_ros(self, ros_topic: str, ros_msg: Any, depth: int = 10) -> None:
+        """Publish a ROS message on ``ros_topic`` (a publisher of its type is made at first use; reliable)."""
+        with self._lock:
+            run = self._run
+            if run is None:
+                raise RuntimeError(f"cannot publish on {ros_topic}: RosBridgeCore is not started")
+            pub = run.raw_publishers.get(ros_topic)
+            if pub is None:
+                pub = run.raw_publishers[ros_topic] = run.node.create_publisher(type(ros_msg), ros_topic, depth)
+            pub.publish(ros_msg)
 
     def matched(self) -> dict[str, int]:
         """ROS topic (as declared) -> peers matched now: publishers of an input, subscriptions of an output.
@@ -306,6 +527,8 @@ class RosBridgeCore:
             return
         run.stopping.set_result(None)
         run.executor.wake()
+        if run.wake_services is not None:
+            run.wake_services.trigger()
         if threading.current_thread() is run.thread:
             threading.Thread(target=self._finish, args=(run, timeout), name="ros-teardown").start()
         else:
@@ -313,6 +536,8 @@ class RosBridgeCore:
 
     @staticmethod
     def _finish(run: _Running, timeout: float) -> None:
+        if run.services_thread is not None and run.services_thread is not threading.current_thread():
+            run.services_thread.join(timeout)
         run.thread.join(timeout)
         if run.thread.is_alive():
             # A callback is stuck in on_message; shutting the context down ends
@@ -338,6 +563,13 @@ def _matched(topic: str, on_matched: OnMatched | None) -> Callable[[Any], None] 
 def _create_publisher(node: Node, out: RosOutput, on_matched: OnMatched | None) -> Any:
     events = PublisherEventCallbacks(matched=_matched(out.ros_topic, on_matched))
     return node.create_publisher(ros_msg_class(out.ros_type), out.ros_topic, qos_profile(out.qos), event_callbacks=events)
+
+
+_GOAL_STATUS = {4: "succeeded", 5: "canceled", 6: "aborted"}  # action_msgs/GoalStatus
+
+
+def _never_called(_request: Any, response: Any) -> Any:  # our services are taken by RosBridgeCore._serve
+    return response
 
 
 def _worth_logging(n: int) -> bool:

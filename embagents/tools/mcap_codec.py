@@ -105,6 +105,14 @@ def _json_schema(tp: Any) -> dict[str, Any]:
 
 
 def _plain_value(v: Any) -> Any:
+    if attrs.has(type(v)):  # a message inside a message (Pose in PoseStamped, a RosMessage's nested ones)
+        return {f.name: _plain_value(getattr(v, f.name)) for f in attrs.fields(type(v))}
+    if isinstance(v, dict):
+        return {str(k): _plain_value(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain_value(x) for x in v]
+    if isinstance(v, np.generic):
+        return v.item()
     if isinstance(v, np.ndarray):
         if v.size <= _LIST_MAX:
             return v.tolist()
@@ -114,9 +122,22 @@ def _plain_value(v: Any) -> Any:
         return v.name
     if isinstance(v, (bytes, bytearray)):
         return base64.b64encode(v).decode()
-    if isinstance(v, tuple):
-        return list(v)
     return v
+
+
+def _generic_fields(value: Any) -> Any:
+    """A RosMessage's recorded fields back: nested messages as RosMessages, packed arrays as arrays."""
+    from embagents.msgs import RosMessage
+
+    if isinstance(value, dict):
+        if set(value) == {"dtype", "shape", "base64"}:
+            return np.frombuffer(base64.b64decode(value["base64"]), dtype=value["dtype"]).reshape(value["shape"]).copy()
+        if set(value) == {"ros_type", "fields"}:
+            return RosMessage(value["ros_type"], _generic_fields(value["fields"]))
+        return {k: _generic_fields(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_generic_fields(v) for v in value]
+    return value
 
 
 def _json_encoder(cls: type) -> Callable[[Any], bytes]:
@@ -165,7 +186,11 @@ def _array_field(cls: type, name: str, value: Any) -> np.ndarray:
 
 
 def _from_json(cls: type, data: bytes) -> Any:
+    from embagents.msgs import RosMessage
+
     values = json.loads(data)
+    if cls is RosMessage:
+        return RosMessage(values.get("ros_type", ""), _generic_fields(values.get("fields", {})))
     types = field_types(cls)
     for name, tp in types.items():
         if name in values and tp is np.ndarray:

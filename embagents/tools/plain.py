@@ -32,7 +32,14 @@ __all__ = ["build_message", "field_types", "format_text", "to_plain"]
 
 
 def to_plain(msg: Any, *, full_arrays: bool = False) -> Any:
-    """``msg`` as JSON-able data (attrs classes become dicts, arrays summaries or lists)."""
+    """``msg`` as JSON-able data (attrs classes become dicts, arrays summaries or lists).
+
+    A :class:`~embagents.msgs.RosMessage` shows its ROS fields, as ``ros2 topic echo`` does.
+    """
+    from embagents.msgs import RosMessage
+
+    if isinstance(msg, RosMessage):
+        return to_plain(msg.fields, full_arrays=full_arrays)
     if attrs.has(type(msg)):
         return {f.name: to_plain(getattr(msg, f.name), full_arrays=full_arrays) for f in attrs.fields(type(msg))}
     if isinstance(msg, np.ndarray):

@@ -27,6 +27,7 @@ import math
 import sys
 import time
 from collections import deque
+from typing import Any
 
 from actors import UnsafeFolder
 from supervisor.client import ControlError, request

@@ -403,3 +403,31 @@ def test_a_model_whose_backend_is_not_installed_names_the_package_and_the_extra(
     ok = subprocess.run([sys.executable, "-m", "embagents.cli", "check", example], capture_output=True, text=True,
                         env=env, timeout=120)
     assert ok.returncode == 0 and "missing-backend" not in ok.stdout, ok.stdout  # installed here: no problem
+
+
+def test_a_topic_published_by_an_event_action_counts_as_published(tmp_path):
+    problems = check(tmp_path, """
+        from embagents.events import publish
+        go = Topic("go", String)
+        llm = LLM(name="llm", inputs=[go], outputs=[answer], model_client=Client())
+        ev = Event("asked", on(answer).field("data") == "again")
+        system = System([llm], events={ev: publish(go, String("again"))}, external=[answer])
+    """)
+    assert [p for p in problems if p.code == "unknown-topic"] == [], problems
+
+
+def test_a_custom_component_with_inputs_and_no_trigger_warns_that_it_never_runs(tmp_path):
+    problems = check(tmp_path, """
+        camera = Camera(name="camera", outputs=[image], trigger=15.0)
+        detector = Detector(name="detector", inputs=[image], outputs=[labels], trigger=None)
+        llm = LLM(name="llm", inputs=[labels], outputs=[answer], model_client=Client())
+        system = System([camera, detector, llm])
+    """)
+    p = only(problems, "never-runs")
+    assert p.level == "warning" and p.component == "detector" and "trigger=camera/image" in p.message
+
+
+def test_additional_model_clients_is_refused_naming_extra_clients(tmp_path):
+    problems = check(tmp_path, GOOD + "llm.additional_model_clients = {'backup': Client()}\n")
+    p = only(problems, "load-error")
+    assert "additional_model_clients does nothing here" in p.message and "extra_clients=" in p.message

@@ -22,9 +22,18 @@ from embagents.msgs import (  # noqa: E402
     CompressedImage,
     Detections,
     Image,
+    Imu,
     JointState,
+    JointTrajectory,
+    LaserScan,
     OccupancyGrid,
     Odometry,
+    Point,
+    PointCloud2,
+    Pose,
+    PoseStamped,
+    Quaternion,
+    RosMessage,
     StreamingString,
     String,
     Twist,
@@ -54,7 +63,8 @@ def both_ways(msg, ros_type=None):
 
 
 def test_every_supported_type_has_a_round_trip_test():
-    assert set(SUPPORTED.values()) == {String, Image, CompressedImage, Twist, Odometry, OccupancyGrid, JointState, Detections}
+    assert set(SUPPORTED.values()) == {String, Image, CompressedImage, Twist, Odometry, OccupancyGrid, JointState, Detections,
+                                       Point, Quaternion, Pose, PoseStamped, Imu, LaserScan, PointCloud2, JointTrajectory}
 
 
 def test_string():
@@ -261,14 +271,16 @@ def test_bad_stamps():
 
 
 def test_type_mismatches():
-    with pytest.raises(TypeError, match="geometry_msgs/msg/Twist carries Twist, got String"):
+    with pytest.raises(TypeError, match="geometry_msgs/msg/Twist carries Twist, RosMessage, got String"):
         to_ros(String(data="x"), "geometry_msgs/Twist")
     with pytest.raises(TypeError, match="cannot convert dict"):
         to_ros({"data": 1})
     with pytest.raises(TypeError, match="expected a sensor_msgs/msg/Image message, got std_msgs.msg.*String"):
         from_ros(to_ros(String(data="x")), "sensor_msgs/Image")
-    with pytest.raises(ValueError, match="unsupported ROS type 'sensor_msgs/msg/Imu'; supported: .*std_msgs/msg/String"):
+    with pytest.raises(TypeError, match="expected a sensor_msgs/msg/Imu message"):
         from_ros(to_ros(String(data="x")), "sensor_msgs/msg/Imu")
+    with pytest.raises(TypeError, match="a RosMessage of std_msgs/msg/String cannot go out as sensor_msgs/msg/Imu"):
+        to_ros(RosMessage("std_msgs/msg/String", {"data": "x"}), "sensor_msgs/Imu")
 
 
 def test_public_setter_fallback_gives_the_same_messages(monkeypatch):
@@ -294,7 +306,7 @@ def test_declarations_defaults_and_normalization():
     assert (i.topic, i.ros_type, i.qos) == ("camera/image_raw", "sensor_msgs/msg/Image", QoS())
     assert i.msg_type is Image
     o = RosOutput("answer", ros_type="std_msgs/msg/String", qos=QoS(depth=1, reliability="best_effort"))
-    assert o.ros_topic == "/answer" and o.accepts == (String, StreamingString)
+    assert o.ros_topic == "/answer" and o.accepts == (String, StreamingString, RosMessage)
     assert RosOutput("cmd_vel").resolved(Twist).ros_type == "geometry_msgs/msg/Twist"
     with pytest.raises(TypeError, match="declared as geometry_msgs/msg/Twist.*carries String"):
         RosOutput("cmd_vel", ros_type="geometry_msgs/Twist").resolved(String)
@@ -309,9 +321,11 @@ def test_declaration_errors_are_clear():
         QoS(reliability="fast")
     with pytest.raises(ValueError, match="durability must be one of 'volatile', 'transient_local'"):
         QoS(durability="persistent")
-    with pytest.raises(ValueError, match="unsupported ROS type 'vision_msgs/Detection2DArray'; supported: .*sensor_msgs/msg/PointCloud"):
+    with pytest.raises(ValueError, match="package 'vision_msgs' is not installed; pip install ros-vision-msgs"):
         RosInput("/dets", "vision_msgs/Detection2DArray")
-    with pytest.raises(ValueError, match="malformed ROS type"):
+    with pytest.raises(ValueError, match="sensor_msgs has no msg 'Imus'; it has: .*Imu, "):
+        RosInput("/imu", "sensor_msgs/Imus")
+    with pytest.raises(ValueError, match="malformed ROS msg type .String.: write .package/msg/Name."):
         RosInput("/dets", "String")
     with pytest.raises(ValueError, match="invalid ROS topic name for RosInput: '/2cams'"):
         RosInput("/2cams", "sensor_msgs/Image")
@@ -330,3 +344,165 @@ def test_ros_available_here():
 
     ok, why = ros_available()
     assert ok, why
+
+
+# --- typed classes beyond the first eight --------------------------------------
+
+
+def test_pose_point_quaternion():
+    goal = PoseStamped(Pose((2.0, -1.5, 0.0), (0.0, 0.0, 0.7071068, 0.7071068)), frame_id="map", stamp=12.5)
+    for back in both_ways(goal):
+        assert back == goal
+    for msg in (Point(1, 2, 3), Quaternion(0, 0, 1, 0), Pose((1, 1, 1))):
+        for back in both_ways(msg):
+            assert back == msg
+    ros = to_ros(goal)
+    assert (ros.pose.position.x, ros.pose.orientation.w, ros.header.frame_id) == (2.0, 0.7071068, "map")
+
+
+def test_imu():
+    cov = np.arange(9.0).reshape(3, 3)
+    imu = Imu(orientation=(0, 0, 0.1, 0.995), angular_velocity=(0.1, 0.2, 0.3), linear_acceleration=(0, 0, 9.81),
+              orientation_covariance=cov, linear_acceleration_covariance=-np.eye(3), frame_id="imu", stamp=3.5)
+    for back in both_ways(imu):
+        assert back.orientation == imu.orientation and back.linear_acceleration == (0, 0, 9.81)
+        np.testing.assert_array_equal(back.orientation_covariance, cov)
+        np.testing.assert_array_equal(back.linear_acceleration_covariance, -np.eye(3))
+        assert (back.frame_id, back.stamp) == ("imu", 3.5)
+    assert list(to_ros(imu).orientation_covariance) == list(range(9))  # row-major, as ROS documents
+
+
+def test_laser_scan():
+    ranges = np.linspace(0.2, 10.0, 360, dtype=np.float32)
+    scan = LaserScan(ranges=ranges, angle_min=-3.14, angle_max=3.14, angle_increment=0.0175, range_min=0.1,
+                     range_max=12.0, frame_id="laser", stamp=1.0)
+    for back in both_ways(scan):
+        np.testing.assert_array_equal(back.ranges, ranges)
+        assert back.intensities.shape == (0,)
+        assert (back.angle_min, back.angle_increment, back.range_max) == (-3.14, 0.0175, 12.0)
+    assert scan.angles[1] == pytest.approx(-3.14 + 0.0175)
+
+
+def test_point_cloud2_is_a_structured_array():
+    pts = np.zeros(1000, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<u2")])
+    pts["x"] = np.arange(1000)
+    pts["ring"] = 7
+    cloud = PointCloud2.from_points(pts, frame_id="lidar", stamp=2.0)
+    ros = to_ros(cloud)
+    assert (ros.height, ros.width, ros.point_step, [f.name for f in ros.fields]) == (1, 1000, 18, ["x", "y", "z", "intensity", "ring"])
+    assert [f.datatype for f in ros.fields] == [7, 7, 7, 7, 4]
+    for back in both_ways(cloud):
+        got = back.points.reshape(-1)
+        np.testing.assert_array_equal(got["x"], pts["x"])
+        assert (got["ring"] == 7).all() and back.frame_id == "lidar"
+    with pytest.raises(ValueError, match="needs a structured array"):
+        PointCloud2.from_points(np.zeros((3, 3), np.float32))
+
+
+def test_point_cloud2_from_a_padded_organized_ros_cloud():
+    from sensor_msgs.msg import PointCloud2 as RosCloud
+    from sensor_msgs.msg import PointField
+
+    h, w, step, row = 2, 3, 16, 3 * 16 + 8  # 8 padding bytes per row
+    raw = bytearray(h * row)
+    for r in range(h):
+        for c in range(w):
+            raw[r * row + c * step: r * row + c * step + 4] = np.float32(10 * r + c).tobytes()
+    ros = RosCloud(height=h, width=w, point_step=step, row_step=row, is_bigendian=False,
+                   fields=[PointField(name="x", offset=0, datatype=7, count=1)])
+    ros.data = bytes(raw)
+    back = from_ros(wire(ros), "sensor_msgs/PointCloud2")
+    np.testing.assert_array_equal(back.points["x"], [[0, 1, 2], [10, 11, 12]])
+    ros.row_step = 10
+    with pytest.raises(ValueError, match="PointCloud2 data has"):
+        from_ros(ros, "sensor_msgs/PointCloud2")
+
+
+def test_joint_trajectory():
+    traj = JointTrajectory(joint_names=["j1", "j2"], positions=[[0.1, 0.2], [0.3, 0.4]],
+                           time_from_start=[0.5, 1.25], stamp=4.0)
+    ros = to_ros(traj)
+    assert [p.time_from_start.nanosec for p in ros.points] == [500000000, 250000000]
+    for back in both_ways(traj):
+        np.testing.assert_array_equal(back.positions, traj.positions)
+        assert back.velocities.shape == (0, 2) and list(back.time_from_start) == [0.5, 1.25]
+
+
+# --- every other installed type, by introspection ------------------------------
+
+
+def test_an_unmapped_type_comes_as_a_generic_message_with_ros_field_names():
+    from sensor_msgs.msg import BatteryState, NavSatFix
+
+    fix = NavSatFix(latitude=48.1, longitude=11.5, altitude=520.0)
+    fix.header.stamp.sec, fix.header.stamp.nanosec = 10, 250_000_000
+    fix.header.frame_id = "gps"
+    fix.status.status = 2
+    fix.position_covariance = np.arange(9.0)
+    for back in (from_ros(fix, "sensor_msgs/NavSatFix"), from_ros(wire(fix), "sensor_msgs/NavSatFix")):
+        assert isinstance(back, RosMessage) and back.ros_type == "sensor_msgs/msg/NavSatFix"
+        assert (back.latitude, back.header.stamp, back.header.frame_id, back.status.status) == (48.1, 10.25, "gps", 2)
+        assert back.position_covariance.dtype == np.float64 and back.position_covariance.shape == (9,)
+        again = to_ros(back, "sensor_msgs/NavSatFix")
+        assert wire(again) == wire(fix)
+    battery = BatteryState(cell_voltage=[3.7, 3.8])
+    got = from_ros(wire(battery), "sensor_msgs/BatteryState")
+    assert got.cell_voltage.dtype == np.float32 and list(got.cell_voltage) == pytest.approx([3.7, 3.8])
+    assert got.to_dict()["cell_voltage"] == pytest.approx([3.7, 3.8])
+
+
+def test_generic_lists_of_nested_messages_and_durations():
+    from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
+
+    ros = MultiDOFJointTrajectory(joint_names=["base"], points=[MultiDOFJointTrajectoryPoint()])
+    ros.points[0].time_from_start.sec = 2
+    back = from_ros(wire(ros), "trajectory_msgs/MultiDOFJointTrajectory")
+    assert back.points[0].time_from_start == 2.0 and back.points[0].transforms == []
+    assert wire(to_ros(back)) == wire(ros)
+
+
+def test_generic_bad_fields_are_named():
+    with pytest.raises(ValueError, match="sensor_msgs/msg/NavSatFix has no field 'lat'; its fields: header, status, latitude"):
+        to_ros(RosMessage("sensor_msgs/msg/NavSatFix", {"lat": 1.0}))
+    with pytest.raises(ValueError, match="field 'status.status'"):
+        to_ros(RosMessage("sensor_msgs/msg/NavSatFix", {"status": {"status": "fixed"}}))
+    with pytest.raises(AttributeError, match="NavSatFix has no field 'lat'; its fields: latitude"):
+        _ = RosMessage("sensor_msgs/msg/NavSatFix", {"latitude": 1.0}).lat
+
+
+def test_generic_messages_cross_processes_through_the_codec():
+    from actors.codec import Codec
+
+    back = from_ros(wire(to_ros(RosMessage("sensor_msgs/msg/NavSatFix", {"latitude": 1.5}))), "sensor_msgs/NavSatFix")
+    codec = Codec()
+    got = codec.decode(codec.encode(back)[0])
+    assert got.latitude == 1.5 and got.header.stamp == 0.0 and got.position_covariance.shape == (9,)
+
+
+def test_typed_and_generic_declarations_without_a_mapping_table():
+    from embagents.ros import RosInput, RosOutput
+
+    assert RosInput("/imu", "sensor_msgs/Imu").msg_type is Imu
+    assert RosInput("/scan", "sensor_msgs/LaserScan").msg_type is LaserScan
+    assert RosOutput("goal_pose", ros_type="geometry_msgs/PoseStamped").accepts == (PoseStamped, RosMessage)
+    assert RosInput("/fix", "sensor_msgs/NavSatFix").msg_type is RosMessage
+    assert RosOutput("goal_pose").resolved(PoseStamped).ros_type == "geometry_msgs/msg/PoseStamped"
+    assert RosMessage in RosOutput("fix_out").accepts  # goes out as the message's own ros_type
+
+
+def test_service_and_action_declarations_name_missing_wheels_and_bad_input():
+    from embagents.ros import RosAction, RosLifecycle, RosService, check_bridge
+
+    with pytest.raises(ValueError, match="package 'nav2_msgs' is not installed; pip install ros-nav2-msgs"):
+        RosAction("/navigate_to_pose", "nav2_msgs/NavigateToPose", goal="nav_goal", result="nav_result")
+    assert RosAction("/fibonacci", "test_msgs/Fibonacci", goal="g", result="r").action_type == "test_msgs/action/Fibonacci"
+    with pytest.raises(ValueError, match="std_srvs has no srv 'Trigerr'; it has: .*Trigger"):
+        RosService("/x", "std_srvs/Trigerr", component="c", method="m")
+    with pytest.raises(ValueError, match="malformed ROS srv type 'std_srvs/msg/Trigger'"):
+        RosService("/x", "std_srvs/msg/Trigger", component="c", method="m")
+    with pytest.raises(ValueError, match="timeout must be seconds > 0"):
+        RosService("/x", "std_srvs/Trigger", component="c", method="m", timeout=0)
+    with pytest.raises(ValueError, match="is declared twice"):
+        check_bridge([], [], [RosService("/x", "std_srvs/Trigger", component="c", method="m")] * 2)
+    with pytest.raises(ValueError, match="RosLifecycle component 'my-llm'"):
+        RosLifecycle(["my-llm"])

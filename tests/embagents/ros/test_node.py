@@ -297,9 +297,9 @@ def test_publish_errors_name_topic_and_types(core_factory):
     with pytest.raises(RuntimeError, match="not started"):
         core.publish("answer", String(data="x"))
     core.start("bridge_errors", lambda t, m: None, domain_id=DOMAIN_ID)
-    with pytest.raises(TypeError, match=r"topic 'cmd_vel' \(ROS /cmd_vel, geometry_msgs/msg/Twist\) expects Twist, got String"):
+    with pytest.raises(TypeError, match=r"topic 'cmd_vel' \(ROS /cmd_vel, geometry_msgs/msg/Twist\) expects Twist or RosMessage, got String"):
         core.publish("cmd_vel", String(data="go"))
-    with pytest.raises(TypeError, match="expects String or StreamingString, got Twist"):
+    with pytest.raises(TypeError, match="expects String or StreamingString or RosMessage, got Twist"):
         core.publish("answer", Twist())
     with pytest.raises(ValueError, match="no RosOutput is declared for internal topic 'nope'; declared: answer, cmd_vel"):
         core.publish("nope", String())
@@ -457,3 +457,15 @@ def test_matched_counts_peers_and_restart_makes_a_new_participant(core_factory):
     assert got.get_nowait() == "after restart"
     rx.stop()
     assert rx.matched() == {}
+
+
+def test_a_ros_message_goes_out_as_its_own_type_on_an_output_declared_without_one(core_factory):
+    from embagents.msgs import RosMessage
+
+    core = core_factory(outputs=[RosOutput("fix_out", ros_topic="/fix_out")])
+    core.start("bridge_generic_out", lambda t, m: None, domain_id=DOMAIN_ID)
+    core.publish("fix_out", RosMessage("sensor_msgs/msg/NavSatFix", {"latitude": 1.0}))
+    (pub,) = core.node.get_publishers_info_by_topic("/fix_out")
+    assert pub.topic_type == "sensor_msgs/msg/NavSatFix"
+    with pytest.raises(ValueError, match="NavSatFix has no field 'lat'"):
+        core.publish("fix_out", RosMessage("sensor_msgs/msg/NavSatFix", {"lat": 1.0}))

@@ -15,9 +15,15 @@ from embagents.msgs import (
     Detections,
     Health,
     Image,
+    Imu,
     JointState,
+    LaserScan,
     OccupancyGrid,
     Odometry,
+    PointCloud2,
+    Pose,
+    PoseStamped,
+    RosMessage,
     StreamingString,
     String,
     Trackings,
@@ -39,6 +45,10 @@ MESSAGES = [
     Video(frames=np.zeros((2, 40, 60, 3), np.uint8), stamps=[0.0, 0.1]),
     Twist(linear=(1, 2, 3)), Odometry(position=(1, 0, 0)), JointState(name=["j"], position=[0.3]),
     OccupancyGrid(data=np.full((3, 4), -1, np.int8)), Health(component="c", status=2, text="t"),
+    PoseStamped(Pose((1, 2, 3), (0, 0, 0.6, 0.8)), frame_id="map", stamp=3.0),
+    Imu(linear_acceleration=(0, 0, 9.81), orientation_covariance=np.eye(3), stamp=1.0),
+    LaserScan(ranges=np.linspace(0.1, 5, 360, dtype=np.float32), angle_increment=0.0175),
+    PointCloud2.from_points(np.zeros(3000, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")]), frame_id="lidar"),
 ]
 
 
@@ -60,6 +70,19 @@ def test_every_message_type_round_trips(msg: object) -> None:
     kind = kind_of(type(msg))
     back = decode(kind.schema_name, kind.encode(msg))
     assert type(back) is type(msg) and _same(msg, back)
+
+
+def test_an_introspected_ros_message_round_trips_with_nested_messages_and_arrays() -> None:
+    header = RosMessage("std_msgs/msg/Header", {"stamp": 1.5, "frame_id": "gps"})
+    fix = RosMessage("sensor_msgs/msg/NavSatFix", {"header": header, "latitude": 48.1, "status": {"status": 2},
+                                                   "position_covariance": np.arange(9.0),
+                                                   "big": np.arange(5000, dtype=np.float32)})
+    kind = kind_of(RosMessage)
+    back = decode(kind.schema_name, kind.encode(fix))
+    assert back.ros_type == "sensor_msgs/msg/NavSatFix" and back.latitude == 48.1
+    assert back.header.ros_type == "std_msgs/msg/Header" and back.header.stamp == 1.5
+    assert back.big.dtype == np.float32 and np.array_equal(back.big, fix.big)  # a packed array comes back as one
+    assert list(back.position_covariance) == list(range(9))
 
 
 def test_images_and_audio_use_foxglove_schemas_the_rest_json_schema() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from embagents.msgs import Detections, Image, JointState, String, Twist
+from embagents.msgs import Detections, Image, JointState, RosMessage, String, Twist
 from embagents.tools.plain import build_message, format_text, to_plain
 
 
@@ -14,6 +14,14 @@ def test_arrays_are_summarised_unless_asked() -> None:
     assert to_plain(img)["data"] == "<array shape=(4, 5, 3) dtype=uint8>"
     assert to_plain(img, full_arrays=True)["data"][0][0] == [0, 0, 0]
     assert "encoding: rgb8" in format_text(to_plain(img))
+
+
+def test_an_introspected_ros_message_echoes_its_ros_fields() -> None:
+    fix = RosMessage("sensor_msgs/msg/NavSatFix", {"header": RosMessage("std_msgs/msg/Header", {"stamp": 1.5}),
+                                                   "latitude": 48.1, "position_covariance": np.zeros(9)})
+    assert to_plain(fix) == {"header": {"stamp": 1.5}, "latitude": 48.1,
+                             "position_covariance": "<array shape=(9,) dtype=float64>"}
+    assert "header:\n  stamp: 1.5\nlatitude: 48.1" in format_text(to_plain(fix))
 
 
 def test_build_message_converts_plain_fields() -> None:

@@ -1,0 +1,229 @@
+"""EmbodiedAgents' ``agents.ros``: Topic, FixedInput, MapLayer, Route, Action, Event, Launcher.
+
+- ``Topic(name=..., msg_type="String")``: an embagents Topic; ``topic.msg.data == "x"``
+  builds an event condition (``topic.msg.labels.contains("person")`` too).
+- ``Event(event_condition=..., on_change=...)``: an embagents Event (named for you);
+  a bare topic as the condition fires on each of its messages.
+- ``Action(method=component.method, args=(...))``: an embagents action run in that
+  component's process (``start``/``stop``/``restart``/``change_model_client`` map to
+  the supervisor's actions).
+- ``Launcher().add_pkg(components=[...], events_actions={...})``, ``enable_ui(...)``,
+  ``bringup()``: the System; loaded by ``embagents check``/``supervise`` it is
+  registered, run as ``python recipe.py [--offline]`` it is supervised.
+
+Example::
+
+    >>> text = Topic(name="text0", msg_type="String")
+    >>> ev = Event(event_condition=text.msg.data == "stop", on_change=True)
+    >>> from embagents.msgs import String
+    >>> ev.check("text0", String("stop"))
+    True
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import attrs
+
+from embagents import events as native_events
+from embagents.compat._core import CompatError, note, unsupported
+from embagents.components.component import Component
+from embagents.components.memory import MapLayer as _NativeMapLayer
+from embagents.components.router import Route as _NativeRoute
+from embagents.system import System, loading, register
+from embagents.topic import FixedInput as _NativeFixedInput
+from embagents.topic import Topic as _NativeTopic
+
+__all__ = ["Action", "Event", "FixedInput", "Launcher", "MapLayer", "Route", "Topic"]
+
+_event_ids = itertools.count(1)
+
+
+class _Field(native_events.FieldRef):
+    """``topic.msg.a.b``: a field of a topic's message, for conditions (EmbodiedAgents' spelling)."""
+
+    def __getattr__(self, name: str) -> _Field:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return _Field(self.topic, f"{self.path}.{name}")
+
+    def is_in(self, choices: Sequence[Any]) -> native_events.Condition:
+        return self.in_(choices)
+
+    def not_in(self, choices: Sequence[Any]) -> native_events.Condition:
+        return ~self.in_(choices)
+
+    def contains_any(self, items: Sequence[Any]) -> native_events.Condition:
+        conds = [self.contains(i) for i in items]
+        out = conds[0]
+        for c in conds[1:]:
+            out = out | c
+        return out
+
+    def contains_all(self, items: Sequence[Any]) -> native_events.Condition:
+        conds = [self.contains(i) for i in items]
+        out = conds[0]
+        for c in conds[1:]:
+            out = out & c
+        return out
+
+
+class _Msg:
+    def __init__(self, topic: _NativeTopic) -> None:
+        self._topic = topic
+
+    def __getattr__(self, name: str) -> _Field:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return _Field(self._topic, name)
+
+
+@attrs.frozen
+class Topic(_NativeTopic):
+    """``Topic(name=..., msg_type="String", qos_profile=...)``; ``.msg.<field>`` builds conditions."""
+
+    qos_profile: Any = attrs.field(default=None, kw_only=True, eq=False)
+
+    @property
+    def msg(self) -> _Msg:
+        return _Msg(self)
+
+
+def FixedInput(name: str, msg_type: Any, fixed: Any) -> _NativeFixedInput:  # noqa: N802 - EmbodiedAgents' class name
+    """A constant input: ``fixed`` (a str for a text type) is every step's message on it."""
+    return _NativeFixedInput(name, msg_type, fixed=fixed)
+
+
+def MapLayer(subscribes_to: _NativeTopic, temporal_change: bool = True, resolution_multiple: int | None = None,
+             pre_defined: Any = None) -> _NativeMapLayer:  # noqa: N802
+    """A layer of the map memory (``resolution_multiple`` counts the map's cells; here: metres, 0.5)."""
+    if pre_defined:
+        unsupported("MapLayer(pre_defined=...) (a layer filled from a file)",
+                    "Memory.remember(text, layer) from a component's on_activate")
+    return _NativeMapLayer(subscribes_to=subscribes_to, temporal_change=temporal_change)
+
+
+def Route(routes_to: _NativeTopic, samples: Sequence[str]) -> _NativeRoute:  # noqa: N802
+    """A route of a SemanticRouter: texts like ``samples`` go to ``routes_to``."""
+    return _NativeRoute(routes_to=routes_to, samples=list(samples))
+
+
+class _AnyMessage(native_events.Condition):
+    """True once the topic has a message: ``Event(event_condition=topic)`` fires on each one."""
+
+    def __init__(self, topic: _NativeTopic) -> None:
+        self.topics = (topic,)
+
+    def evaluate(self, latest: Mapping[str, Any]) -> bool:
+        return latest.get(self.topics[0].name) is not None
+
+    def __repr__(self) -> str:
+        return f"message on {self.topics[0].name}"
+
+
+def Event(event_condition: Any, on_change: bool = False, keep_event_delay: float = 0.0,  # noqa: N802
+          name: str | None = None, trigger_once: bool = False, handle_once: bool = False,
+          **kw: Any) -> native_events.Event:
+    """An event; a Topic as ``event_condition`` fires on each of its messages; ``handle_once``: at most once."""
+    if kw:
+        unsupported(f"Event({', '.join(kw)}=...)", "Event(event_condition, on_change, keep_event_delay, name)")
+    if isinstance(event_condition, _NativeTopic):
+        condition: native_events.Condition = _AnyMessage(event_condition)
+        on_change = False  # each message is an occurrence
+    elif isinstance(event_condition, native_events.Condition):
+        condition = event_condition
+    else:
+        raise CompatError(f"Event: event_condition must be a Topic or a condition such as topic.msg.data == 'x', "
+                          f"got {event_condition!r}")
+    return native_events.Event(name or f"event_{next(_event_ids)}", condition, on_change=on_change,
+                               once=trigger_once or handle_once, keep_event_delay=keep_event_delay)
+
+
+_SUPERVISOR = {"start": native_events.start, "stop": native_events.stop, "restart": native_events.restart}
+
+
+def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping[str, Any] | None = None  # noqa: N802
+           ) -> native_events.Action:
+    """``component.method(*args, **kwargs)`` as an embagents action (run in that component's process)."""
+    owner = getattr(method, "__self__", None)
+    fname = getattr(method, "__name__", repr(method))
+    if not isinstance(owner, Component):
+        unsupported(f"Action(method={fname}) on something that is not a component (it would run in the launcher's "
+                    "process)", "a public method of a component: Action(method=component.method)")
+    args = tuple(args) if isinstance(args, (list, tuple)) else (args,)
+    if getattr(method, "_supervisor_action", False):
+        return _SUPERVISOR[fname](owner)
+    if fname == "change_model_client":
+        return native_events.switch_model_client(str(args[0]), owner)
+    if fname == "publish_message":
+        unsupported("Action(method=component.publish_message)", "embagents.events.publish(topic, msg)")
+    return native_events.call(owner, fname, *args, **dict(kwargs or {}))
+
+
+class Launcher:
+    """EmbodiedAgents' (ros_sugar's) launcher: collects components and events into an embagents System."""
+
+    def __init__(self, namespace: str = "", config_file: str | None = None, activate_all_components_on_start: bool = True,
+                 robot_plugin: Any = None, **kw: Any) -> None:
+        if config_file:
+            unsupported("Launcher(config_file=...) (ROS parameters from a file)",
+                        "each component's config=, or embagents.config.load_configs(path)")
+        self.namespace = namespace
+        self.components: list[Component] = []
+        self.events: list[tuple[Any, Any]] = []
+        self.external: list[_NativeTopic] = []
+        self.name = "agents"
+        self.fallback_rate: float | None = None
+
+    def add_pkg(self, components: Sequence[Component], events_actions: Mapping[Any, Any] | None = None,
+                package_name: str | None = None, executable_entry_point: str | None = None,
+                multiprocessing: bool = True, activate_all_components_on_start: bool = True,
+                ros_log_level: str | None = None, fallback_rate: float | None = None, **kw: Any) -> None:
+        """Add ``components`` (each its own supervised process here) and ``{Event: Action(s)}``."""
+        for c in components:
+            if not isinstance(c, Component):
+                raise CompatError(f"add_pkg: {c!r} is not a component")
+            self.components.append(c)
+            self.components += getattr(c, "companions", [])
+        for event, actions in (events_actions or {}).items():
+            self.events.append((event, actions))
+        if package_name:
+            self.name = package_name
+        self.fallback_rate = fallback_rate
+
+    def enable_ui(self, inputs: Sequence[_NativeTopic] = (), outputs: Sequence[_NativeTopic] = (), **kw: Any) -> None:
+        """The web UI's inputs come from outside: ``embagents publish TOPIC TEXT``; watch outputs with
+        ``embagents topic echo TOPIC`` or ``embagents supervise --dashboard``."""
+        self.external += [t for t in inputs if not isinstance(t, _NativeFixedInput)]
+        names = ", ".join(t.name for t in inputs) or "none"
+        note(f"enable_ui: type into {names} with `embagents publish TOPIC TEXT`; watch with `embagents topic echo "
+             "TOPIC` (or `embagents supervise --dashboard`)")
+
+    def system(self) -> System:
+        """The embagents System these components and events make."""
+        return System(self.components, events=self.events, external=self.external, name=self.name)
+
+    def bringup(self) -> None:
+        """Register the System (under ``embagents check``/``supervise``), else supervise it (``python recipe.py``)."""
+        system = self.system()
+        if loading():
+            register(system)
+            return
+        import __main__
+
+        path = getattr(__main__, "__file__", None)
+        if not path:
+            raise CompatError("Launcher.bringup(): run the recipe as a file (python recipe.py), "
+                              "or `embagents supervise recipe.py`")
+        if "--offline" in sys.argv:
+            os.environ["EMBAGENTS_OFFLINE"] = "1"  # the actor processes (spawned ones too) map clients the same way
+        import argparse
+
+        from embagents.launch import run
+
+        raise SystemExit(run(argparse.Namespace(system=os.path.abspath(path), verbose=False, dashboard=False)))

@@ -1,0 +1,5 @@
+"""``ros_sugar.launch``: Launcher."""
+
+from embagents.compat.agents.ros import Launcher
+
+__all__ = ["Launcher"]
