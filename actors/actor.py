@@ -60,7 +60,9 @@ class ActorContext:
         """Call ``callback(message)`` on this actor's thread for each message on ``topic``.
 
         Returns the :class:`~actors.topics.Subscription`; its ``stats()`` count what it
-        received, dropped and refused.
+        received, dropped and refused. A ``keep="all"`` subscription outlives this
+        process: publishers keep what its callback did not finish and re-send it to the
+        actor's next incarnation (at-least-once; see :mod:`actors.topics`).
         """
         return self._host.subscribe(topic, callback, **options)
 

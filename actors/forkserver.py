@@ -46,7 +46,8 @@ _COMMANDS = {"spawn": 3, "kill": 3, "exit": 1}
 def cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
     """Remove what dead process ``pid`` of the run left: shared memory, subscription and socket files."""
     sweep(f"{prefix}{pid}_")
-    for path in glob.glob(os.path.join(run_dir, "topics", "*", f"{pid}-*")):
+    for path in glob.glob(os.path.join(run_dir, "topics", "*", f"{pid}-*")) + glob.glob(
+            os.path.join(run_dir, "topics", "*", f".{pid}-*")):  # a mark killed while it was being made
         with contextlib.suppress(FileNotFoundError):
             os.unlink(path)
     for path in glob.glob(os.path.join(run_dir, f"s.{pid}-*")):

@@ -185,6 +185,10 @@ class ActorHost:
         return pub
 
     def subscribe(self, topic: str, callback: Callable[[Any], None], **kw: Any) -> Subscription:
+        if kw.get("keep") == "all" and "key" not in kw:
+            # Durable across incarnations: the next one (a restart, the standby) gets what this one did not finish.
+            same = sum(1 for s in self.subscriptions if s.keep == "all" and s.topic == topic.replace("/", "."))
+            kw["key"] = f"{self.name}#{same}"
         sub = Subscription(self.rt, self.loop, topic, callback, **kw)
         self.subscriptions.append(sub)
         return sub

@@ -25,6 +25,26 @@ A subscription has a queue size and a policy:
   until it reads again. A subscription in the publisher's own thread cannot
   read while the publisher waits, so it is not waited for.
 
+A keep-all subscription may have a durable ``key`` (an actor's subscriptions
+get ``<actor name>#<n>``, the n-th keep-all subscription of the actor to the
+topic): its identity across incarnations of its process. A publisher keeps
+what it sent to a keyed subscription until the subscription acknowledges it
+(its callback returned: the sequence number goes into its credit file, see
+:mod:`actors.credits`), at most ``window`` messages. When the subscription's
+process dies, the publisher keeps those messages, and up to ``window`` in
+all of what it publishes after, for ``successor_timeout`` (30 s); when a
+subscription with the same key appears (the actor restarted, or its standby
+took over), they are re-sent to it first, in order (on the publisher's next
+publish: a publisher notices subscriptions only then). Delivery is
+at-least-once, like a mailbox's: a message the dead incarnation had taken
+but whose callback had not returned is delivered again (re-sent frames are
+flagged and counted: the subscription's ``redelivered``, the publisher's
+``resent``); a subscription drops a sequence number it has already seen, so
+one incarnation gets each message once. What is past the bound, or held
+longer than ``successor_timeout`` (a subscriber stopped for good), is
+dropped and logged. Arrays that went through shared memory may have been
+overwritten meanwhile: a re-sent one that was is counted as dropped.
+
 Example::
 
     >>> import tempfile
@@ -75,6 +95,10 @@ _EVENTS, _POLLIN = int(zmq.EVENTS), int(zmq.POLLIN)
 _COPY_THRESHOLD = zmq.COPY_THRESHOLD
 #: A topic frame's header: the publisher's id and its sequence number.
 _HEADER = struct.Struct("<QQ")
+#: Set in the header's publisher id on a frame re-sent to a new incarnation (ids have 48 bits).
+_AGAIN = 1 << 63
+#: Bytes of frames kept for one keyed subscriber past which a send looks for its acknowledgements at once.
+_KEEP_BYTES = 8 << 20
 #: Publisher ids a subscription remembers sequence numbers for (restarted publishers get new ids).
 _MAX_PUBLISHERS = 1024
 _ids = itertools.count()
@@ -116,17 +140,20 @@ class _Ring:
 class _Reliable:
     """A publisher's PUSH to one ``keep="all"`` subscription, and its credit view."""
 
-    __slots__ = ("sub_id", "sock", "credits", "sent", "read", "stalled", "dropped", "local")
+    __slots__ = ("sub_id", "key", "sock", "credits", "unacked", "kept", "stalled", "dropped", "local", "gone_at")
 
-    def __init__(self, sub_id: str, sock: zmq.Socket, credits: CreditView, local: bool) -> None:
+    def __init__(self, sub_id: str, sock: zmq.Socket | None, credits: CreditView, local: bool) -> None:
         self.sub_id = sub_id
+        self.key = credits.key  # durable: what it did not acknowledge goes to its next incarnation
         self.sock = sock
         self.credits = credits
-        self.sent = 0  # messages sent to it
-        self.read = 0  # messages it had handled when last looked at
+        # (sequence number, frame) sent and not acknowledged when last looked at; frames only when keyed.
+        self.unacked: deque[tuple[int, bytes | None]] = deque()
+        self.kept = 0  # bytes of the frames in unacked
         self.stalled = False
         self.dropped = 0
         self.local = local  # its subscription lives in this thread: it cannot read while we wait
+        self.gone_at = 0.0  # when its process went (keyed ones wait for a successor)
 
 
 class Publisher:
@@ -139,6 +166,8 @@ class Publisher:
 
     #: Messages in flight to one keep-all subscriber before a publish waits for it.
     window = 256
+    #: How long messages for a dead keyed subscriber are kept for its next incarnation.
+    successor_timeout = 30.0
 
     def __init__(
         self,
@@ -170,6 +199,8 @@ class Publisher:
         self._peers: set[str] = set()
         self._latest = 0  # keep="latest" peers on the XPUB
         self._reliable: dict[str, _Reliable] = {}
+        self._orphans: dict[str, _Reliable] = {}  # key -> a dead keyed subscriber's messages, for its successor
+        self.resent = 0  # messages re-sent to a new incarnation of a subscriber
         self.unconfirmed = 0  # new subscriptions whose SUBSCRIBE did not come within the wait (dead ones)
         self.sent = 0
 
@@ -182,28 +213,101 @@ class Publisher:
             return
         self._mtime = mtime
         now = {f for f in os.listdir(self.dir) if not f.startswith(".")}
-        new = now - self._peers
-        latest = set()
-        for f in new:
-            endpoint = f"ipc://{self.rt.run_dir}/s.{f}"
+        for f in self._peers - now:  # the gone first: a successor below takes over what they held
             if f.endswith(KEEP_ALL_SUFFIX):
-                self._reliable[f] = self._push(f, endpoint)
-            else:
-                self.sock.connect(endpoint)
-                latest.add(f)
-        self.unconfirmed = self._await_subscriptions(latest)
-        for f in self._peers - now:
-            rel = self._reliable.pop(f, None)
-            if rel is not None:
-                rel.sock.close(0)
-                rel.credits.close()
+                rel = self._reliable.pop(f, None)
+                if rel is not None:
+                    self._gone(rel)
                 continue
             try:
                 self.sock.disconnect(f"ipc://{self.rt.run_dir}/s.{f}")
             except zmq.ZMQError:
                 pass
+        latest = set()
+        for f in now - self._peers:
+            endpoint = f"ipc://{self.rt.run_dir}/s.{f}"
+            if f.endswith(KEEP_ALL_SUFFIX):
+                rel = self._push(f, endpoint)
+                if rel.key is not None:
+                    self._succeed(rel)
+                self._reliable[f] = rel
+            else:
+                self.sock.connect(endpoint)
+                latest.add(f)
+        self.unconfirmed = self._await_subscriptions(latest)
         self._peers = now
-        self._latest = len(now) - len(self._reliable)
+        self._latest = sum(1 for f in now if not f.endswith(KEEP_ALL_SUFFIX))
+
+    def _gone(self, rel: _Reliable) -> None:
+        """``rel``'s subscription went (its file was removed); a keyed one's messages wait for its successor."""
+        if rel.sock is not None:
+            rel.sock.close(0)
+            rel.sock = None
+        if rel.key is None:
+            rel.credits.close()
+            return
+        self._trim(rel)
+        rel.gone_at = time.monotonic()
+        old = self._orphans.pop(rel.key, None)
+        if old is not None:  # two gone in a row: the older one's successor never served
+            old.credits.close()
+        self._orphans[rel.key] = rel
+
+    def _succeed(self, rel: _Reliable) -> None:
+        """``rel`` is a new incarnation of a keyed subscription: re-send what the previous one did not acknowledge."""
+        key = rel.key
+        assert key is not None
+        prev = self._orphans.pop(key, None)
+        if prev is None:  # the previous one may still be listed (its file not cleaned up yet)
+            prev = next((r for r in self._reliable.values() if r.key == key), None)
+            if prev is None:
+                return
+            del self._reliable[prev.sub_id]
+            self._gone(prev)
+            self._orphans.pop(key, None)
+        assert rel.sock is not None
+        self._trim(prev)
+        prev.credits.close()
+        for seq, frame in prev.unacked:
+            assert frame is not None
+            again = _HEADER.pack(self.id | _AGAIN, seq) + frame[_HEADER.size:]
+            rel.sock.send(again, _NOBLOCK, copy=len(again) < _COPY_THRESHOLD)
+            rel.unacked.append((seq, frame))
+            rel.kept += len(frame)
+        self.resent += len(prev.unacked)
+        rel.dropped = prev.dropped
+        log.info("topic %s: keep-all subscriber %s is back as %s: re-sent the %d message(s) it had not acknowledged",
+                 self.topic, key, rel.sub_id, len(prev.unacked))
+
+    def _trim(self, rel: _Reliable) -> None:
+        """Forget what ``rel`` has acknowledged."""
+        acked = rel.credits.handled(self.id)
+        unacked = rel.unacked
+        while unacked and unacked[0][0] <= acked:
+            frame = unacked.popleft()[1]
+            if frame is not None:
+                rel.kept -= len(frame)
+
+    def _hold(self, frame: bytes) -> None:
+        """Keep ``frame`` (just published) for each dead keyed subscriber's successor, within the bounds."""
+        now = time.monotonic()
+        for key, rel in list(self._orphans.items()):
+            if now - rel.gone_at > self.successor_timeout:
+                del self._orphans[key]
+                rel.credits.close()
+                log.warning("topic %s: keep-all subscriber %s did not come back within %.0f s: "
+                            "dropped the %d message(s) kept for it", self.topic, key, self.successor_timeout,
+                            len(rel.unacked) + rel.dropped)
+                continue
+            if len(rel.unacked) < self.window:
+                rel.unacked.append((self.sent, frame))
+                rel.kept += len(frame)
+                continue
+            if not rel.stalled:
+                rel.stalled = True
+                log.warning("topic %s: keep-all subscriber %s is gone and %d messages are kept for it: "
+                            "dropping for it (counted) until it comes back", self.topic, key, self.window)
+            rel.dropped += 1
 
     def _push(self, sub_id: str, endpoint: str) -> _Reliable:
         s = self.rt.ctx.socket(zmq.PUSH)
@@ -212,7 +316,8 @@ class Publisher:
         s.setsockopt(zmq.RECONNECT_IVL, 20)
         s.connect(endpoint)  # the pipe exists at once: nothing sent before the connection is lost
         local = _local.get(sub_id)
-        return _Reliable(sub_id, s, CreditView(os.path.join(self.dir, sub_id)),
+        credits = CreditView(os.path.join(self.dir, sub_id))
+        return _Reliable(sub_id, s, credits,
                          local is not None and local.loop.thread_id == threading.get_ident())
 
     def _await_subscriptions(self, new: set[str], timeout: float = 0.5) -> int:
@@ -245,8 +350,18 @@ class Publisher:
 
     @property
     def dropped(self) -> int:
-        """Messages dropped for stalled ``keep="all"`` subscribers."""
-        return sum(r.dropped for r in self._reliable.values())
+        """Messages dropped for stalled ``keep="all"`` subscribers (and gone ones past the bound)."""
+        return sum(r.dropped for r in self._reliable.values()) + sum(r.dropped for r in self._orphans.values())
+
+    @property
+    def kept(self) -> int:
+        """Bytes of frames kept for keyed ``keep="all"`` subscribers until they acknowledge them."""
+        return sum(r.kept for r in self._reliable.values()) + sum(r.kept for r in self._orphans.values())
+
+    @property
+    def held(self) -> int:
+        """Messages kept for keyed ``keep="all"`` subscribers that are gone, for their next incarnation."""
+        return sum(len(r.unacked) for r in self._orphans.values())
 
     def publish(self, msg: Any) -> None:
         if self.msg_type is not None and not isinstance(msg, self.msg_type):
@@ -255,7 +370,7 @@ class Publisher:
                 f"got {type(msg).__name__}: publish a {self.msg_type.__name__} or declare another topic"
             )
         self._refresh()
-        if not self._peers:
+        if not self._peers and not self._orphans:
             return
         self.sent += 1
         body, _ = self.rt.codec.encode(msg, sink=self._sink)
@@ -267,23 +382,31 @@ class Publisher:
             self.sock.send(frame, _NOBLOCK, copy=copy)  # XPUB drops at its HWM (counted as gaps)
         for rel in self._reliable.values():
             self._send_reliable(rel, frame, copy)
+        if self._orphans:
+            self._hold(frame)
 
     def _send_reliable(self, rel: _Reliable, frame: bytes, copy: bool) -> None:
-        window = self.window
-        if rel.sent - rel.read >= window:
-            rel.read = rel.credits.handled(self.id)
-            if rel.sent - rel.read >= window and (rel.stalled or rel.local or not self._wait_credit(rel)):
+        window, unacked = self.window, rel.unacked
+        if len(unacked) >= window:
+            self._trim(rel)
+            if len(unacked) >= window and (rel.stalled or rel.local or not self._wait_credit(rel)):
                 if not rel.stalled:
                     rel.stalled = True
                     log.warning(
                         "topic %s: keep-all subscriber %s is %d messages behind and did not read "
                         "for %.1f s: dropping for it (counted) until it reads again",
-                        self.topic, rel.sub_id, rel.sent - rel.read, 0 if rel.local else self.stall_timeout,
+                        self.topic, rel.sub_id, len(unacked), 0 if rel.local else self.stall_timeout,
                     )
                 rel.dropped += 1
                 return
-        rel.sock.send(frame, _NOBLOCK, copy=copy)  # SNDHWM 0: never refused
-        rel.sent += 1
+        rel.sock.send(frame, _NOBLOCK, copy=copy)  # type: ignore[union-attr]  # SNDHWM 0: never refused
+        if rel.key is None:
+            unacked.append((self.sent, None))
+        else:  # kept for its next incarnation until acknowledged; large ones let go as soon as they are
+            unacked.append((self.sent, frame))
+            rel.kept += len(frame)
+            if rel.kept > _KEEP_BYTES:
+                self._trim(rel)
         if rel.stalled:
             rel.stalled = False
             log.warning("topic %s: keep-all subscriber %s reads again (%d dropped for it)",
@@ -299,17 +422,21 @@ class Publisher:
         while time.monotonic() < deadline:
             time.sleep(nap)
             nap = min(nap * 2, 0.002)
-            rel.read = rel.credits.handled(self.id)
-            if rel.sent - rel.read < self.window:
+            self._trim(rel)
+            if len(rel.unacked) < self.window:
                 return True
             self.rt.beat()  # slowed by a reader is work, not a hang
         return False
 
     def close(self) -> None:
         for rel in self._reliable.values():
-            rel.sock.close()
+            if rel.sock is not None:
+                rel.sock.close()
+            rel.credits.close()
+        for rel in self._orphans.values():
             rel.credits.close()
         self._reliable.clear()
+        self._orphans.clear()
         self.sock.close(0)
 
 
@@ -318,8 +445,11 @@ class Subscription:
 
     ``received`` counts frames read, ``dropped`` messages lost on the way
     (queue overflow, a publisher's high-water mark or stall, a reused
-    shared-memory frame) and ``bad`` frames that were not well-formed
-    topic messages of the declared type (logged and skipped).
+    shared-memory frame), ``bad`` frames that were not well-formed
+    topic messages of the declared type (logged and skipped) and
+    ``redelivered`` messages a publisher re-sent to this incarnation (a
+    previous one may have handled them). ``key`` (``keep="all"`` only) makes
+    the subscription durable across incarnations (see the module doc).
     """
 
     def __init__(
@@ -332,6 +462,7 @@ class Subscription:
         queue_size: int = 10,
         keep: str = "latest",
         msg_type: type | None = None,
+        key: str | None = None,
     ) -> None:
         if keep not in ("latest", "all"):
             raise ValueError(f"keep must be 'latest' or 'all', not {keep!r}")
@@ -358,13 +489,14 @@ class Subscription:
         self.received = 0
         self.dropped = 0
         self.bad = 0
+        self.redelivered = 0
         self._last: dict[int, int] = {}  # publisher id -> last sequence number seen
         d = topic_dir(rt.run_dir, self.topic)
         os.makedirs(d, mode=0o700, exist_ok=True)
         self._mark = os.path.join(d, self.id)
         self._credits: CreditBoard | None = None
         if keep == "all":
-            self._credits = CreditBoard.create(self._mark)  # publishers read our progress here
+            self._credits = CreditBoard.create(self._mark, key or "")  # publishers read our progress here
         else:
             with open(self._mark, "w") as f:
                 f.write(str(os.getpid()))
@@ -374,7 +506,8 @@ class Subscription:
     def stats(self) -> dict[str, Any]:
         """What ``embagents status`` shows for this subscription."""
         return {"topic": self.topic, "keep": self.keep, "queue_size": self.queue_size,
-                "received": self.received, "dropped": self.dropped, "bad": self.bad}
+                "received": self.received, "dropped": self.dropped, "bad": self.bad,
+                "redelivered": self.redelivered}
 
     def on_readable(self) -> None:
         sock, q = self.sock, self.queue
@@ -382,56 +515,69 @@ class Subscription:
         while (self.keep == "latest" or len(q) < self.queue_size) and sock.getsockopt(_EVENTS) & _POLLIN:  # type: ignore[operator]
             frame = sock.recv(_NOBLOCK, copy=False)
             self.received += 1
-            pub_id, msg = self._decode(frame)
+            pub_id, seq, msg = self._decode(frame)
             if msg is _SKIP:
                 if self._credits is not None and pub_id:
-                    self._credits.handled(pub_id)  # skipped is done with: its credit goes back
+                    self._credits.handled(pub_id, seq)  # skipped is done with: its credit goes back
+                continue
+            if msg is _SEEN:
                 continue
             if q.maxlen is not None and len(q) == q.maxlen:
                 self.dropped += 1
-            q.append((pub_id, msg))
+            q.append((pub_id, seq, msg))
         credits = self._credits
         while q:
-            pub_id, msg = q.popleft()
+            pub_id, seq, msg = q.popleft()
             self.callback(msg)
             if credits is not None:
-                credits.handled(pub_id)
+                credits.handled(pub_id, seq)  # acknowledged: the publisher forgets it
         # keep="all" may have left messages in the socket: come back for them.
         if self.keep == "all" and sock.getsockopt(_EVENTS) & _POLLIN:  # type: ignore[operator]
             self.loop.call_later(0, self.on_readable)
 
-    def _decode(self, frame: Any) -> tuple[int, Any]:
-        """``(publisher id, message)``; the message is ``_SKIP`` (counted) for a stale, corrupt or foreign frame."""
+    def _decode(self, frame: Any) -> tuple[int, int, Any]:
+        """``(publisher id, sequence number, message)``.
+
+        The message is ``_SKIP`` (counted) for a stale, corrupt or foreign
+        frame, ``_SEEN`` for one this subscription had already (a re-sent one).
+        """
         buf = frame.buffer
         if len(buf) <= _HEADER.size:
             self.bad += 1
             log.warning("topic %s: dropped a frame of %d bytes (too short for a topic frame)", self.topic, len(buf))
-            return 0, _SKIP
+            return 0, 0, _SKIP
         pub_id, seq = _HEADER.unpack_from(buf)
+        again = pub_id & _AGAIN
+        if again:
+            pub_id ^= _AGAIN
         last = self._last.get(pub_id)
         if last is None and len(self._last) >= _MAX_PUBLISHERS:
             self._last.pop(next(iter(self._last)))
         if last is not None and seq > last + 1:
             self.dropped += seq - last - 1  # lost before it reached us
+        elif last is not None and seq <= last and self._credits is not None:  # keep="all": re-sent, had it
+            return pub_id, seq, _SEEN
+        if again:
+            self.redelivered += 1
         self._last[pub_id] = seq
         try:
             msg = self.rt.codec.decode(buf[_HEADER.size:])
         except StaleFrame as exc:
             self.dropped += 1
             log.debug("topic %s: %s", self.topic, exc)
-            return pub_id, _SKIP
+            return pub_id, seq, _SKIP
         except CodecError as exc:
             self.bad += 1
             log.warning("topic %s: dropped a corrupt frame: %s", self.topic, exc)
-            return pub_id, _SKIP
+            return pub_id, seq, _SKIP
         if self.msg_type is not None and not isinstance(msg, self.msg_type):
             self.bad += 1
             log.warning(
                 "topic %s: dropped a %s (this subscription takes %s)",
                 self.topic, type(msg).__name__, self.msg_type.__name__,
             )
-            return pub_id, _SKIP
-        return pub_id, msg
+            return pub_id, seq, _SKIP
+        return pub_id, seq, msg
 
     def close(self) -> None:
         try:
@@ -446,3 +592,4 @@ class Subscription:
 
 
 _SKIP = object()
+_SEEN = object()

@@ -145,10 +145,12 @@ def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0
 
     Returns ``samples`` (seconds from each SIGKILL until a ``Call("pid")`` ask
     is answered by another process), ``sent`` and ``lost`` (numbers told at
-    ``rate_hz`` and never recorded: the mailbox, at-least-once) and
-    ``topic_lost`` (the same numbers published on a ``keep="all"`` topic and
-    not recorded, from the first one heard on: a subscription does not outlive
-    its process, so what is published while none serves is not delivered).
+    ``rate_hz`` and never recorded: the mailbox, at-least-once),
+    ``topic_lost`` (the same numbers published on the component's
+    ``keep="all"`` input and not recorded, from the first one heard on: the
+    publisher keeps what the dead incarnation had not acknowledged, within its
+    window, for the next one) and ``topic_again`` (numbers recorded more than
+    once: taken by an incarnation that died before acknowledging them).
     With ``standby``, each kill waits until the next standby is ready.
     """
     with tempfile.TemporaryDirectory(prefix="standby-bench-") as out, scoped_environ({
@@ -157,13 +159,15 @@ def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0
     }):
         samples, sent = _kill_and_time(kills, standby, configure_s, rate_hz)
         seen: dict[str, set[int]] = {"T": set(), "S": set()}
+        again = 0
         for f in glob.glob(os.path.join(out, "rec-*.log")):
             with open(f) as fh:
                 for how, n in (line.split() for line in fh):
+                    again += how == "S" and int(n) in seen["S"]
                     seen[how].add(int(n))
     first = min(seen["S"], default=sent)
     return {"samples": samples, "sent": sent, "lost": sum(1 for n in range(sent) if n not in seen["T"]),
-            "topic_lost": sum(1 for n in range(first, sent) if n not in seen["S"])}
+            "topic_lost": sum(1 for n in range(first, sent) if n not in seen["S"]), "topic_again": again}
 
 
 def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float) -> tuple[list[float], int]:

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import threading
@@ -9,6 +10,7 @@ from typing import Any
 
 import msgpack
 import numpy as np
+import pytest
 import zmq
 
 from actors import ActorSystem
@@ -196,3 +198,42 @@ def test_publishes_and_tells_of_large_arrays_from_two_threads_keep_their_own_mem
         t.join()
         pub.close()
     assert holder.ask("sum", timeout=10).get() == [i << 17 for i in range(n)]
+
+
+def test_a_keep_all_subscriber_stopped_for_good_makes_its_publisher_hold_only_a_window_for_a_while(
+        system: ActorSystem, caplog: pytest.LogCaptureFixture) -> None:
+    sub = system.spawn(TopicCounter, "sub", "numbers", 10, "all", 0.0)
+    pub = TopicPublisher(system.rt, "numbers")
+    pub.successor_timeout = 1.0
+    try:
+        wait_until(lambda: sub.ask("stats", timeout=5).get()["got"], poke=lambda: pub.publish(0))
+        system.stop("sub")
+        wait_until(lambda: not pub.subscribers, 5, "the mark's removal")
+        with caplog.at_level(logging.WARNING, logger="actors.topics"):
+            for i in range(3 * pub.window):
+                pub.publish(i)
+            assert pub.held == pub.window and pub.dropped == 2 * pub.window  # kept for a successor: a window
+            assert "is gone and 256 messages are kept for it" in caplog.text
+            time.sleep(1.1)
+            pub.publish(-1)
+            assert pub.held == 0  # past successor_timeout: let go, and said so
+            assert "did not come back within 1 s: dropped the 768 message(s)" in caplog.text
+    finally:
+        pub.close()
+
+
+def test_a_publisher_keeps_for_a_durable_subscriber_only_what_it_has_not_acknowledged(tmp_path: Path) -> None:
+    rt, loop, got = Runtime(str(tmp_path), "keep"), Loop(), []
+    sub = Subscription(rt, loop, "blobs", got.append, queue_size=4, keep="all", key="sink#0")
+    pub = TopicPublisher(rt, "blobs")
+    try:
+        blob = b"x" * (512 << 10)
+        for i in range(40):  # 20 MiB, read as it goes: past 8 MiB kept, the acknowledged ones are let go
+            pub.publish(blob)
+            assert loop.run(until=lambda i=i: len(got) == i + 1, timeout=5)
+        assert pub.kept <= (8 << 20) + len(blob) + 64, pub.kept
+        assert pub.kept > 0  # the window's frames are kept for its next incarnation until trimmed
+    finally:
+        pub.close()
+        sub.close()
+        rt.close()

@@ -40,6 +40,7 @@ def test_standby_takeover_serves_again_before_a_5_s_configure_could_and_loses_no
     warm = measure_standby_takeover(2, standby=True, configure_s=5.0)
     assert len(warm["samples"]) == 2 and max(warm["samples"]) < 2.5  # a fresh start would configure for 5 s
     assert warm["sent"] > 0 and warm["lost"] == 0
+    assert warm["topic_lost"] == 0  # its keep-all input: the publisher re-sent what the dead one had not finished
 
 
 def test_without_a_standby_a_restart_configures_again() -> None:

@@ -228,3 +228,29 @@ class SlowConfigure(Managed):
         if not self.ready_ahead:
             time.sleep(self.configure_s)
         _append(self.log, f"on_configure {os.getpid()} ahead={self.ready_ahead}")
+
+
+class KeepAllRecorder(SlowConfigure):
+    """A SlowConfigure with a ``keep="all"`` input: appends ``<pid> <n>`` to ``out`` for each number on ``topic``.
+
+    One write per number: a SIGKILL loses no record of a number it handled.
+    """
+
+    def __init__(self, log: str, configure_s: float, topic: str, out: str, die_on: int = -1) -> None:
+        super().__init__(log, configure_s)
+        self.topic, self.out, self.die_on = topic, out, die_on
+
+    def on_start(self) -> None:
+        super().on_start()
+        self.sub = self.context.subscribe(self.topic, self._on, queue_size=100, keep="all")
+
+    def _on(self, n: int) -> None:
+        if n == self.die_on and not os.path.exists(self.out + ".died"):  # once: taken, never finished
+            _append(self.out + ".died", str(n))
+            os.kill(os.getpid(), signal.SIGKILL)
+        _append(self.out, f"{os.getpid()} {n}")
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "sub":
+            return self.sub.stats()
+        return super().on_receive(message)
