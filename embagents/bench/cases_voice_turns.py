@@ -32,7 +32,13 @@ CHUNK = 1600  # 100 ms
 
 def _echo_stream(n: int, noise_db: float | None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """``(played, mic, echo)`` per segment: the robot's line, what the mic hears, the echo alone (float)."""
-    from embagents.bench.echo_room import ROBOT_LINES, echo_of, robot_says, room_impulse_response, to_int16
+    from embagents.bench.echo_room import (
+        ROBOT_LINES,
+        echo_of,
+        robot_says,
+        room_impulse_response,
+        to_int16,
+    )
 
     rng = np.random.default_rng(7)
     played, mic, echo = [], [], []
@@ -58,7 +64,7 @@ def _cancel(played: list[np.ndarray], mic: list[np.ndarray],
 
     aec = EchoCanceller(RATE)
     t0, at, out = 1000.0, 0, []
-    for ref, m in zip(played, mic):
+    for ref, m in zip(played, mic, strict=True):
         aec.reference(ref, RATE, stamp=t0 + at / RATE)  # the speaker announces what it plays ahead of time
         seg = []
         for i in range(0, len(m), CHUNK):

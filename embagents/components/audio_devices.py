@@ -48,9 +48,16 @@ from attrs import define, field
 from embagents.components.audio_format import AudioFormatError, to_pcm16
 from embagents.components.audio_io import AudioSink, non_negative_float
 from embagents.components.component import Component
-from embagents.components.echo_cancel import EchoCancelling
 from embagents.components.device_retry import DeviceRetry
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, positive_float, to_bool
+from embagents.components.echo_cancel import EchoCancelling
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    int_at_least,
+    one_of,
+    positive_float,
+    to_bool,
+)
 from embagents.msgs import Audio
 
 __all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
