@@ -26,6 +26,7 @@ from actors.codec import message
 __all__ = [
     "MESSAGE_TYPES",
     "Audio",
+    "BargeIn",
     "CompressedImage",
     "Detections",
     "Health",
@@ -274,6 +275,21 @@ class TaskFeedback:
     stamp: float = 0.0
 
 
+@message("embagents/BargeIn")
+@attrs.define
+class BargeIn:
+    """The user speaks while the robot does (published by SpeechToText with ``barge_in``).
+
+    ``action``: ``"pause"`` (speech began: stop the sound, keep the rest), ``"resume"`` (it was a
+    backchannel or a noise: play on), ``"interrupt"`` (real words: drop the answer, cancel its
+    generation); ``text``: what was heard; ``stamp``: when the speech began (wall time).
+    """
+
+    action: str = ""
+    text: str = ""
+    stamp: float = 0.0
+
+
 class HealthStatus(enum.IntEnum):
     """How a component is doing; failures drive :class:`~embagents.events.Fallback` rules."""
 
@@ -315,6 +331,6 @@ MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (
         String, StreamingString, Image, CompressedImage, Audio, Detections, Trackings, Video, Twist, Odometry,
-        OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health,
+        OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health, BargeIn,
     )
 }

@@ -28,6 +28,7 @@ __all__: list[str] = []
 
 RATE = 16000
 CHUNK = 1600  # 100 ms
+BARGE_CHUNK = 800  # 50 ms: a microphone at chunk_ms=50, as a voice robot that can be interrupted runs it
 
 
 def _echo_stream(n: int, noise_db: float | None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
@@ -115,4 +116,176 @@ def aec(opts: BenchOptions) -> dict[str, Any]:
                 f"{with_aec}/{n} echo-only answers with AEC, {without}/{n} without; p50/p99 = cancelling one 100 ms "
                 "chunk; bars: erle_db >= 20, "
                 "vad_echo_triggers == 0",
+    }
+
+
+def cough(seed: int, rate: int = RATE) -> np.ndarray:
+    """A synthetic cough: two bursts of band-passed noise with a fast attack (int16, about 0.35 s)."""
+    from scipy.signal import butter, lfilter
+
+    rng = np.random.default_rng(100 + seed)
+    b, a = butter(2, [300 / (rate / 2), 3000 / (rate / 2)], btype="band")
+    parts = []
+    for dur, amp in ((0.18, 1.0), (0.12, 0.6)):
+        n = int(rate * dur)
+        env = np.minimum(1.0, np.arange(n) / (0.01 * rate)) * np.exp(-np.arange(n) / (0.06 * rate))
+        parts += [lfilter(b, a, rng.standard_normal(n)) * env * amp, np.zeros(int(0.05 * rate))]
+    x = np.concatenate(parts)
+    return np.clip(x / np.abs(x).max() * 12000, -32768, 32767).astype(np.int16)
+
+
+class BargeTrial:
+    """One answer of the robot with the user speaking over it, through the real SpeechToText (see ``barge_in``).
+
+    The simulated speaker plays ``line`` in chunks of ``chunk`` samples (50 ms) and publishes each as
+    the Speaker does (stamped), to the ears and to the microphone's echo
+    canceller; the microphone hears the echo of what was actually played
+    (through ``h``) plus ``user`` from ``at_s`` and a noise floor. The clock is the
+    audio's: chunk ``k`` is heard at ``t0`` plus its end; a ``pause`` stops the
+    speaker from the next chunk on, ``resume`` plays on, ``interrupt`` drops the rest.
+    ``stop_ms``: speech onset -> the pause published (the audio's time to the end of
+    the chunk that decided, plus the wall time the ears took on that chunk).
+    """
+
+    def __init__(self, ears: Any, line: np.ndarray, user: np.ndarray, h: np.ndarray, at_s: float,
+                 seed: int = 0, user_db: float = -24.0, chunk: int = BARGE_CHUNK) -> None:
+        self.ears, self.line, self.user, self.h, self.at_s = ears, line, user, h, at_s
+        self.seed, self.user_db, self.chunk = seed, user_db, chunk
+
+    def run(self, t0: float, tail_s: float = 1.5) -> dict[str, Any]:
+        from scipy.signal import lfilter
+
+        from embagents.bench.echo_room import rms_db, to_int16
+        from embagents.components.echo_cancel import EchoCanceller
+        from embagents.msgs import Audio, BargeIn
+
+        rng = np.random.default_rng(self.seed)
+        C = self.chunk
+        ears, events = self.ears, []
+        ears.attach(lambda topic, msg: events.append((time.perf_counter(), msg)))
+        aec = EchoCanceller(RATE)
+        user = self.user.astype(np.float64) / 32768.0
+        user *= 10 ** ((self.user_db - rms_db(user)) / 20)
+        at = int(self.at_s * RATE)
+        onset = at + int(np.flatnonzero(np.abs(user) > 0.003)[0])
+        total = at + len(user) + int(tail_s * RATE)
+        zi = np.zeros(len(self.h) - 1)
+        pos, state, stop_ms, decided = 0, "playing", None, []
+        for k in range(total // C):
+            start = k * C
+            if state == "playing" and pos < len(self.line):
+                out = self.line[pos:pos + C]
+                out = np.pad(out, (0, C - len(out)))
+                pos += C
+                ref = Audio(data=out, sample_rate=RATE, stamp=t0 + start / RATE)
+                aec.reference(ref.data, RATE, ref.stamp)
+                ears.on_message("played", ref)
+            else:
+                out = np.zeros(C, np.int16)
+            echo, zi = lfilter(self.h, [1.0], out.astype(np.float64) / 32768.0 * 0.35, zi=zi)
+            mic = echo + rng.standard_normal(C) * 10 ** (-65 / 20)
+            lo, hi = max(start, at), min(start + C, at + len(user))
+            if hi > lo:
+                mic[lo - start:hi - start] += user[lo - at:hi - at]
+            stamp = t0 + (start + C) / RATE
+            clean = aec.process(to_int16(mic), stamp)
+            began = time.perf_counter()
+            events.clear()
+            if ears.on_message("mic", Audio(data=clean, sample_rate=RATE, stamp=stamp)):
+                ears.execute()
+            for when, msg in events:
+                if not isinstance(msg, BargeIn):
+                    continue
+                decided.append(msg.action)
+                if msg.action == "pause" and stop_ms is None:
+                    stop_ms = ((start + C - onset) / RATE + (when - began)) * 1000
+                    state = "paused"
+                elif msg.action == "resume":
+                    state = "playing"
+                elif msg.action == "interrupt":
+                    state = "stopped"
+            if start > at + len(user) and state == "stopped":
+                break
+        ears.on_message("played", Audio(data=np.zeros(0, np.int16), sample_rate=RATE, stamp=t0 + total / RATE))
+        ears.on_message("mic", Audio(data=np.zeros(0, np.int16), sample_rate=RATE, stamp=t0 + total / RATE))
+        ears.execute()
+        return {"stop_ms": stop_ms, "actions": decided, "interrupted": "interrupt" in decided,
+                "heard": [m.data for _, m in events if hasattr(m, "data") and isinstance(m.data, str)]}
+
+
+def barge_ears(model: str) -> Any:
+    """The ears of the barge-in bench and tests: SpeechToText with barge-in on, as examples/voice.py wires it."""
+    from embagents.components import SpeechToText, SpeechToTextConfig
+    from embagents.models import LocalModelClient
+    from embagents.msgs import Audio, BargeIn, String
+    from embagents.topic import Topic
+
+    ears = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all"), Topic("played", Audio, keep="all")],
+                        outputs=[Topic("heard", String), Topic("barge", BargeIn, keep="all")],
+                        model_client=LocalModelClient(model),
+                        config=SpeechToTextConfig(min_silence_ms=300, playback_input="played", log_level="warning"))
+    ears.on_configure()
+    return ears
+
+
+def barge_trials(n: int) -> tuple[list[BargeTrial], list[BargeTrial]]:
+    """``n`` real interruptions and ``n`` backchannels and coughs over the robot's answers, in varied rooms."""
+    from embagents.bench.echo_room import (
+        ROBOT_LINES,
+        USER_BACKCHANNELS,
+        USER_INTERRUPTIONS,
+        robot_says,
+        room_impulse_response,
+    )
+
+    lines = [robot_says(t) for t in ROBOT_LINES]
+    talks = [robot_says(t) for t in USER_INTERRUPTIONS]
+    nods = [robot_says(t) for t in USER_BACKCHANNELS]
+    interrupts, backchannels = [], []
+    for i in range(n):
+        h = room_impulse_response(RATE, delay_ms=20 + 1.5 * i, rt60_s=0.2 + 0.01 * i, seed=i)
+        at = 1.0 + 0.1 * (i % 6)
+        interrupts.append(BargeTrial(None, lines[i % 5], talks[i % 5], h, at, seed=i))
+        other = cough(i) if i % 4 == 3 else nods[i % 5]
+        backchannels.append(BargeTrial(None, lines[(i + 2) % 5], other, h, at, seed=50 + i))
+    return interrupts, backchannels
+
+
+@case("barge_in", transport="embagents", kind="speech", needs="sherpa_onnx")
+def barge_in(opts: BenchOptions) -> dict[str, Any]:
+    from actors import ActorSystem
+    from embagents.runtime.model_actor import ModelActor
+    from embagents.speechfiles import whisper_tiny_en_dir
+
+    n = 3 if opts.quick else 20
+    interrupts, backchannels = barge_trials(n)
+    stops, stopped, nod_interrupts, nod_pauses = [], 0, 0, 0
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "bench_whisper_b", "stt", whisper_tiny_en_dir(), {"threads": 1}, True, wait=120,
+                   heartbeat=None)
+        t0 = time.time()
+        for trial in interrupts:
+            trial.ears = barge_ears("bench_whisper_b")
+            got = trial.run(t0)
+            t0 += 100.0
+            stopped += got["interrupted"]
+            if got["stop_ms"] is not None:
+                stops.append(got["stop_ms"])
+        for trial in backchannels:
+            trial.ears = barge_ears("bench_whisper_b")
+            got = trial.run(t0)
+            t0 += 100.0
+            nod_interrupts += got["interrupted"]
+            nod_pauses += "pause" in got["actions"]
+    p50 = float(np.percentile(stops, 50)) if stops else float("nan")
+    p99 = float(np.percentile(stops, 99)) if stops else float("nan")
+    return {
+        "p50_us": p50 * 1e3, "p99_us": p99 * 1e3, "msgs_per_s": None,
+        "stop_p50_ms": round(p50, 1), "interruptions_stopped": stopped, "interruptions": n,
+        "backchannel_interrupts": nod_interrupts, "backchannel_pauses": nod_pauses, "backchannels": n,
+        "note": f"the robot's answers (Piper) through simulated rooms with AEC, the user's Piper voice over them: "
+                f"{stopped}/{n} interruptions stopped the robot (onset -> pause p50 {p50:.0f} ms, max "
+                f"{max(stops, default=float('nan')):.0f} ms); {nod_interrupts}/{n} backchannels and coughs "
+                f"interrupted ({nod_pauses} paused it and resumed); bars: stop_p50_ms <= 200, "
+                "interruptions_stopped == all, backchannel_interrupts == 0",
     }

@@ -32,8 +32,9 @@ ROBOT_LINES = (
     "The weather today is sunny and warm, with a light wind from the west in the afternoon.",
     "Your meeting starts at three o'clock in the small room on the second floor of the building.",
 )
-#: Short things a listener says while the robot speaks that must not interrupt it.
-USER_BACKCHANNELS = ("Mhm.", "Yeah.", "Okay.", "Uh-huh.", "Right.")
+#: Short things a listener says while the robot speaks that must not interrupt it. ("Mhm" and "uh-huh" are
+#: not among them: the Piper voice says them as no word Whisper knows, "and make an", "I heard".)
+USER_BACKCHANNELS = ("Yeah.", "Okay.", "Right.", "I see.", "Sure.")
 #: Things a listener says to interrupt the robot.
 USER_INTERRUPTIONS = (
     "Wait, stop, I meant the green cup.",

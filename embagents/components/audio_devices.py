@@ -25,7 +25,7 @@ the process and the system keep running.
 
 Example::
 
-    >>> from embagents.msgs import Audio
+    >>> from embagents.msgs import Audio, BargeIn
     >>> from embagents.topic import Topic
     >>> mic = Microphone(name="mic", outputs=[Topic("mic", Audio, keep="all")],
     ...                  config=MicrophoneConfig(device="USB", chunk_ms=50))
@@ -58,7 +58,7 @@ from embagents.config import (
     positive_float,
     to_bool,
 )
-from embagents.msgs import Audio
+from embagents.msgs import Audio, BargeIn
 
 __all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
 
@@ -363,9 +363,13 @@ class Speaker(_SoundDevice, AudioSink):
     device's rate and channels, each chunk stamped with the wall time its first
     sample leaves the speaker; an empty chunk stamped ``t`` says nothing plays from ``t`` on
     (after :meth:`pause` or :meth:`stop_playback`).
+
+    Its optional ``BargeIn`` input (SpeechToText's) acts at once, between two
+    writes: ``pause`` -> :meth:`pause`, ``resume`` -> :meth:`resume`,
+    ``interrupt`` -> :meth:`stop_playback`.
     """
 
-    allowed_inputs = {"Required": [Audio]}
+    allowed_inputs = {"Required": [Audio], "Optional": [BargeIn]}
     allowed_outputs = {"Optional": [Audio]}
     config_class = SpeakerConfig
     kind = "output"
@@ -386,6 +390,17 @@ class Speaker(_SoundDevice, AudioSink):
 
     def on_activate(self) -> None:
         self._open()  # health says at once whether the speaker is there, before anything is said
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if isinstance(msg, BargeIn) and topic_name in self._subscribed:
+            act = {"pause": self.pause, "resume": self.resume, "interrupt": self.stop_playback}.get(msg.action)
+            if act is None:
+                self.logger.warning("%s: BargeIn action %r ignored; it is pause, resume or interrupt",
+                                    self._label(), msg.action)
+            else:
+                act()
+            return False
+        return super().on_message(topic_name, msg, now)
 
     def _make_stream(self, sd: ModuleType) -> Any:
         c = self.config

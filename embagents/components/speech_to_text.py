@@ -51,12 +51,18 @@ from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
-from embagents.msgs import Audio, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String
 from embagents.topic import Topic
 
-__all__ = ["SpeechToText", "SpeechToTextConfig", "strip_wake_phrase"]
+__all__ = ["BACKCHANNELS", "SpeechToText", "SpeechToTextConfig", "is_backchannel", "strip_wake_phrase"]
+
+#: What a listener says to show they follow, not to take the turn (Whisper's spellings included).
+BACKCHANNELS = ("mhm", "m", "mm", "hmm", "mmhmm", "mm-hmm", "uh-huh", "uh", "huh", "um", "hm", "ah", "oh", "yeah", "yes",
+                "yep", "ok", "okay", "right", "all right", "sure", "alright", "i see", "got it", "aha")
 
 _WORD = re.compile(r"[\w']+")
+_NOT_SPEECH = re.compile(r"\[[^\]]*\]?|\([^)]*\)?|\*[^*]*\*?")
+_ECHO_TAIL_S = 0.25  # after the robot's last sound: its reverberation, a device's buffer
 
 
 def _unit(value: object) -> float:
@@ -72,6 +78,28 @@ def _phrase(value: object) -> str | None:
     if not isinstance(value, str) or not _WORD.search(value):
         raise ConfigError(f"wake_phrase must be a phrase of words (e.g. 'hey robot') or None, got {value!r}")
     return value
+
+
+def _phrases(value: object) -> tuple[str, ...]:
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, (list, tuple)) or not all(isinstance(p, str) and _WORD.search(p) for p in items):
+        raise ConfigError(f"backchannels must be a list of words or short phrases ('mhm', 'i see'), got {value!r}")
+    return tuple(p.lower() for p in items)
+
+
+def is_backchannel(text: str, backchannels: tuple[str, ...] = BACKCHANNELS) -> bool:
+    """True when ``text`` says nothing but backchannels ("mhm", "yeah, okay") or nothing at all (a cough).
+
+    >>> is_backchannel("Mm-hmm."), is_backchannel("Yeah, okay."), is_backchannel("Yeah, but stop.")
+    (True, True, False)
+    >>> is_backchannel(""), is_backchannel("[BLANK_AUDIO]"), is_backchannel("(coughs)")
+    (True, True, True)
+    """
+    text = _NOT_SPEECH.sub(" ", text)  # Whisper's "[BLANK_AUDIO]", "(coughs)", "*sighs*": no words said
+    said = " ".join(w.lower() for w in _WORD.findall(text.replace("-", "")))
+    for phrase in sorted(backchannels, key=len, reverse=True):
+        said = re.sub(rf"\b{re.escape(' '.join(_WORD.findall(phrase.replace('-', ''))))}\b", " ", said)
+    return not said.strip()
 
 
 def _optional_path(value: object) -> str | None:
@@ -96,6 +124,13 @@ class SpeechToTextConfig(BaseComponentConfig):
     - ``wake_phrase``: words a transcript must contain to be passed on (None:
       everything is); ``wake_window_s``: how long the phrase alone keeps the
       gate open; ``wake_word_model``/``wake_word_threshold``: an openWakeWord model instead.
+    - ``playback_input``: the input topic that carries the Speaker's ``played``
+      stream (what tells it the robot is speaking). With it and a ``BargeIn``
+      output, barge-in is on: ``interrupt_onset_ms`` of speech while the robot
+      speaks publishes ``pause``; once ``interrupt_min_speech_ms`` of speech has
+      words that are not all ``backchannels`` it publishes ``interrupt``; a
+      backchannel or a noise (no words) publishes ``resume``, as does no decision
+      within ``false_interruption_s``.
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -112,6 +147,11 @@ class SpeechToTextConfig(BaseComponentConfig):
     wake_window_s: float = field(default=8.0, converter=positive_float)
     wake_word_model: str | None = field(default=None, converter=_optional_path)
     wake_word_threshold: float = field(default=0.5, converter=_unit)
+    playback_input: str | None = field(default=None, converter=_optional_path)
+    interrupt_onset_ms: float = field(default=32.0, converter=positive_float)
+    interrupt_min_speech_ms: float = field(default=500.0, converter=positive_float)
+    backchannels: tuple[str, ...] = field(default=BACKCHANNELS, converter=_phrases)
+    false_interruption_s: float = field(default=2.0, converter=positive_float)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -134,8 +174,8 @@ def strip_wake_phrase(text: str, phrase: str) -> str | None:
 class SpeechToText(ModelComponent):
     """Transcribes speech with a speech-to-text model (see the module docstring)."""
 
-    allowed_inputs = {"Required": [Audio]}
-    allowed_outputs = {"Required": [String], "Optional": [StreamingString]}
+    allowed_inputs = {"Required": [Audio], "Optional": [Audio]}  # the microphone; the Speaker's played stream
+    allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn]}
     config_class = SpeechToTextConfig
 
     def __init__(self, *, name: str, **kw: Any) -> None:
@@ -145,6 +185,13 @@ class SpeechToText(ModelComponent):
         self._since_partial = 0  # samples since the last partial transcript
         self._utterances = 0
         self._awake_until = 0.0
+        self._onset: Any = None  # barge-in's speech onset detector (None: barge-in off)
+        self._played_until = 0.0  # wall time the robot's last played audio ends
+        self._barge = ""  # "", "paused" (the robot held), "interrupted"
+        self._barge_at = 0.0  # when the speech that paused it began
+        self._last_voice = 0.0  # last window of speech (onset detector)
+        self._checked_samples = 0  # the utterance's length at its last mid-speech check
+        self.barge_ins: dict[str, int] = {"pause": 0, "resume": 0, "interrupt": 0}
         super().__init__(name=name, **kw)
 
     def _add_client(self, key: str, client: Any) -> str:
@@ -163,6 +210,15 @@ class SpeechToText(ModelComponent):
         problems = super().validate()
         if self.config.max_utterance_ms <= self.config.min_speech_ms:
             problems.append(("bad-config", f"{self._label()}: max_utterance_ms must be above min_speech_ms"))
+        names = [t.name for t in self.inputs]
+        playback = self.config.playback_input
+        if playback is not None and playback not in names[1:]:
+            problems.append(("bad-config", f"{self._label()}: playback_input {playback!r} is not one of its inputs "
+                                           f"after the microphone ({', '.join(names[1:]) or 'none'}); add the "
+                                           "Speaker's played topic to inputs"))
+        if len(names) > 1 and playback is None:
+            problems.append(("bad-config", f"{self._label()}: a second Audio input is the Speaker's played stream: "
+                                           f"name it in playback_input (e.g. playback_input={names[1]!r})"))
         return problems
 
     def run_warmup(self) -> None:
@@ -184,17 +240,39 @@ class SpeechToText(ModelComponent):
             if t.keep != "all":  # a dropped chunk is a hole in a word
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
+        if cfg.playback_input and self._barge_outputs and self._vad is not None:
+            from embagents.models.backends.sherpa_vad import SpeechOnset
+            from embagents.speechfiles import silero_vad_path
+
+            self._onset = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
         super().on_configure()
-        self.logger.info("%s: listening (VAD %s, wake phrase %r, model client %s)", self._label(),
-                         "on" if self._vad else "off", cfg.wake_phrase, self.client_name)
+        self.logger.info("%s: listening (VAD %s, wake phrase %r, barge-in %s, model client %s)", self._label(),
+                         "on" if self._vad else "off", cfg.wake_phrase, "on" if self._onset else "off",
+                         self.client_name)
 
     # --- steps ------------------------------------------------------------------------------
     @property
     def _partials(self) -> list[Topic]:
         return [t for t in self.outputs if t.msg_type is StreamingString]
 
+    @property
+    def _barge_outputs(self) -> list[Topic]:
+        return [t for t in self.outputs if t.msg_type is BargeIn]
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if topic_name == self.config.playback_input and topic_name in self._subscribed:
+            if isinstance(msg, Audio):  # what the robot plays: when it is speaking (an empty chunk: it stopped)
+                if msg.data.size:
+                    ends = msg.stamp + msg.data.size / max(1, msg.channels) / max(1, msg.sample_rate)
+                    self._played_until = max(self._played_until, ends)
+                else:
+                    self._played_until = min(self._played_until, msg.stamp)
+            return False
+        return super().on_message(topic_name, msg, now)
+
     def _execution_step(self, **inputs: Any) -> None:
-        topic = next((t for t in self.inputs if t.name in self.fresh_inputs and inputs.get(t.name) is not None), None)
+        topic = next((t for t in self.inputs if t.name in self.fresh_inputs and inputs.get(t.name) is not None
+                      and t.name != self.config.playback_input), None)
         if topic is None:
             return
         try:
@@ -217,7 +295,61 @@ class SpeechToText(ModelComponent):
             return
         for utterance in self._vad.feed(samples):
             self._finish(utterance)
+        if self._onset is not None:
+            self._barge_in(samples, msg.stamp or time.time())
         self._partial(samples)
+
+    # --- barge-in ---------------------------------------------------------------------------
+    def _barge_publish(self, action: str, text: str = "") -> None:
+        self.barge_ins[action] += 1
+        self.logger.info("%s: barge-in: %s%s", self._label(), action, f" ({text!r})" if text else "")
+        for t in self._barge_outputs:
+            self.publish(t, BargeIn(action=action, text=text, stamp=self._barge_at))
+
+    def _barge_in(self, samples: np.ndarray, now: float) -> None:
+        """Speech while the robot speaks: pause it at once, then decide (see SpeechToTextConfig).
+
+        ``now``: when the chunk's last sample was heard (its stamp): decisions go by the audio's time.
+        """
+        cfg = self.config
+        run = self._onset.feed(samples)
+        if run:
+            self._last_voice = now
+        if self._barge == "":
+            # The robot is speaking: its sound is still playing, or ended so lately that its echo is about.
+            speaking = now < self._played_until + _ECHO_TAIL_S
+            if run * self._onset.window * 1000 >= cfg.interrupt_onset_ms * 16000 and speaking:
+                self._barge = "paused"
+                self._barge_at = now - run * self._onset.window / 16000  # when the speech began
+                self._checked_samples = 0
+                self._barge_publish("pause")
+            return
+        if self._barge != "paused":
+            return
+        if self._vad.speaking:
+            current = self._vad.current()
+            grown = len(current) - self._checked_samples
+            if len(current) * 1000 >= cfg.interrupt_min_speech_ms * 16000 and grown * 1000 >= 300 * 16000:
+                self._checked_samples = len(current)
+                text = self._transcribe(current)
+                if text and not is_backchannel(text, cfg.backchannels):
+                    self._barge = "interrupted"
+                    self._barge_publish("interrupt", text)
+        elif now - self._last_voice > cfg.min_silence_ms / 1000 or now - self._barge_at > cfg.false_interruption_s:
+            self._barge = ""  # a noise too short to be an utterance, or no decision in time: play on
+            self._barge_publish("resume")
+
+    def _barge_heard(self, text: str) -> bool:
+        """An utterance ended while barge-in holds the robot: True when it is passed on as a question."""
+        if self._barge == "paused":
+            self._barge = ""
+            if is_backchannel(text, self.config.backchannels):
+                self._barge_publish("resume", text)
+                return False
+            self._barge_publish("interrupt", text)
+        elif self._barge == "interrupted":
+            self._barge = ""
+        return True
 
     def _partial(self, samples: np.ndarray) -> None:
         if not self._partials or not self._vad.speaking:
@@ -255,6 +387,9 @@ class SpeechToText(ModelComponent):
             return
         stream_id = self._stream_id()
         self._utterances += 1
+        if not self._barge_heard(text):
+            self.logger.info("%s: %r was a backchannel or a noise: the robot speaks on", self._label(), text)
+            return
         if not text:
             self.logger.info("%s: heard nothing in %.1f s of audio (no words)", self._label(), len(utterance) / 16000)
             return
