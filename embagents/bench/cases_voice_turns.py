@@ -28,7 +28,7 @@ __all__: list[str] = []
 
 RATE = 16000
 CHUNK = 1600  # 100 ms
-BARGE_CHUNK = 800  # 50 ms: a microphone at chunk_ms=50, as a voice robot that can be interrupted runs it
+BARGE_CHUNK = 320  # 20 ms: a microphone at chunk_ms=20, as a voice robot that can be interrupted runs it (LiveKit: 10-20 ms)
 
 
 def _echo_stream(n: int, noise_db: float | None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
@@ -161,15 +161,25 @@ class BargeTrial:
 
         rng = np.random.default_rng(self.seed)
         C = self.chunk
+        self.heard: list[np.ndarray] = []  # what the ears got (after echo cancellation)
+        self.early_pauses = 0
         ears, events = self.ears, []
         ears.attach(lambda topic, msg: events.append((time.perf_counter(), msg)))
         aec = EchoCanceller(RATE)
+        zi = np.zeros(len(self.h) - 1)
+        # The robot said something in this room before (a canceller on a robot has long converged): the line
+        # once, ended 0.5 s before this answer starts.
+        warm = np.concatenate([self.line, np.zeros(RATE // 2, np.int16)])
+        w0 = t0 - len(warm) / RATE
+        aec.reference(warm, RATE, w0)
+        for k in range(0, len(warm) - C + 1, C):
+            echo, zi = lfilter(self.h, [1.0], warm[k:k + C].astype(np.float64) / 32768.0 * 0.35, zi=zi)
+            aec.process(to_int16(echo + rng.standard_normal(C) * 10 ** (-65 / 20)), w0 + (k + C) / RATE)
         user = self.user.astype(np.float64) / 32768.0
         user *= 10 ** ((self.user_db - rms_db(user)) / 20)
         at = int(self.at_s * RATE)
         onset = at + int(np.flatnonzero(np.abs(user) > 0.003)[0])
         total = at + len(user) + int(tail_s * RATE)
-        zi = np.zeros(len(self.h) - 1)
         pos, state, stop_ms, decided = 0, "playing", None, []
         for k in range(total // C):
             start = k * C
@@ -189,6 +199,7 @@ class BargeTrial:
                 mic[lo - start:hi - start] += user[lo - at:hi - at]
             stamp = t0 + (start + C) / RATE
             clean = aec.process(to_int16(mic), stamp)
+            self.heard.append(clean)
             began = time.perf_counter()
             events.clear()
             if ears.on_message("mic", Audio(data=clean, sample_rate=RATE, stamp=stamp)):
@@ -197,7 +208,10 @@ class BargeTrial:
                 if not isinstance(msg, BargeIn):
                     continue
                 decided.append(msg.action)
-                if msg.action == "pause" and stop_ms is None:
+                if msg.action == "pause" and start + C < onset:
+                    self.early_pauses += 1  # paused by the echo, before the user said anything
+                    state = "paused"
+                elif msg.action == "pause" and stop_ms is None:
                     stop_ms = ((start + C - onset) / RATE + (when - began)) * 1000
                     state = "paused"
                 elif msg.action == "resume":
@@ -209,11 +223,11 @@ class BargeTrial:
         ears.on_message("played", Audio(data=np.zeros(0, np.int16), sample_rate=RATE, stamp=t0 + total / RATE))
         ears.on_message("mic", Audio(data=np.zeros(0, np.int16), sample_rate=RATE, stamp=t0 + total / RATE))
         ears.execute()
-        return {"stop_ms": stop_ms, "actions": decided, "interrupted": "interrupt" in decided,
+        return {"stop_ms": stop_ms, "actions": decided, "early_pauses": self.early_pauses, "interrupted": "interrupt" in decided,
                 "heard": [m.data for _, m in events if hasattr(m, "data") and isinstance(m.data, str)]}
 
 
-def barge_ears(model: str) -> Any:
+def barge_ears(model: str, **config: Any) -> Any:
     """The ears of the barge-in bench and tests: SpeechToText with barge-in on, as examples/voice.py wires it."""
     from embagents.components import SpeechToText, SpeechToTextConfig
     from embagents.models import LocalModelClient
@@ -223,7 +237,8 @@ def barge_ears(model: str) -> Any:
     ears = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all"), Topic("played", Audio, keep="all")],
                         outputs=[Topic("heard", String), Topic("barge", BargeIn, keep="all")],
                         model_client=LocalModelClient(model),
-                        config=SpeechToTextConfig(min_silence_ms=300, playback_input="played", log_level="warning"))
+                        config=SpeechToTextConfig(min_silence_ms=300, playback_input="played", log_level="warning",
+                                                  **config))
     ears.on_configure()
     return ears
 

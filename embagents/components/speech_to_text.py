@@ -50,7 +50,7 @@ from attrs import define, field
 from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
-from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
 from embagents.msgs import Audio, BargeIn, StreamingString, String
 from embagents.topic import Topic
 
@@ -92,14 +92,32 @@ def is_backchannel(text: str, backchannels: tuple[str, ...] = BACKCHANNELS) -> b
 
     >>> is_backchannel("Mm-hmm."), is_backchannel("Yeah, okay."), is_backchannel("Yeah, but stop.")
     (True, True, False)
+    >>> is_backchannel("See."), is_backchannel("I see the cup.")
+    (True, False)
     >>> is_backchannel(""), is_backchannel("[BLANK_AUDIO]"), is_backchannel("(coughs)")
     (True, True, True)
     """
     text = _NOT_SPEECH.sub(" ", text)  # Whisper's "[BLANK_AUDIO]", "(coughs)", "*sighs*": no words said
-    said = " ".join(w.lower() for w in _WORD.findall(text.replace("-", "")))
-    for phrase in sorted(backchannels, key=len, reverse=True):
-        said = re.sub(rf"\b{re.escape(' '.join(_WORD.findall(phrase.replace('-', ''))))}\b", " ", said)
-    return not said.strip()
+    # Word by word: the words of a backchannel phrase count alone too ("see" is "I see" misheard).
+    known = {w.lower() for p in backchannels for w in _WORD.findall(p.replace("-", ""))}
+    return all(w.lower() in known for w in _WORD.findall(text.replace("-", "")))
+
+
+def _news(text: str, backchannels: tuple[str, ...]) -> int:
+    """How many words of ``text`` are not backchannels."""
+    return sum(not is_backchannel(w, backchannels) for w in _WORD.findall(_NOT_SPEECH.sub(" ", text)))
+
+
+def _optional_db(value: object) -> float | None:
+    if value is None:
+        return None
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        out = 1.0
+    if isinstance(value, bool) or not -120.0 <= out <= 0.0:
+        raise ConfigError(f"interrupt_level_db is a level in dBFS in [-120, 0] (e.g. -45) or None, got {value!r}")
+    return out
 
 
 def _optional_path(value: object) -> str | None:
@@ -127,9 +145,14 @@ class SpeechToTextConfig(BaseComponentConfig):
     - ``playback_input``: the input topic that carries the Speaker's ``played``
       stream (what tells it the robot is speaking). With it and a ``BargeIn``
       output, barge-in is on: ``interrupt_onset_ms`` of speech while the robot
-      speaks publishes ``pause``; once ``interrupt_min_speech_ms`` of speech has
-      words that are not all ``backchannels`` it publishes ``interrupt``; a
-      backchannel or a noise (no words) publishes ``resume``, as does no decision
+      speaks publishes ``pause`` (Silero's speech probability above
+      ``interrupt_vad_threshold``: below the utterance threshold, as the echo
+      canceller turns the start of speech over the robot's voice down, or
+      twice as long at ``interrupt_level_db`` dBFS or above: the canceller
+      leaves the robot's voice near the noise floor); once ``interrupt_min_speech_ms``
+      of speech has ``interrupt_min_words`` words that are not ``backchannels``
+      (mid-speech a short sound is often misheard), or an utterance that long
+      ends with any such word, it publishes ``interrupt``; a backchannel or a noise (no words) publishes ``resume``, as does no decision
       within ``false_interruption_s``.
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
@@ -149,7 +172,10 @@ class SpeechToTextConfig(BaseComponentConfig):
     wake_word_threshold: float = field(default=0.5, converter=_unit)
     playback_input: str | None = field(default=None, converter=_optional_path)
     interrupt_onset_ms: float = field(default=32.0, converter=positive_float)
+    interrupt_vad_threshold: float = field(default=0.3, converter=_unit)
+    interrupt_level_db: float | None = field(default=-45.0, converter=_optional_db)
     interrupt_min_speech_ms: float = field(default=500.0, converter=positive_float)
+    interrupt_min_words: int = field(default=2, converter=int_at_least(1))
     backchannels: tuple[str, ...] = field(default=BACKCHANNELS, converter=_phrases)
     false_interruption_s: float = field(default=2.0, converter=positive_float)
 
@@ -244,7 +270,8 @@ class SpeechToText(ModelComponent):
             from embagents.models.backends.sherpa_vad import SpeechOnset
             from embagents.speechfiles import silero_vad_path
 
-            self._onset = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
+            self._onset = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.interrupt_vad_threshold,
+                                      level_db=cfg.interrupt_level_db)
         super().on_configure()
         self.logger.info("%s: listening (VAD %s, wake phrase %r, barge-in %s, model client %s)", self._label(),
                          "on" if self._vad else "off", cfg.wake_phrase, "on" if self._onset else "off",
@@ -313,14 +340,17 @@ class SpeechToText(ModelComponent):
         """
         cfg = self.config
         run = self._onset.feed(samples)
-        if run:
+        if run or self._onset.loud:
             self._last_voice = now
         if self._barge == "":
             # The robot is speaking: its sound is still playing, or ended so lately that its echo is about.
             speaking = now < self._played_until + _ECHO_TAIL_S
-            if run * self._onset.window * 1000 >= cfg.interrupt_onset_ms * 16000 and speaking:
+            # Speech, or sound well above the cancelled echo's floor for twice as long (a voice, a cough: the
+            # decision below tells them apart).
+            windows = max(run, self._onset.loud // 2)
+            if windows * self._onset.window * 1000 >= cfg.interrupt_onset_ms * 16000 and speaking:
                 self._barge = "paused"
-                self._barge_at = now - run * self._onset.window / 16000  # when the speech began
+                self._barge_at = now - windows * self._onset.window / 16000  # when the speech began
                 self._checked_samples = 0
                 self._barge_publish("pause")
             return
@@ -332,18 +362,25 @@ class SpeechToText(ModelComponent):
             if len(current) * 1000 >= cfg.interrupt_min_speech_ms * 16000 and grown * 1000 >= 300 * 16000:
                 self._checked_samples = len(current)
                 text = self._transcribe(current)
-                if text and not is_backchannel(text, cfg.backchannels):
+                # Mid-speech, a word or two of a short sound is often misheard ("okay" as "and"): it takes
+                # interrupt_min_words that are not backchannels; the utterance's end decides on any word.
+                if text and _news(text, cfg.backchannels) >= cfg.interrupt_min_words:
                     self._barge = "interrupted"
                     self._barge_publish("interrupt", text)
         elif now - self._last_voice > cfg.min_silence_ms / 1000 or now - self._barge_at > cfg.false_interruption_s:
             self._barge = ""  # a noise too short to be an utterance, or no decision in time: play on
             self._barge_publish("resume")
 
-    def _barge_heard(self, text: str) -> bool:
-        """An utterance ended while barge-in holds the robot: True when it is passed on as a question."""
+    def _barge_heard(self, text: str, seconds: float) -> bool:
+        """An utterance ended while barge-in holds the robot: True when it is passed on as a question.
+
+        A short one (under interrupt_min_speech_ms) takes interrupt_min_words, as a partial does.
+        """
+        cfg = self.config
         if self._barge == "paused":
             self._barge = ""
-            if is_backchannel(text, self.config.backchannels):
+            short = seconds * 1000 < cfg.interrupt_min_speech_ms
+            if _news(text, cfg.backchannels) < (cfg.interrupt_min_words if short else 1):
                 self._barge_publish("resume", text)
                 return False
             self._barge_publish("interrupt", text)
@@ -387,7 +424,7 @@ class SpeechToText(ModelComponent):
             return
         stream_id = self._stream_id()
         self._utterances += 1
-        if not self._barge_heard(text):
+        if not self._barge_heard(text, len(utterance) / 16000):
             self.logger.info("%s: %r was a backchannel or a noise: the robot speaks on", self._label(), text)
             return
         if not text:

@@ -102,10 +102,13 @@ class SpeechOnset:
 
     Silero VAD's per-window decision (``sherpa_onnx.VadModel.is_speech``, the same model file as
     :class:`SpeechSegmenter`); :meth:`feed` returns how many windows in a row, up to the last one fed, are
-    speech (0 after a silent window).
+    speech (0 after a silent window); :attr:`loud` counts the windows in a row whose level is at least
+    ``level_db`` (dBFS RMS; None: not counted), a faster sign of the user where the echo canceller has
+    taken the robot's voice down to its noise floor but turns the start of the user's speech over it down too.
     """
 
-    def __init__(self, model: str, *, threshold: float = 0.5, threads: int = 1) -> None:
+    def __init__(self, model: str, *, threshold: float = 0.5, level_db: float | None = None,
+                 threads: int = 1) -> None:
         import sherpa_onnx
 
         if not os.path.isfile(model):
@@ -123,6 +126,8 @@ class SpeechOnset:
         self.window = int(self.model.window_size())
         self._pending = np.zeros(0, np.float32)
         self.run = 0  # speech windows in a row
+        self.loud = 0  # windows in a row at level_db or above
+        self.level = None if level_db is None else 10 ** (level_db / 10)  # mean square
         self.windows = 0  # windows seen so far
 
     def feed(self, samples: np.ndarray) -> int:
@@ -132,6 +137,9 @@ class SpeechOnset:
         whole = len(buf) - len(buf) % w
         for i in range(0, whole, w):
             self.windows += 1
-            self.run = self.run + 1 if self.model.is_speech(buf[i:i + w]) else 0
+            window = buf[i:i + w]
+            self.run = self.run + 1 if self.model.is_speech(window) else 0
+            if self.level is not None:
+                self.loud = self.loud + 1 if float(np.mean(window * window)) >= self.level else 0
         self._pending = buf[whole:]
         return self.run
