@@ -274,7 +274,7 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
 
     n = 3 if opts.quick else 20
     interrupts, backchannels = barge_trials(n)
-    stops, stopped, nod_interrupts, nod_pauses = [], 0, 0, 0
+    stops, stopped, nod_interrupts, nod_pauses, echo_pauses = [], 0, 0, 0, 0
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "bench_whisper_b", "stt", whisper_tiny_en_dir(), {"threads": 1}, True, wait=120,
                    heartbeat=None)
@@ -284,6 +284,7 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
             got = trial.run(t0)
             t0 += 100.0
             stopped += got["interrupted"]
+            echo_pauses += got["early_pauses"]
             if got["stop_ms"] is not None:
                 stops.append(got["stop_ms"])
         for trial in backchannels:
@@ -291,6 +292,7 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
             got = trial.run(t0)
             t0 += 100.0
             nod_interrupts += got["interrupted"]
+            echo_pauses += got["early_pauses"]
             nod_pauses += "pause" in got["actions"]
     p50 = float(np.percentile(stops, 50)) if stops else float("nan")
     p99 = float(np.percentile(stops, 99)) if stops else float("nan")
@@ -298,9 +300,121 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
         "p50_us": p50 * 1e3, "p99_us": p99 * 1e3, "msgs_per_s": None,
         "stop_p50_ms": round(p50, 1), "interruptions_stopped": stopped, "interruptions": n,
         "backchannel_interrupts": nod_interrupts, "backchannel_pauses": nod_pauses, "backchannels": n,
+        "echo_pauses": echo_pauses,
         "note": f"the robot's answers (Piper) through simulated rooms with AEC, the user's Piper voice over them: "
                 f"{stopped}/{n} interruptions stopped the robot (onset -> pause p50 {p50:.0f} ms, max "
                 f"{max(stops, default=float('nan')):.0f} ms); {nod_interrupts}/{n} backchannels and coughs "
-                f"interrupted ({nod_pauses} paused it and resumed); bars: stop_p50_ms <= 200, "
+                f"interrupted ({nod_pauses} paused it and resumed); the echo alone paused it {echo_pauses} times in "
+                f"{2 * n} answers (resumed); bars: stop_p50_ms <= 200, "
                 "interruptions_stopped == all, backchannel_interrupts == 0",
+    }
+
+
+#: Complete questions, and questions with a pause mid-sentence (the first part trails off).
+QUESTIONS = (
+    "Can you bring me the red cup from the kitchen?",
+    "What is the weather like in Paris today?",
+    "Please turn off the lights in the living room.",
+    "How long will it take to charge your battery?",
+    "Where did you put my keys this morning?",
+    "Could you tell me a short story about a dragon?",
+    "What time does the train to Berlin leave?",
+    "Go to the door and wait for me there.",
+    "Is there any milk left in the fridge?",
+    "Remind me to call my mother at six o'clock.",
+)
+SPLIT_QUESTIONS = (
+    ("Can you bring me the", "red cup from the kitchen?"),
+    ("What is the weather like in", "Paris today?"),
+    ("Please turn off the lights in the", "living room."),
+    ("How long will it take to", "charge your battery?"),
+    ("Where did you put my", "keys this morning?"),
+    ("Could you tell me a short story about", "a dragon?"),
+    ("What time does the train to", "Berlin leave?"),
+    ("Go to the door and", "wait for me there."),
+    ("Is there any milk left in the", "fridge?"),
+    ("Remind me to call my mother at", "six o'clock."),
+)
+
+
+def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
+    """``(clip, speech_end, split)``: ``n`` complete questions and ``n`` with a 500-800 ms pause mid-sentence."""
+    from embagents.bench.echo_room import robot_says
+
+    clips = []
+    for i in range(n):
+        q = robot_says(QUESTIONS[i % len(QUESTIONS)])
+        clips.append((np.concatenate([np.zeros(RATE // 2, np.int16), q, np.zeros(2 * RATE, np.int16)]),
+                      RATE // 2 + len(q), False))
+    for i in range(n):
+        a, b = (robot_says(t) for t in SPLIT_QUESTIONS[i % len(SPLIT_QUESTIONS)])
+        pause = np.zeros(int(RATE * (0.5 + 0.3 * i / max(1, n - 1))), np.int16)
+        speech = np.concatenate([np.zeros(RATE // 2, np.int16), a, pause, b])
+        clips.append((np.concatenate([speech, np.zeros(2 * RATE, np.int16)]), len(speech), True))
+    return clips
+
+
+def turn_run(ears: Any, clip: np.ndarray, t0: float) -> tuple[int, float | None]:
+    """Feed ``clip`` in 20 ms chunks; ``(utterances heard, end of turn delay in s of the first)``."""
+    from embagents.msgs import Audio, String
+
+    heard: list[float] = []
+    ears.attach(lambda topic, msg: heard.append(time.monotonic()) if isinstance(msg, String) else None)
+    delay = None
+    for i in range(0, len(clip), 320):
+        if ears.on_message("mic", Audio(data=clip[i:i + 320], stamp=t0 + (i + 320) / RATE)):
+            ears.execute()
+        if heard and delay is None:
+            delay = ears.last_eou_delay
+    n = len(heard)
+    ears.on_message("mic", Audio(data=np.zeros(0, np.int16), stamp=t0 + len(clip) / RATE))
+    ears.execute()
+    return n, delay
+
+
+@case("turn_detection", transport="embagents", kind="speech", needs="sherpa_onnx")
+def turn_detection(opts: BenchOptions) -> dict[str, Any]:
+    from actors import ActorSystem
+    from embagents.components import SpeechToText, SpeechToTextConfig
+    from embagents.models import LocalModelClient, TurnDetectorModel
+    from embagents.msgs import Audio, String
+    from embagents.runtime.model_actor import ModelActor
+    from embagents.speechfiles import whisper_tiny_en_dir
+    from embagents.topic import Topic
+
+    n = 3 if opts.quick else 20
+    clips = turn_clips(n)
+    turn = TurnDetectorModel(name="bench_turn")
+    results: dict[str, dict[str, Any]] = {}
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "bench_whisper_t", "stt", whisper_tiny_en_dir(), {"threads": 1}, True, wait=120,
+                   heartbeat=None)
+        asys.spawn(ModelActor, "bench_turn", "turn", turn.resolve(), turn.options(), True, wait=120, heartbeat=None)
+        for label, client, silence in (("model", LocalModelClient("bench_turn"), 1000.0), ("silence", None, 500.0)):
+            cutoffs, delays = 0, []
+            t0 = time.time()
+            for clip, _, split in clips:
+                ears = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")],
+                                    outputs=[Topic("heard", String)], model_client=LocalModelClient("bench_whisper_t"),
+                                    turn_model_client=client,
+                                    config=SpeechToTextConfig(min_silence_ms=silence, log_level="warning"))
+                ears.on_configure()
+                heard, delay = turn_run(ears, clip, t0)
+                t0 += 100.0
+                if split:
+                    cutoffs += heard > 1
+                elif delay is not None:
+                    delays.append(delay * 1000)
+            results[label] = {"cutoffs": cutoffs, "eou_p50_ms": float(np.percentile(delays, 50)) if delays else None,
+                              "eou_max_ms": max(delays, default=None)}
+    m, s = results["model"], results["silence"]
+    return {
+        "p50_us": (m["eou_p50_ms"] or 0) * 1e3, "p99_us": (m["eou_max_ms"] or 0) * 1e3, "msgs_per_s": None,
+        "cutoffs": m["cutoffs"], "eou_p50_ms": m["eou_p50_ms"], "clips": 2 * n,
+        "silence_cutoffs": s["cutoffs"], "silence_eou_p50_ms": s["eou_p50_ms"],
+        "note": f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice): Smart "
+                f"Turn v3 after {SpeechToTextConfig().turn_silence_ms:g} ms of pause (fallback: 1 s of silence) cut "
+                f"{m['cutoffs']}/{n} off, end of turn {m['eou_p50_ms']:.0f} ms after the question (p50); silence "
+                f"endpointing at 500 ms cut {s['cutoffs']}/{n} off, {s['eou_p50_ms']:.0f} ms; bars: cutoffs <= 2, "
+                "eou_p50_ms <= 300",
     }

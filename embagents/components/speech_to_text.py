@@ -154,6 +154,11 @@ class SpeechToTextConfig(BaseComponentConfig):
       (mid-speech a short sound is often misheard), or an utterance that long
       ends with any such word, it publishes ``interrupt``; a backchannel or a noise (no words) publishes ``resume``, as does no decision
       within ``false_interruption_s``.
+    - ``turn_silence_ms``: with a ``turn_model_client`` (an end-of-turn model,
+      :class:`~embagents.models.TurnDetectorModel`), the pause after which it is
+      asked whether the user has finished: yes ends the utterance there; no
+      waits, and ``min_silence_ms`` (raise it, e.g. to 1000) stays the fallback
+      and ``max_utterance_ms`` the hard maximum.
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -178,6 +183,7 @@ class SpeechToTextConfig(BaseComponentConfig):
     interrupt_min_words: int = field(default=2, converter=int_at_least(1))
     backchannels: tuple[str, ...] = field(default=BACKCHANNELS, converter=_phrases)
     false_interruption_s: float = field(default=2.0, converter=positive_float)
+    turn_silence_ms: float = field(default=150.0, converter=positive_float)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -204,7 +210,13 @@ class SpeechToText(ModelComponent):
     allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn]}
     config_class = SpeechToTextConfig
 
-    def __init__(self, *, name: str, **kw: Any) -> None:
+    def __init__(self, *, name: str, turn_model_client: Any = None, **kw: Any) -> None:
+        self.turn_client = turn_model_client  # an end-of-turn model (LocalModelClient(TurnDetectorModel(...)))
+        self._turn_vad: Any = None
+        self._turn_asked = False  # asked in this pause already
+        self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0}
+        #: The last turn's end-of-turn delay (s): end of speech -> the decision (``eou_delay``).
+        self.last_eou_delay: float | None = None
         self._vad: Any = None
         self._wake_word: Any = None
         self._formats_seen: set[tuple[int, int]] = set()
@@ -266,6 +278,11 @@ class SpeechToText(ModelComponent):
             if t.keep != "all":  # a dropped chunk is a hole in a word
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
+        if self.turn_client is not None and self._vad is not None:
+            from embagents.models.backends.sherpa_vad import SpeechOnset
+            from embagents.speechfiles import silero_vad_path
+
+            self._turn_vad = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
         if cfg.playback_input and self._barge_outputs and self._vad is not None:
             from embagents.models.backends.sherpa_vad import SpeechOnset
             from embagents.speechfiles import silero_vad_path
@@ -321,10 +338,42 @@ class SpeechToText(ModelComponent):
             self._finish(samples)
             return
         for utterance in self._vad.feed(samples):
+            self.turns["silence"] += 1
+            self.last_eou_delay = self.config.min_silence_ms / 1000
             self._finish(utterance)
+        if self._turn_vad is not None:
+            self._end_of_turn(samples)
         if self._onset is not None:
             self._barge_in(samples, msg.stamp or time.time())
         self._partial(samples)
+
+    # --- end of turn -----------------------------------------------------------------------
+    def _end_of_turn(self, samples: np.ndarray) -> None:
+        """After ``turn_silence_ms`` of pause, ask the turn model; a finished turn ends the utterance now."""
+        from embagents.models.protocol import ModelError, ModelUnavailable
+
+        vad = self._turn_vad
+        vad.feed(samples)
+        if vad.quiet == 0:
+            self._turn_asked = False
+            return
+        pause_s = vad.quiet * vad.window / 16000
+        if self._turn_asked or not self._vad.speaking or pause_s * 1000 < self.config.turn_silence_ms:
+            return
+        self._turn_asked = True
+        began = time.monotonic()
+        try:
+            complete = bool(self.turn_client.end_of_turn(self._vad.current()).get("complete"))
+        except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
+            self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
+            return
+        if not complete:
+            self.turns["not_yet"] += 1
+            return
+        self.turns["model"] += 1
+        self.last_eou_delay = pause_s + time.monotonic() - began
+        for utterance in self._vad.flush():
+            self._finish(utterance)
 
     # --- barge-in ---------------------------------------------------------------------------
     def _barge_publish(self, action: str, text: str = "") -> None:

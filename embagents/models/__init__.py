@@ -30,6 +30,7 @@ from embagents.models.declarations import (
     Model,
     SpeechToTextModel,
     TextToSpeechModel,
+    TurnDetectorModel,
     VLMModel,
 )
 from embagents.models.inventory import models_of
@@ -58,6 +59,7 @@ __all__ = [
     "ModelError",
     "ModelUnavailable",
     "StaleInput",
+    "TurnDetectorModel",
     "PolicyClient",
     "PolicyError",
     "PolicyLate",

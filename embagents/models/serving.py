@@ -169,6 +169,12 @@ def _tts(path: str, options: dict[str, Any]) -> Any:
     return TextToSpeechServing(path, options)
 
 
+def _turn(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.speech_serving import TurnServing
+
+    return TurnServing(path, options)
+
+
 def _policy(path: str, options: dict[str, Any]) -> Any:
     from embagents.models.policy import PolicyServing
 
@@ -221,7 +227,7 @@ class EmbeddingServing:
 
 _KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
     "llama": ChatServing, "detector": DetectorServing, "embedding": EmbeddingServing, "policy": _policy, "stt": _stt,
-    "tts": _tts, "vlm": VLMServing,
+    "tts": _tts, "vlm": VLMServing, "turn": _turn,
 }
 
 

@@ -126,6 +126,7 @@ class SpeechOnset:
         self.window = int(self.model.window_size())
         self._pending = np.zeros(0, np.float32)
         self.run = 0  # speech windows in a row
+        self.quiet = 0  # silent windows in a row
         self.loud = 0  # windows in a row at level_db or above
         self.level = None if level_db is None else 10 ** (level_db / 10)  # mean square
         self.windows = 0  # windows seen so far
@@ -138,7 +139,9 @@ class SpeechOnset:
         for i in range(0, whole, w):
             self.windows += 1
             window = buf[i:i + w]
-            self.run = self.run + 1 if self.model.is_speech(window) else 0
+            speech = self.model.is_speech(window)
+            self.run = self.run + 1 if speech else 0
+            self.quiet = 0 if speech else self.quiet + 1
             if self.level is not None:
                 self.loud = self.loud + 1 if float(np.mean(window * window)) >= self.level else 0
         self._pending = buf[whole:]
