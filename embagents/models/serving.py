@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'embedding', 'llama', 'policy', 'stt', 'tts', 'vlm']
+    ['detector', 'embedding', 'llama', 'policy', 'stt', 'tts', 'turn', 'vlm']
 """
 
 from __future__ import annotations
