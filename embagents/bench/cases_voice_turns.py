@@ -272,7 +272,7 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
     from embagents.runtime.model_actor import ModelActor
     from embagents.speechfiles import whisper_tiny_en_dir
 
-    n = 3 if opts.quick else 20
+    n = 2 if opts.quick else 20
     interrupts, backchannels = barge_trials(n)
     stops, stopped, nod_interrupts, nod_pauses, echo_pauses = [], 0, 0, 0, 0
     with ActorSystem() as asys:
@@ -382,7 +382,7 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
     from embagents.speechfiles import whisper_tiny_en_dir
     from embagents.topic import Topic
 
-    n = 3 if opts.quick else 20
+    n = 1 if opts.quick else 20
     clips = turn_clips(n)
     turn = TurnDetectorModel(name="bench_turn")
     results: dict[str, dict[str, Any]] = {}

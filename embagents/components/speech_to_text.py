@@ -217,6 +217,8 @@ class SpeechToText(ModelComponent):
         self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0}
         #: The last turn's end-of-turn delay (s): end of speech -> the decision (``eou_delay``).
         self.last_eou_delay: float | None = None
+        #: The last utterance's transcription delay (s): end of turn -> final transcript.
+        self.last_transcription_delay: float | None = None
         self._vad: Any = None
         self._wake_word: Any = None
         self._formats_seen: set[tuple[int, int]] = set()
@@ -468,7 +470,9 @@ class SpeechToText(ModelComponent):
         if utterance.size == 0:
             self.logger.info("%s: skipped an empty utterance", self._label())
             return
+        began = time.monotonic()
         text = self._transcribe(utterance)
+        self.last_transcription_delay = time.monotonic() - began
         if text is None:
             return
         stream_id = self._stream_id()
@@ -515,6 +519,20 @@ class SpeechToText(ModelComponent):
             self.logger.info("%s: wake word heard (%s); listening", self._label(), scores)
 
     # --- actions ----------------------------------------------------------------------------
+    def stats(self) -> dict[str, Any]:
+        """The last turn's stage times (LiveKit's names, in ms) and counts (``embagents call ears stats``).
+
+        ``eou_delay``: end of speech -> end-of-turn decision (the model's, or the silence's);
+        ``transcription_delay``: that decision -> the final transcript; ``turns``: how turns ended
+        (``model``, ``silence``; ``not_yet``: the model said the user goes on); ``barge_ins``: pauses,
+        resumes and interruptions published.
+        """
+        def ms(s: float | None) -> float | None:
+            return None if s is None else round(s * 1000, 1)
+
+        return {"eou_delay": ms(self.last_eou_delay), "transcription_delay": ms(self.last_transcription_delay),
+                "utterances": self._utterances, "turns": dict(self.turns), "barge_ins": dict(self.barge_ins)}
+
     def flush(self) -> int:
         """Transcribe the utterance in progress now (the end of a stream); returns how many ended."""
         if self._vad is None:

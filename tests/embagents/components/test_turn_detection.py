@@ -76,3 +76,6 @@ def test_a_finished_question_ends_the_turn_at_the_models_word_before_the_silence
     heard, delay = turn_run(comp, clip, time.time())
     assert heard == 1 and comp.turns["model"] == 1 and comp.turns["silence"] == 0
     assert delay is not None and delay < 1.5
+    stats = comp.stats()  # what `embagents call ears stats` shows
+    assert stats["eou_delay"] == pytest.approx(delay * 1000, abs=0.1) and stats["transcription_delay"] > 0
+    assert stats["turns"]["model"] == 1 and stats["turns"]["silence"] == 0
