@@ -170,9 +170,10 @@ class EchoCancelling:
     config: Any
     inputs: list[Any]
     logger: Any
+    _aec: EchoCanceller | None = None  # set by _aec_setup (on_configure)
 
     def _aec_setup(self, rate: int, channels: int) -> None:
-        self._aec: EchoCanceller | None = None
+        self._aec = None
         wired = [t for t in self.inputs if t.msg_type is not None]
         if not wired or not self.config.echo_cancellation:
             return
