@@ -163,6 +163,15 @@ def _arrivals(asys: ActorSystem, topic: str) -> queue.Queue[float]:
     return got
 
 
+def _first_after(q: queue.Queue[float], t0: float, timeout: float) -> float:
+    """The first arrival at or after ``t0`` (a late one of the round before, on a loaded machine, is skipped)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        t = q.get(timeout=max(0.01, deadline - time.monotonic()))
+        if t >= t0:
+            return t
+
+
 def _drain(q: queue.Queue[float], quiet_s: float) -> None:
     """Take what is left of a round (the rest of an answer) until ``quiet_s`` passes with nothing."""
     try:
@@ -246,11 +255,10 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
                 time.sleep(0.1)  # a microphone's pace
             t0 = time.monotonic()
             asys.rt.on_client(lambda: pub.publish(Audio(data=np.zeros(0, np.int16))))  # the question ends
-            t1 = got.get(timeout=120)
+            t1 = _first_after(got, t0, 120)
             _drain(got, 2.0)
-            heard_at, token_at = transcripts.get(timeout=5), tokens.get(timeout=5)
-            _drain(transcripts, 0.01)
-            _drain(tokens, 0.01)
+            heard_at = _first_after(transcripts, t0 - 1.0, 5)  # VAD may end the utterance before the marker
+            token_at = _first_after(tokens, heard_at, 5)
             took, answer = json.loads(baseline.ask())
             answers.add(answer)
             if r:
