@@ -26,6 +26,7 @@ from actors.codec import message
 __all__ = [
     "MESSAGE_TYPES",
     "Audio",
+    "BargeIn",
     "CompressedImage",
     "Detections",
     "Health",
@@ -279,6 +280,21 @@ class TaskFeedback:
     max_steps: int = 0
     done: bool = False
     outcome: str = ""
+    stamp: float = 0.0
+
+
+@message("embagents/BargeIn")
+@attrs.define
+class BargeIn:
+    """The user speaks while the robot does (published by SpeechToText with ``barge_in``).
+
+    ``action``: ``"pause"`` (speech began: stop the sound, keep the rest), ``"resume"`` (it was a
+    backchannel or a noise: play on), ``"interrupt"`` (real words: drop the answer, cancel its
+    generation); ``text``: what was heard; ``stamp``: when the speech began (wall time).
+    """
+
+    action: str = ""
+    text: str = ""
     stamp: float = 0.0
 
 
@@ -548,6 +564,6 @@ MESSAGE_TYPES: dict[str, type] = {
     for cls in (
         String, StreamingString, Image, CompressedImage, Audio, Detections, Trackings, Video, Twist, Odometry,
         OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health, Point, Quaternion, Pose, PoseStamped,
-        Imu, LaserScan, PointCloud2, RosMessage,
+        Imu, LaserScan, PointCloud2, RosMessage, BargeIn,
     )
 }

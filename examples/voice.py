@@ -19,7 +19,10 @@ Live: with ``EMBAGENTS_KEEP_RUNNING=1`` and a microphone that PortAudio finds,
 (:class:`~embagents.components.Speaker`) says the answers too; the system
 listens until stopped. ``EMBAGENTS_MIC_DEVICE`` and ``EMBAGENTS_SPEAKER_DEVICE``
 pick devices by index or part of the name (``python -m sounddevice`` lists
-them; default: the system's). Use headphones, or the robot hears itself.
+them; default: the system's). The speaker's played stream cancels the robot's
+own voice out of the microphone (echo cancellation) and lets the user interrupt
+it (barge-in: "yeah" or a cough does not; see the README's "A voice that behaves
+like a person").
 """
 
 from __future__ import annotations
@@ -47,7 +50,7 @@ from embagents.components import (
 from embagents.components.audio_devices import input_device_present
 from embagents.launch import SYSTEM_STOP
 from embagents.models import LlamaModel, LocalModelClient, SpeechToTextModel, TextToSpeechModel
-from embagents.msgs import Audio, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String
 from embagents.system import System
 from embagents.topic import Topic
 
@@ -109,6 +112,8 @@ heard = Topic("heard", String, keep="all")
 answer = Topic("answer", StreamingString, queue_size=1000, keep="all")
 speaker = Topic("speaker", Audio, queue_size=1000, keep="all")
 written = Topic("answer_wav", String, keep="all")
+played = Topic("played", Audio, queue_size=1000, keep="all")  # what the speaker plays: the echo reference
+barge = Topic("barge", BargeIn, queue_size=100, keep="all")  # the user speaks over the robot
 stop = Topic(SYSTEM_STOP, String)
 
 whisper = SpeechToTextModel(name="whisper")  # Whisper tiny.en, prepared once from PyPI (a few seconds)
@@ -120,24 +125,26 @@ mic_device = os.environ.get("EMBAGENTS_MIC_DEVICE") or None
 live = bool(os.environ.get("EMBAGENTS_KEEP_RUNNING")) and input_device_present(MicrophoneConfig(device=mic_device).device)
 if live:
     ears_in: list[Component] = [
-        Microphone(name="mic", outputs=[mic], config=MicrophoneConfig(device=mic_device)),
-        Speaker(name="speaker", inputs=[speaker],
+        Microphone(name="mic", inputs=[played], outputs=[mic], config=MicrophoneConfig(device=mic_device, chunk_ms=20)),
+        Speaker(name="speaker", inputs=[speaker, barge], outputs=[played],
                 config=SpeakerConfig(device=os.environ.get("EMBAGENTS_SPEAKER_DEVICE") or None)),
     ]
+    ears_topics, barge_in = ([mic, played], [barge])
     print(f"voice: listening live on {mic_device or 'the default microphone'}; Ctrl-C or `embagents stop` stops it",
           flush=True)
 else:
     ears_in = [WavFileSource(name="mic", outputs=[mic], trigger=10.0,
                              config=WavFileSourceConfig(path=question_wav(), chunk_ms=100))]
+    ears_topics, barge_in = [mic], []
 
 system = System(
     [
         *ears_in,
-        SpeechToText(name="ears", inputs=[mic], outputs=[heard], model_client=LocalModelClient(whisper),
-                     config=SpeechToTextConfig(min_silence_ms=300)),
-        LLM(name="llm", inputs=[heard], outputs=[answer], model_client=LocalModelClient(smollm2), trigger=heard,
+        SpeechToText(name="ears", inputs=ears_topics, outputs=[heard, *barge_in], model_client=LocalModelClient(whisper),
+                     config=SpeechToTextConfig(min_silence_ms=300, playback_input="played" if live else None)),
+        LLM(name="llm", inputs=[heard, *barge_in], outputs=[answer], model_client=LocalModelClient(smollm2), trigger=heard,
             config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=48, system_prompt=SYSTEM_PROMPT)),
-        TextToSpeech(name="voice", inputs=[answer], outputs=[speaker], model_client=LocalModelClient(joe)),
+        TextToSpeech(name="voice", inputs=[answer, *barge_in], outputs=[speaker], model_client=LocalModelClient(joe)),
         WavFileSink(name="speaker_file", inputs=[speaker], outputs=[written],
                     config=WavFileSinkConfig(folder=os.environ.get("EMBAGENTS_VOICE_OUT", "voice_out"), prefix="answer")),
         Report(name="report", inputs=[heard, answer, written], outputs=[stop]),

@@ -73,6 +73,7 @@ from embagents.bench import (  # noqa: F401 - importing a case module registers 
     cases_tools,
     cases_vision,
     cases_voice,
+    cases_voice_turns,
     cases_zenoh,
     idle,
 )

@@ -151,6 +151,27 @@ def _first_audio(asys: ActorSystem, topic: str) -> queue.Queue[float]:
     return got
 
 
+def _arrivals(asys: ActorSystem, topic: str) -> queue.Queue[float]:
+    """A queue that gets the arrival time of each message with content on ``topic`` (a stage's output)."""
+    got: queue.Queue[float] = queue.Queue()
+
+    def on_msg(msg: Any) -> None:
+        if getattr(msg, "data", ""):
+            got.put(time.monotonic())
+
+    asys.rt.on_client(lambda: Subscription(asys.rt, asys.loop, topic, on_msg, queue_size=1000, keep="all"))
+    return got
+
+
+def _first_after(q: queue.Queue[float], t0: float, timeout: float) -> float:
+    """The first arrival at or after ``t0`` (a late one of the round before, on a loaded machine, is skipped)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        t = q.get(timeout=max(0.01, deadline - time.monotonic()))
+        if t >= t0:
+            return t
+
+
 def _drain(q: queue.Queue[float], quiet_s: float) -> None:
     """Take what is left of a round (the rest of an answer) until ``quiet_s`` passes with nothing."""
     try:
@@ -224,6 +245,8 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
                  asys.spawn(VoiceHost, "bench_v_llm", "llm", ["bench_heard"], "bench_answer", wait=120, heartbeat=None),
                  asys.spawn(VoiceHost, "bench_v_tts", "tts", ["bench_answer"], "bench_said", wait=120, heartbeat=None)]
         got = _first_audio(asys, "bench_said")
+        transcripts, tokens = _arrivals(asys, "bench_heard"), _arrivals(asys, "bench_answer")
+        stages: dict[str, list[float]] = {"transcription_delay": [], "ttft": [], "ttfb": []}
         pub = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_mic"))
         time.sleep(0.5)  # subscriptions connected
         for r in range(rounds + 1):  # the first round warms everything up; interleaved with the baseline
@@ -232,19 +255,30 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
                 time.sleep(0.1)  # a microphone's pace
             t0 = time.monotonic()
             asys.rt.on_client(lambda: pub.publish(Audio(data=np.zeros(0, np.int16))))  # the question ends
-            t1 = got.get(timeout=120)
+            t1 = _first_after(got, t0, 120)
             _drain(got, 2.0)
+            heard_at = _first_after(transcripts, t0 - 1.0, 5)  # VAD may end the utterance before the marker
+            token_at = _first_after(tokens, heard_at, 5)
             took, answer = json.loads(baseline.ask())
             answers.add(answer)
             if r:
                 ours.append(t1 - t0)
                 base.append(took)
+                # The stages, with LiveKit's names: end of speech -> transcript -> first token -> first audio.
+                stages["transcription_delay"].append(heard_at - t0)
+                stages["ttft"].append(token_at - heard_at)
+                stages["ttfb"].append(t1 - token_at)
         del hosts
     p50, b50 = statistics.median(ours), statistics.median(base)
     return {
         "p50_us": p50 * 1e6, "p99_us": max(ours) * 1e6, "msgs_per_s": None,
         "p50_ms": p50 * 1e3, "sequential_p50_ms": b50 * 1e3, "ratio": p50 / b50,
+        **{f"{k}_p50_ms": round(statistics.median(v) * 1e3, 1) for k, v in stages.items()},
+        "total_p50_ms": round(p50 * 1e3, 1),
         "note": f"spoken '{QUESTION}' -> VAD + Whisper -> SmolLM2 streaming -> Piper voice, end of question to "
                 f"first answer audio: {p50 * 1e3:.0f} ms vs {b50 * 1e3:.0f} ms sequential in one process "
+                f"(stages p50: transcript {statistics.median(stages['transcription_delay']) * 1e3:.0f} ms, "
+                f"ttft {statistics.median(stages['ttft']) * 1e3:.0f} ms, "
+                f"ttfb {statistics.median(stages['ttfb']) * 1e3:.0f} ms) "
                 f"({rounds} rounds; answer {sorted(answers)[0][:60]!r}...); bar: p50 <= 0.7 x sequential",
     }

@@ -25,7 +25,7 @@ the process and the system keep running.
 
 Example::
 
-    >>> from embagents.msgs import Audio
+    >>> from embagents.msgs import Audio, BargeIn
     >>> from embagents.topic import Topic
     >>> mic = Microphone(name="mic", outputs=[Topic("mic", Audio, keep="all")],
     ...                  config=MicrophoneConfig(device="USB", chunk_ms=50))
@@ -46,11 +46,19 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.audio_format import AudioFormatError, to_pcm16
-from embagents.components.audio_io import AudioSink
+from embagents.components.audio_io import AudioSink, non_negative_float
 from embagents.components.component import Component
 from embagents.components.device_retry import DeviceRetry
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, positive_float
-from embagents.msgs import Audio
+from embagents.components.echo_cancel import EchoCancelling
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    int_at_least,
+    one_of,
+    positive_float,
+    to_bool,
+)
+from embagents.msgs import Audio, BargeIn
 
 __all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
 
@@ -145,6 +153,9 @@ class MicrophoneConfig(_DeviceConfig):
     chunk_ms: float = field(default=100.0, converter=positive_float)
     dtype: str = field(default="int16", converter=one_of("dtype", "int16", "float32"))
     buffer_ms: float = field(default=500.0, converter=positive_float)
+    echo_cancellation: bool = field(default=True, converter=to_bool)
+    echo_delay_ms: float = field(default=0.0, converter=non_negative_float)
+    noise_suppression: bool = field(default=False, converter=to_bool)
 
 
 @define(kw_only=True)
@@ -254,10 +265,16 @@ class _SoundDevice(Component):
         self._close()
 
 
-class Microphone(_SoundDevice):
-    """Publishes what a capture device hears as ``Audio`` chunks (see the module docstring)."""
+class Microphone(EchoCancelling, _SoundDevice):
+    """Publishes what a capture device hears as ``Audio`` chunks (see the module docstring).
 
-    allowed_inputs = {"Optional": []}
+    Its optional input is the Speaker's ``played`` stream: wired, the echo of
+    what the robot says is cancelled before anything is published (see
+    :mod:`~embagents.components.echo_cancel`; ``echo_cancellation``,
+    ``echo_delay_ms``, ``noise_suppression`` in its config).
+    """
+
+    allowed_inputs = {"Optional": [Audio]}
     allowed_outputs = {"Required": [Audio]}
     config_class = MicrophoneConfig
     kind = "input"
@@ -270,6 +287,15 @@ class Microphone(_SoundDevice):
 
     def default_trigger(self) -> float:
         return 1000.0 / self.config.chunk_ms
+
+    def on_configure(self) -> None:
+        self._aec_setup(self.config.sample_rate, self.config.channels)
+        super().on_configure()
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if topic_name in self._subscribed:
+            self._aec_reference(topic_name, msg)  # at once, every chunk: not only the latest at a step
+        return super().on_message(topic_name, msg, now)
 
     @property
     def _frames(self) -> int:
@@ -311,8 +337,8 @@ class Microphone(_SoundDevice):
         now = time.time()
         for i, data in enumerate(chunks):
             ends = now - (available - (i + 1) * frames) / c.sample_rate  # when this chunk's last sample was heard
-            msg = Audio(data=np.ascontiguousarray(data).reshape(-1), sample_rate=c.sample_rate, channels=c.channels,
-                        stamp=ends)
+            samples = self._aec_process(np.ascontiguousarray(data).reshape(-1), ends)
+            msg = Audio(data=samples, sample_rate=c.sample_rate, channels=c.channels, stamp=ends)
             for t in self.outputs:
                 self.publish(t, msg)
             self.chunks += 1
@@ -330,10 +356,21 @@ class Microphone(_SoundDevice):
 
 
 class Speaker(_SoundDevice, AudioSink):
-    """Plays the ``Audio`` it receives on an output device (see the module docstring)."""
+    """Plays the ``Audio`` it receives on an output device (see the module docstring).
 
-    allowed_inputs = {"Required": [Audio]}
-    allowed_outputs = {"Optional": []}
+    Its optional ``Audio`` output is what it plays (the echo reference of a
+    Microphone, and what tells SpeechToText the robot is speaking): int16 at the
+    device's rate and channels, each chunk stamped with the wall time its first
+    sample leaves the speaker; an empty chunk stamped ``t`` says nothing plays from ``t`` on
+    (after :meth:`pause` or :meth:`stop_playback`).
+
+    Its optional ``BargeIn`` input (SpeechToText's) acts at once, between two
+    writes: ``pause`` -> :meth:`pause`, ``resume`` -> :meth:`resume`,
+    ``interrupt`` -> :meth:`stop_playback`.
+    """
+
+    allowed_inputs = {"Required": [Audio], "Optional": [BargeIn]}
+    allowed_outputs = {"Optional": [Audio]}
     config_class = SpeakerConfig
     kind = "output"
 
@@ -343,6 +380,9 @@ class Speaker(_SoundDevice, AudioSink):
         self._notes: set[str] = set()
         self._pump_due = False
         self._last_write = 0.0
+        self._play_clock = 0.0  # wall time the device will be done with what it was given
+        self._recent: collections.deque[np.ndarray] = collections.deque()  # written lately: re-queued by pause()
+        self._paused = False
         self.played_s = 0.0
         self.dropped_s = 0.0
         self.utterances = 0
@@ -350,6 +390,17 @@ class Speaker(_SoundDevice, AudioSink):
 
     def on_activate(self) -> None:
         self._open()  # health says at once whether the speaker is there, before anything is said
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if isinstance(msg, BargeIn) and topic_name in self._subscribed:
+            act = {"pause": self.pause, "resume": self.resume, "interrupt": self.stop_playback}.get(msg.action)
+            if act is None:
+                self.logger.warning("%s: BargeIn action %r ignored; it is pause, resume or interrupt",
+                                    self._label(), msg.action)
+            else:
+                act()
+            return False
+        return super().on_message(topic_name, msg, now)
 
     def _make_stream(self, sd: ModuleType) -> Any:
         c = self.config
@@ -402,6 +453,8 @@ class Speaker(_SoundDevice, AudioSink):
     def _pump(self) -> None:
         """Write what the device has room for; come back when it has room again, or to stop it once played."""
         self._pump_due = False
+        if self._paused:
+            return  # resume() pumps again
         if self._stream is None:
             if self._retry.waiting():
                 self._later(self._retry.wait_s())
@@ -425,6 +478,7 @@ class Speaker(_SoundDevice, AudioSink):
                         continue
                     n = min(room, len(frames))
                     stream.write(frames[:n])  # never blocks: there is room for n frames
+                    self._played(frames[:n], stream)
                     room -= n
                     self.played_s += n / self._rate
                     self._last_write = time.monotonic()
@@ -444,6 +498,58 @@ class Speaker(_SoundDevice, AudioSink):
         except self._sd.PortAudioError as exc:
             self._lost(f"stopped playing ({exc}); {LIST_HINT}")
 
+    def _played(self, frames: np.ndarray, stream: Any) -> None:
+        """Publish what was just given to the device, stamped with when it will be heard; keep it for pause()."""
+        now = time.time()
+        if self._play_clock < now:  # the device ran dry: this plays after its output latency
+            self._play_clock = now + float(getattr(stream, "latency", 0.0) or 0.0)
+        stamp = self._play_clock
+        self._play_clock += len(frames) / self._rate
+        self._recent.append(frames)
+        while len(self._recent) > 1 and sum(len(f) for f in self._recent) - len(self._recent[0]) > self._rate:
+            self._recent.popleft()  # a second is more than any device buffer holds
+        for t in self.outputs:
+            self.publish(t, Audio(data=np.ascontiguousarray(frames).reshape(-1), sample_rate=self._rate,
+                                  channels=self._channels, stamp=stamp))
+
+    def _silenced(self) -> None:
+        """Nothing plays from now on: say so on the played stream (an empty chunk), forget the clock."""
+        now = time.time()
+        self._play_clock = 0.0
+        self._recent.clear()
+        for t in self.outputs:
+            self.publish(t, Audio(data=np.zeros(0, np.int16), sample_rate=self._rate or 16000,
+                                  channels=self._channels or 1, stamp=now))
+
+    def pause(self) -> float:
+        """Stop the sound at once but keep what was not heard yet, to :meth:`resume` where it stopped.
+
+        For barge-in: user speech pauses the robot at once; a backchannel ("mhm") resumes it. Returns the
+        seconds held. What arrives while paused is queued behind it.
+        """
+        if self._paused:
+            return self._queue_s()
+        self._paused = True
+        unheard = max(0.0, self._play_clock - time.time())
+        n = int(unheard * self._rate) if self._rate else 0
+        if n and self._recent:
+            tail = np.concatenate(list(self._recent))[-n:]
+            self._queue.appendleft(tail)  # what the device held is played again on resume
+        if self._stream is not None and self._stream.active:
+            self._stream.abort()  # abort, not stop: what the device holds is not played
+        self._silenced()
+        self.logger.info("%s: paused; %.2f s held", self._label(), self._queue_s())
+        return self._queue_s()
+
+    def resume(self) -> float:
+        """Play on from where :meth:`pause` stopped; returns the seconds queued."""
+        if not self._paused:
+            return self._queue_s()
+        self._paused = False
+        self.logger.info("%s: resumed; %.2f s queued", self._label(), self._queue_s())
+        self._pump()
+        return self._queue_s()
+
     def _later(self, delay: float) -> None:
         if not self._pump_due and self._call_later is not None:
             self._pump_due = True
@@ -462,7 +568,9 @@ class Speaker(_SoundDevice, AudioSink):
         """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped."""
         dropped = self._queue_s() + _seconds(self.take())
         self._queue.clear()
+        self._paused = False
         if self._stream is not None and self._stream.active:
             self._stream.abort()  # abort, not stop: what the device holds is not played
+        self._silenced()
         self.logger.info("%s: stopped; %.2f s of audio dropped", self._label(), dropped)
         return dropped

@@ -25,6 +25,7 @@ Example::
 from __future__ import annotations
 
 import os
+import time
 import wave
 from typing import Any
 
@@ -32,10 +33,22 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.component import Component
+from embagents.components.echo_cancel import EchoCancelling
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
 from embagents.msgs import Audio, String
 
 __all__ = ["AudioSink", "WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav", "spoken_clip_path"]
+
+
+def non_negative_float(value: object) -> float:
+    """A number >= 0 (a delay), or ConfigError."""
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        out = -1.0
+    if isinstance(value, bool) or not out >= 0.0:
+        raise ConfigError(f"expected a number >= 0, got {value!r}")
+    return out
 
 
 def _path(value: object) -> str:
@@ -89,21 +102,39 @@ def spoken_clip_path(text: str, *, progress: bool = True) -> str:
 
 @define(kw_only=True)
 class WavFileSourceConfig(BaseComponentConfig):
-    """``path``: the WAV file; ``chunk_ms``: audio per message; ``loop``: start again at the end."""
+    """``path``: the WAV file; ``chunk_ms``: audio per message; ``loop``: start again at the end.
+
+    With the Speaker's ``played`` stream as input, echo is cancelled (see
+    :mod:`~embagents.components.echo_cancel`): ``echo_cancellation`` (on),
+    ``echo_delay_ms`` (the canceller's delay hint), ``noise_suppression`` (WebRTC's, off).
+    """
 
     path: str = field(default="", converter=_path)
     chunk_ms: float = field(default=100.0, converter=positive_float)
     loop: bool = field(default=False, converter=to_bool)
+    echo_cancellation: bool = field(default=True, converter=to_bool)
+    echo_delay_ms: float = field(default=0.0, converter=non_negative_float)
+    noise_suppression: bool = field(default=False, converter=to_bool)
 
 
-class WavFileSource(Component):
-    """Plays a WAV file as ``Audio`` chunks, then an empty ``Audio`` (see the module docstring)."""
+class WavFileSource(EchoCancelling, Component):
+    """Plays a WAV file as ``Audio`` chunks, then an empty ``Audio`` (see the module docstring).
 
+    Each chunk is stamped with the wall time it is published (its last sample "heard" then).
+    """
+
+    allowed_inputs = {"Optional": [Audio]}  # the Speaker's played stream: the echo reference
     allowed_outputs = {"Required": [Audio]}
     config_class = WavFileSourceConfig
 
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if topic_name in self._subscribed:
+            self._aec_reference(topic_name, msg)  # at once, every chunk: not only the latest at a step
+        return super().on_message(topic_name, msg, now)
+
     def on_configure(self) -> None:
         self.samples, self.rate, self.channels = read_wav(self.config.path)
+        self._aec_setup(self.rate, self.channels)
         self.step_samples = max(1, int(self.rate * self.config.chunk_ms / 1000)) * self.channels
         self.at = 0
         self.finished = False
@@ -118,8 +149,12 @@ class WavFileSource(Component):
         chunk = self.samples[self.at:self.at + self.step_samples]
         self.at += self.step_samples
         self.finished = chunk.size == 0  # the empty chunk is the end-of-stream marker
+        stamp = time.time()
+        chunk = self._aec_process(chunk, stamp)
+        if chunk.size == 0 and not self.finished:
+            return  # less than one 10 ms frame so far: it goes out with the next chunk
         for t in self.outputs:
-            self.publish(t, Audio(data=chunk, sample_rate=self.rate, channels=self.channels))
+            self.publish(t, Audio(data=chunk, sample_rate=self.rate, channels=self.channels, stamp=stamp))
 
 
 @define(kw_only=True)

@@ -40,7 +40,7 @@ import json
 import re
 import string
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Generator, Mapping
 from typing import Any
 
 import attrs
@@ -50,7 +50,7 @@ from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, to_bool
 from embagents.models.chat import openai_tool_call, tool_calls_from_text
-from embagents.msgs import StreamingString, String
+from embagents.msgs import BargeIn, StreamingString, String
 from embagents.topic import Topic
 
 __all__ = ["LLM", "LLMConfig", "template_fields", "tool_schema"]
@@ -244,9 +244,15 @@ class LLM(ModelComponent):
     message, a goal ``PoseStamped`` say, without a component of its own. :meth:`answer` is also callable
     directly (e.g. by a ``call(llm, "answer", "...")`` action on a server LLM).
     ``snapshot()`` / ``restore()`` carry the chat history across restarts.
+
+    Barge-in: with a ``BargeIn`` input (SpeechToText's), a question is answered
+    token by token between turns of the component's loop, so an ``interrupt``
+    (or :meth:`interrupt`) cancels the generation where it is (the model actor
+    stops at once) and the answer goes into the chat history cut short
+    (``"interrupted": True``; the model reads it with a trailing "...").
     """
 
-    allowed_inputs = {"Required": [String], "Optional": [String]}
+    allowed_inputs = {"Required": [String], "Optional": [String, BargeIn]}
     allowed_outputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString]}
     config_class = LLMConfig
 
@@ -256,6 +262,8 @@ class LLM(ModelComponent):
         self._stream_count = 0
         self.output_converters: dict[str, Callable[[str], Any]] = {
             (k.name if isinstance(k, Topic) else str(k).lstrip("/")): fn for k, fn in (output_converters or {}).items()}
+        self._live: dict[str, Any] | None = None  # the answer being generated between loop turns (barge-in)
+        self.interrupted = 0  # answers cut short
         super().__init__(name=name, **kw)
 
     def _typed_outputs(self) -> tuple[Topic, ...]:
@@ -348,7 +356,10 @@ class LLM(ModelComponent):
         if cfg.system_prompt:
             messages.append({"role": "system", "content": cfg.system_prompt})
         if cfg.chat_history:
-            messages += copy.deepcopy(self._history)
+            for m in copy.deepcopy(self._history):
+                if m.pop("interrupted", False):  # the model reads where the user cut it off
+                    m["content"] = f"{m.get('content') or ''}..."
+                messages.append(m)
         messages.append({"role": "user", "content": content})
         return messages
 
@@ -365,38 +376,114 @@ class LLM(ModelComponent):
         if question is None:
             return  # nothing new to answer (e.g. a rate tick with no new question)
         context = {_placeholder(t): inputs[t.name].data for t in self.inputs
-                   if t is not question and inputs.get(t.name) is not None}
-        self.answer(self.question_text(question, inputs), context)
+                   if t is not question and t.msg_type is String and inputs.get(t.name) is not None}
+        text = self.question_text(question, inputs)
+        if self._interruptible:
+            self._answer_live(text, context)
+        else:
+            self.answer(text, context)
 
     def question_text(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
         """The text a step asks about when ``topic`` brought the question: its message's ``data``."""
         return str(inputs[topic.name].data)
 
+    @property
+    def _interruptible(self) -> bool:
+        return any(t.msg_type is BargeIn for t in self.inputs)
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if isinstance(msg, BargeIn) and topic_name in self._subscribed:
+            if msg.action == "interrupt":
+                self.interrupt()
+            return False
+        return super().on_message(topic_name, msg, now)
+
+    def _begin(self, text: str, context: Mapping[str, str] | None) -> dict[str, Any]:
+        messages = self.build_messages(text, context)
+        self._stream_count += 1
+        return {"messages": messages, "turn": [messages[-1]], "said": [],
+                "stream_id": f"{self.name}-{uuid.uuid4().hex[:8]}-{self._stream_count}",
+                "streams": [t for t in self.outputs
+                            if t.msg_type is StreamingString and t.name not in self.output_converters]}
+
+    def _end(self, live: dict[str, Any], answer: str | None, *, interrupted: bool = False) -> None:
+        """Close the stream (even on failure: listeners never wait forever); publish and keep a whole answer."""
+        stream_id = live["stream_id"]
+        if answer is not None and not self.config.stream and not interrupted:
+            for t in live["streams"]:
+                self.publish(t, StreamingString(data=answer, done=False, stream_id=stream_id))
+        for t in live["streams"]:
+            self.publish(t, StreamingString(data="", done=True, stream_id=stream_id))
+        if answer is None:
+            return
+        if not interrupted:
+            for t in self.outputs:
+                if t.name in self.output_converters:
+                    self._publish_converted(t, answer)
+                elif t.msg_type is String:
+                    self.publish(t, String(data=answer))
+        if self.config.chat_history:
+            said: dict[str, Any] = {"role": "assistant", "content": answer}
+            if interrupted:
+                said["interrupted"] = True
+            self._history += live["turn"] + [said]
+            self._trim_history()
+
     def answer(self, text: str, context: Mapping[str, str] | None = None) -> str:
         """Answer ``text``: query the model (running tools), publish, update history; returns the answer."""
-        messages = self.build_messages(text, context)
-        turn = [messages[-1]]
-        self._stream_count += 1
-        stream_id = f"{self.name}-{uuid.uuid4().hex[:8]}-{self._stream_count}"
-        streams = [t for t in self.outputs if t.msg_type is StreamingString and t.name not in self.output_converters]
+        live = self._begin(text, context)
+        answer: str | None = None
         try:
-            answer = self._converse(messages, turn, streams if self.config.stream else [], stream_id)
-            if not self.config.stream:
-                for t in streams:
-                    self.publish(t, StreamingString(data=answer, done=False, stream_id=stream_id))
+            answer = self._converse(live["messages"], live["turn"], live["streams"] if self.config.stream else [],
+                                    live["stream_id"])
         finally:
-            # Close the stream even on failure, so listeners never wait forever.
-            for t in streams:
-                self.publish(t, StreamingString(data="", done=True, stream_id=stream_id))
-        for t in self.outputs:
-            if t.name in self.output_converters:
-                self._publish_converted(t, answer)
-            elif t.msg_type is String:
-                self.publish(t, String(data=answer))
-        if self.config.chat_history:
-            self._history += turn + [{"role": "assistant", "content": answer}]
-            self._trim_history()
-        return answer
+            self._end(live, answer)
+        return answer if answer is not None else ""
+
+    def _answer_live(self, text: str, context: Mapping[str, str] | None) -> None:
+        """Answer ``text`` a chunk per turn of the loop, so that an interrupt gets in between (barge-in)."""
+        if self._live is not None:
+            self.interrupt()  # a new question while the last answer is still written: that one is cut short
+        live = self._live = self._begin(text, context)
+        live["steps"] = self._conversing(live["messages"], live["turn"],
+                                         live["streams"] if self.config.stream else [], live["stream_id"], live["said"])
+        self.call_later(0.0, self._live_step)
+
+    def _live_step(self) -> None:
+        live = self._live
+        if live is None:
+            return  # interrupted since
+        try:
+            next(live["steps"])
+        except StopIteration as done:
+            self._live = None
+            self._end(live, done.value)
+            return
+        except BaseException:
+            self._live = None
+            self._end(live, None)
+            raise
+        self.call_later(0.0, self._live_step)
+
+    def interrupt(self) -> str:
+        """Cut the answer short: stop its generation and keep it in the history as interrupted; returns it.
+
+        With no answer being generated, the last answer (still being spoken) is the one marked.
+        """
+        live, self._live = self._live, None
+        if live is not None:
+            live["steps"].close()  # closes the model stream: the model actor stops generating
+            said = "".join(live["said"])
+            self._end(live, said, interrupted=True)
+        else:
+            last = self._history[-1] if self._history else None
+            if last is None or last.get("role") != "assistant":
+                return ""
+            last["interrupted"] = True
+            said = str(last.get("content") or "")
+        self.interrupted += 1
+        self.logger.info("%s: interrupted after %r", self._label(), said[-60:])
+        return said
 
     def _publish_converted(self, topic: Topic, answer: str) -> None:
         msg = self.output_converters[topic.name](answer)
@@ -408,6 +495,19 @@ class LLM(ModelComponent):
 
     def _converse(self, messages: list[dict[str, Any]], turn: list[dict[str, Any]],
                   streams: list[Topic], stream_id: str) -> str:
+        steps = self._conversing(messages, turn, streams, stream_id, [])
+        while True:
+            try:
+                next(steps)
+            except StopIteration as done:
+                return str(done.value)
+
+    def _conversing(self, messages: list[dict[str, Any]], turn: list[dict[str, Any]], streams: list[Topic],
+                    stream_id: str, said: list[str]) -> Generator[None, None, str]:
+        """The conversation as a generator: it yields after each chunk of the model's stream; returns the answer.
+
+        ``said`` gets every delta of the text answer as it comes.
+        """
         cfg = self.config
         specs = self.tool_specs() or None
         rounds = 0
@@ -425,15 +525,23 @@ class LLM(ModelComponent):
             parts: list[str] = []
             tool_calls = None
             shown = [] if extra.get("tool_choice") == "required" else streams  # a forced call is no answer to stream
-            for chunk in self.chat_stream(messages, max_tokens=cfg.max_new_tokens, temperature=cfg.temperature,
-                                          stop=cfg.stop or None, tools=tools, **self._model_inputs(), **extra):
-                delta = chunk.get("delta")
-                if delta:
-                    parts.append(delta)
-                    for t in shown:
-                        self.publish(t, StreamingString(data=delta, done=False, stream_id=stream_id))
-                if chunk.get("done"):
-                    tool_calls = chunk.get("tool_calls")
+            stream = self.chat_stream(messages, max_tokens=cfg.max_new_tokens, temperature=cfg.temperature,
+                                      stop=cfg.stop or None, tools=tools, **self._model_inputs(), **extra)
+            try:
+                for chunk in stream:
+                    delta = chunk.get("delta")
+                    if delta:
+                        parts.append(delta)
+                        said.append(delta)
+                        for t in shown:
+                            self.publish(t, StreamingString(data=delta, done=False, stream_id=stream_id))
+                    if chunk.get("done"):
+                        tool_calls = chunk.get("tool_calls")
+                    yield
+            finally:
+                close = getattr(stream, "close", None)
+                if close is not None:
+                    close()  # an interrupt closes this generator here: the model's stream is cancelled
             text = "".join(parts)
             if not tool_calls or not offered:
                 return text
@@ -445,6 +553,7 @@ class LLM(ModelComponent):
                      "content": self._run_tool(c)} for c in calls]
             messages += new
             turn += new
+            said.clear()  # what the user hears is the answer after the tools
             rounds += 1
             direct = [m["content"] for c, m in zip(calls, new[1:], strict=True)
                       if c["function"]["name"] in cfg.tools_answer_directly]

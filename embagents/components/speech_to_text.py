@@ -50,13 +50,19 @@ from attrs import define, field
 from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
-from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
-from embagents.msgs import Audio, StreamingString, String
+from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
+from embagents.msgs import Audio, BargeIn, StreamingString, String
 from embagents.topic import Topic
 
-__all__ = ["SpeechToText", "SpeechToTextConfig", "strip_wake_phrase"]
+__all__ = ["BACKCHANNELS", "SpeechToText", "SpeechToTextConfig", "is_backchannel", "strip_wake_phrase"]
+
+#: What a listener says to show they follow, not to take the turn (Whisper's spellings included).
+BACKCHANNELS = ("mhm", "m", "mm", "hmm", "mmhmm", "mm-hmm", "uh-huh", "uh", "huh", "um", "hm", "ah", "oh", "yeah", "yes",
+                "yep", "ok", "okay", "right", "all right", "sure", "alright", "i see", "got it", "aha")
 
 _WORD = re.compile(r"[\w']+")
+_NOT_SPEECH = re.compile(r"\[[^\]]*\]?|\([^)]*\)?|\*[^*]*\*?")
+_ECHO_TAIL_S = 0.25  # after the robot's last sound: its reverberation, a device's buffer
 
 
 def _unit(value: object) -> float:
@@ -72,6 +78,46 @@ def _phrase(value: object) -> str | None:
     if not isinstance(value, str) or not _WORD.search(value):
         raise ConfigError(f"wake_phrase must be a phrase of words (e.g. 'hey robot') or None, got {value!r}")
     return value
+
+
+def _phrases(value: object) -> tuple[str, ...]:
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, (list, tuple)) or not all(isinstance(p, str) and _WORD.search(p) for p in items):
+        raise ConfigError(f"backchannels must be a list of words or short phrases ('mhm', 'i see'), got {value!r}")
+    return tuple(p.lower() for p in items)
+
+
+def is_backchannel(text: str, backchannels: tuple[str, ...] = BACKCHANNELS) -> bool:
+    """True when ``text`` says nothing but backchannels ("mhm", "yeah, okay") or nothing at all (a cough).
+
+    >>> is_backchannel("Mm-hmm."), is_backchannel("Yeah, okay."), is_backchannel("Yeah, but stop.")
+    (True, True, False)
+    >>> is_backchannel("See."), is_backchannel("I see the cup.")
+    (True, False)
+    >>> is_backchannel(""), is_backchannel("[BLANK_AUDIO]"), is_backchannel("(coughs)")
+    (True, True, True)
+    """
+    text = _NOT_SPEECH.sub(" ", text)  # Whisper's "[BLANK_AUDIO]", "(coughs)", "*sighs*": no words said
+    # Word by word: the words of a backchannel phrase count alone too ("see" is "I see" misheard).
+    known = {w.lower() for p in backchannels for w in _WORD.findall(p.replace("-", ""))}
+    return all(w.lower() in known for w in _WORD.findall(text.replace("-", "")))
+
+
+def _news(text: str, backchannels: tuple[str, ...]) -> int:
+    """How many words of ``text`` are not backchannels."""
+    return sum(not is_backchannel(w, backchannels) for w in _WORD.findall(_NOT_SPEECH.sub(" ", text)))
+
+
+def _optional_db(value: object) -> float | None:
+    if value is None:
+        return None
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        out = 1.0
+    if isinstance(value, bool) or not -120.0 <= out <= 0.0:
+        raise ConfigError(f"interrupt_level_db is a level in dBFS in [-120, 0] (e.g. -45) or None, got {value!r}")
+    return out
 
 
 def _optional_path(value: object) -> str | None:
@@ -96,6 +142,23 @@ class SpeechToTextConfig(BaseComponentConfig):
     - ``wake_phrase``: words a transcript must contain to be passed on (None:
       everything is); ``wake_window_s``: how long the phrase alone keeps the
       gate open; ``wake_word_model``/``wake_word_threshold``: an openWakeWord model instead.
+    - ``playback_input``: the input topic that carries the Speaker's ``played``
+      stream (what tells it the robot is speaking). With it and a ``BargeIn``
+      output, barge-in is on: ``interrupt_onset_ms`` of speech while the robot
+      speaks publishes ``pause`` (Silero's speech probability above
+      ``interrupt_vad_threshold``: below the utterance threshold, as the echo
+      canceller turns the start of speech over the robot's voice down, or
+      twice as long at ``interrupt_level_db`` dBFS or above: the canceller
+      leaves the robot's voice near the noise floor); once ``interrupt_min_speech_ms``
+      of speech has ``interrupt_min_words`` words that are not ``backchannels``
+      (mid-speech a short sound is often misheard), or an utterance that long
+      ends with any such word, it publishes ``interrupt``; a backchannel or a noise (no words) publishes ``resume``, as does no decision
+      within ``false_interruption_s``.
+    - ``turn_silence_ms``: with a ``turn_model_client`` (an end-of-turn model,
+      :class:`~embagents.models.TurnDetectorModel`), the pause after which it is
+      asked whether the user has finished: yes ends the utterance there; no
+      waits, and ``min_silence_ms`` (raise it, e.g. to 1000) stays the fallback
+      and ``max_utterance_ms`` the hard maximum.
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -112,6 +175,15 @@ class SpeechToTextConfig(BaseComponentConfig):
     wake_window_s: float = field(default=8.0, converter=positive_float)
     wake_word_model: str | None = field(default=None, converter=_optional_path)
     wake_word_threshold: float = field(default=0.5, converter=_unit)
+    playback_input: str | None = field(default=None, converter=_optional_path)
+    interrupt_onset_ms: float = field(default=32.0, converter=positive_float)
+    interrupt_vad_threshold: float = field(default=0.3, converter=_unit)
+    interrupt_level_db: float | None = field(default=-45.0, converter=_optional_db)
+    interrupt_min_speech_ms: float = field(default=500.0, converter=positive_float)
+    interrupt_min_words: int = field(default=2, converter=int_at_least(1))  # type: ignore[misc]
+    backchannels: tuple[str, ...] = field(default=BACKCHANNELS, converter=_phrases)
+    false_interruption_s: float = field(default=2.0, converter=positive_float)
+    turn_silence_ms: float = field(default=150.0, converter=positive_float)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -134,17 +206,32 @@ def strip_wake_phrase(text: str, phrase: str) -> str | None:
 class SpeechToText(ModelComponent):
     """Transcribes speech with a speech-to-text model (see the module docstring)."""
 
-    allowed_inputs = {"Required": [Audio]}
-    allowed_outputs = {"Required": [String], "Optional": [StreamingString]}
+    allowed_inputs = {"Required": [Audio], "Optional": [Audio]}  # the microphone; the Speaker's played stream
+    allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn]}
     config_class = SpeechToTextConfig
 
-    def __init__(self, *, name: str, **kw: Any) -> None:
+    def __init__(self, *, name: str, turn_model_client: Any = None, **kw: Any) -> None:
+        self.turn_client = turn_model_client  # an end-of-turn model (LocalModelClient(TurnDetectorModel(...)))
+        self._turn_vad: Any = None
+        self._turn_asked = False  # asked in this pause already
+        self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0}
+        #: The last turn's end-of-turn delay (s): end of speech -> the decision (``eou_delay``).
+        self.last_eou_delay: float | None = None
+        #: The last utterance's transcription delay (s): end of turn -> final transcript.
+        self.last_transcription_delay: float | None = None
         self._vad: Any = None
         self._wake_word: Any = None
         self._formats_seen: set[tuple[int, int]] = set()
         self._since_partial = 0  # samples since the last partial transcript
         self._utterances = 0
         self._awake_until = 0.0
+        self._onset: Any = None  # barge-in's speech onset detector (None: barge-in off)
+        self._played_until = 0.0  # wall time the robot's last played audio ends
+        self._barge = ""  # "", "paused" (the robot held), "interrupted"
+        self._barge_at = 0.0  # when the speech that paused it began
+        self._last_voice = 0.0  # last window of speech (onset detector)
+        self._checked_samples = 0  # the utterance's length at its last mid-speech check
+        self.barge_ins: dict[str, int] = {"pause": 0, "resume": 0, "interrupt": 0}
         super().__init__(name=name, **kw)
 
     def _add_client(self, key: str, client: Any) -> str:
@@ -163,6 +250,15 @@ class SpeechToText(ModelComponent):
         problems = super().validate()
         if self.config.max_utterance_ms <= self.config.min_speech_ms:
             problems.append(("bad-config", f"{self._label()}: max_utterance_ms must be above min_speech_ms"))
+        names = [t.name for t in self.inputs]
+        playback = self.config.playback_input
+        if playback is not None and playback not in names[1:]:
+            problems.append(("bad-config", f"{self._label()}: playback_input {playback!r} is not one of its inputs "
+                                           f"after the microphone ({', '.join(names[1:]) or 'none'}); add the "
+                                           "Speaker's played topic to inputs"))
+        if len(names) > 1 and playback is None:
+            problems.append(("bad-config", f"{self._label()}: a second Audio input is the Speaker's played stream: "
+                                           f"name it in playback_input (e.g. playback_input={names[1]!r})"))
         return problems
 
     def run_warmup(self) -> None:
@@ -184,17 +280,45 @@ class SpeechToText(ModelComponent):
             if t.keep != "all":  # a dropped chunk is a hole in a word
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
+        if self.turn_client is not None and self._vad is not None:
+            from embagents.models.backends.sherpa_vad import SpeechOnset
+            from embagents.speechfiles import silero_vad_path
+
+            self._turn_vad = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
+        if cfg.playback_input and self._barge_outputs and self._vad is not None:
+            from embagents.models.backends.sherpa_vad import SpeechOnset
+            from embagents.speechfiles import silero_vad_path
+
+            self._onset = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.interrupt_vad_threshold,
+                                      level_db=cfg.interrupt_level_db)
         super().on_configure()
-        self.logger.info("%s: listening (VAD %s, wake phrase %r, model client %s)", self._label(),
-                         "on" if self._vad else "off", cfg.wake_phrase, self.client_name)
+        self.logger.info("%s: listening (VAD %s, wake phrase %r, barge-in %s, model client %s)", self._label(),
+                         "on" if self._vad else "off", cfg.wake_phrase, "on" if self._onset else "off",
+                         self.client_name)
 
     # --- steps ------------------------------------------------------------------------------
     @property
     def _partials(self) -> list[Topic]:
         return [t for t in self.outputs if t.msg_type is StreamingString]
 
+    @property
+    def _barge_outputs(self) -> list[Topic]:
+        return [t for t in self.outputs if t.msg_type is BargeIn]
+
+    def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if topic_name == self.config.playback_input and topic_name in self._subscribed:
+            if isinstance(msg, Audio):  # what the robot plays: when it is speaking (an empty chunk: it stopped)
+                if msg.data.size:
+                    ends = msg.stamp + msg.data.size / max(1, msg.channels) / max(1, msg.sample_rate)
+                    self._played_until = max(self._played_until, ends)
+                else:
+                    self._played_until = min(self._played_until, msg.stamp)
+            return False
+        return super().on_message(topic_name, msg, now)
+
     def _execution_step(self, **inputs: Any) -> None:
-        topic = next((t for t in self.inputs if t.name in self.fresh_inputs and inputs.get(t.name) is not None), None)
+        topic = next((t for t in self.inputs if t.name in self.fresh_inputs and inputs.get(t.name) is not None
+                      and t.name != self.config.playback_input), None)
         if topic is None:
             return
         try:
@@ -216,8 +340,104 @@ class SpeechToText(ModelComponent):
             self._finish(samples)
             return
         for utterance in self._vad.feed(samples):
+            self.turns["silence"] += 1
+            self.last_eou_delay = self.config.min_silence_ms / 1000
             self._finish(utterance)
+        if self._turn_vad is not None:
+            self._end_of_turn(samples)
+        if self._onset is not None:
+            self._barge_in(samples, msg.stamp or time.time())
         self._partial(samples)
+
+    # --- end of turn -----------------------------------------------------------------------
+    def _end_of_turn(self, samples: np.ndarray) -> None:
+        """After ``turn_silence_ms`` of pause, ask the turn model; a finished turn ends the utterance now."""
+        from embagents.models.protocol import ModelError, ModelUnavailable
+
+        vad = self._turn_vad
+        vad.feed(samples)
+        if vad.quiet == 0:
+            self._turn_asked = False
+            return
+        pause_s = vad.quiet * vad.window / 16000
+        if self._turn_asked or not self._vad.speaking or pause_s * 1000 < self.config.turn_silence_ms:
+            return
+        self._turn_asked = True
+        began = time.monotonic()
+        try:
+            complete = bool(self.turn_client.end_of_turn(self._vad.current()).get("complete"))
+        except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
+            self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
+            return
+        if not complete:
+            self.turns["not_yet"] += 1
+            return
+        self.turns["model"] += 1
+        self.last_eou_delay = pause_s + time.monotonic() - began
+        for utterance in self._vad.flush():
+            self._finish(utterance)
+
+    # --- barge-in ---------------------------------------------------------------------------
+    def _barge_publish(self, action: str, text: str = "") -> None:
+        self.barge_ins[action] += 1
+        self.logger.info("%s: barge-in: %s%s", self._label(), action, f" ({text!r})" if text else "")
+        for t in self._barge_outputs:
+            self.publish(t, BargeIn(action=action, text=text, stamp=self._barge_at))
+
+    def _barge_in(self, samples: np.ndarray, now: float) -> None:
+        """Speech while the robot speaks: pause it at once, then decide (see SpeechToTextConfig).
+
+        ``now``: when the chunk's last sample was heard (its stamp): decisions go by the audio's time.
+        """
+        cfg = self.config
+        run = self._onset.feed(samples)
+        if run or self._onset.loud:
+            self._last_voice = now
+        if self._barge == "":
+            # The robot is speaking: its sound is still playing, or ended so lately that its echo is about.
+            speaking = now < self._played_until + _ECHO_TAIL_S
+            # Speech, or sound well above the cancelled echo's floor for twice as long (a voice, a cough: the
+            # decision below tells them apart).
+            windows = max(run, self._onset.loud // 2)
+            if windows * self._onset.window * 1000 >= cfg.interrupt_onset_ms * 16000 and speaking:
+                self._barge = "paused"
+                self._barge_at = now - windows * self._onset.window / 16000  # when the speech began
+                self._checked_samples = 0
+                self._barge_publish("pause")
+            return
+        if self._barge != "paused":
+            return
+        if self._vad.speaking:
+            current = self._vad.current()
+            grown = len(current) - self._checked_samples
+            if len(current) * 1000 >= cfg.interrupt_min_speech_ms * 16000 and grown * 1000 >= 300 * 16000:
+                self._checked_samples = len(current)
+                text = self._transcribe(current)
+                # Mid-speech, a word or two of a short sound is often misheard ("okay" as "and"): it takes
+                # interrupt_min_words that are not backchannels; the utterance's end decides on any word.
+                if text and _news(text, cfg.backchannels) >= cfg.interrupt_min_words:
+                    self._barge = "interrupted"
+                    self._barge_publish("interrupt", text)
+        elif now - self._last_voice > cfg.min_silence_ms / 1000 or now - self._barge_at > cfg.false_interruption_s:
+            self._barge = ""  # a noise too short to be an utterance, or no decision in time: play on
+            self._barge_publish("resume")
+
+    def _barge_heard(self, text: str, seconds: float) -> bool:
+        """An utterance ended while barge-in holds the robot: True when it is passed on as a question.
+
+        A short one (under interrupt_min_speech_ms) takes interrupt_min_words, as a partial does.
+        """
+        cfg = self.config
+        if self._barge == "paused":
+            self._barge = ""
+            short = seconds * 1000 < cfg.interrupt_min_speech_ms
+            if _news(text, cfg.backchannels) < (cfg.interrupt_min_words if short else 1):
+                self._barge_publish("resume", text)
+                return False
+            self._barge_publish("interrupt", text)
+        elif self._barge == "interrupted":
+            self._barge = ""
+        return True
 
     def _partial(self, samples: np.ndarray) -> None:
         if not self._partials or not self._vad.speaking:
@@ -250,11 +470,16 @@ class SpeechToText(ModelComponent):
         if utterance.size == 0:
             self.logger.info("%s: skipped an empty utterance", self._label())
             return
+        began = time.monotonic()
         text = self._transcribe(utterance)
+        self.last_transcription_delay = time.monotonic() - began
         if text is None:
             return
         stream_id = self._stream_id()
         self._utterances += 1
+        if not self._barge_heard(text, len(utterance) / 16000):
+            self.logger.info("%s: %r was a backchannel or a noise: the robot speaks on", self._label(), text)
+            return
         if not text:
             self.logger.info("%s: heard nothing in %.1f s of audio (no words)", self._label(), len(utterance) / 16000)
             return
@@ -294,6 +519,20 @@ class SpeechToText(ModelComponent):
             self.logger.info("%s: wake word heard (%s); listening", self._label(), scores)
 
     # --- actions ----------------------------------------------------------------------------
+    def stats(self) -> dict[str, Any]:
+        """The last turn's stage times (LiveKit's names, in ms) and counts (``embagents call ears stats``).
+
+        ``eou_delay``: end of speech -> end-of-turn decision (the model's, or the silence's);
+        ``transcription_delay``: that decision -> the final transcript; ``turns``: how turns ended
+        (``model``, ``silence``; ``not_yet``: the model said the user goes on); ``barge_ins``: pauses,
+        resumes and interruptions published.
+        """
+        def ms(s: float | None) -> float | None:
+            return None if s is None else round(s * 1000, 1)
+
+        return {"eou_delay": ms(self.last_eou_delay), "transcription_delay": ms(self.last_transcription_delay),
+                "utterances": self._utterances, "turns": dict(self.turns), "barge_ins": dict(self.barge_ins)}
+
     def flush(self) -> int:
         """Transcribe the utterance in progress now (the end of a stream); returns how many ended."""
         if self._vad is None:

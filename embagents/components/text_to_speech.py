@@ -17,7 +17,9 @@ the model is still writing the rest.
 Sentences wait in a queue and are spoken one per turn of the component's
 loop, so the actions come in between: ``say(text)`` drops what is queued,
 ends the utterance in progress and speaks ``text``; ``stop_playback()`` drops
-what is queued and ends it.
+what is queued and ends it. A ``BargeIn`` input (SpeechToText's) with
+``interrupt`` stops it as ``stop_playback()`` does: the rest of that answer
+is not spoken.
 
 Example::
 
@@ -43,7 +45,7 @@ from attrs import define, field
 
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError
-from embagents.msgs import Audio, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String
 
 __all__ = ["TextToSpeech", "TextToSpeechConfig", "take_sentences"]
 
@@ -92,7 +94,7 @@ def take_sentences(buffer: str) -> tuple[list[str], str]:
 class TextToSpeech(ModelComponent):
     """Speaks text with a text-to-speech model (see the module docstring)."""
 
-    allowed_inputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString]}
+    allowed_inputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString, BargeIn]}
     allowed_outputs = {"Required": [Audio]}
     config_class = TextToSpeechConfig
 
@@ -134,6 +136,13 @@ class TextToSpeech(ModelComponent):
 
     # --- input ------------------------------------------------------------------------------
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if isinstance(msg, BargeIn):
+            if msg.action == "interrupt" and topic_name in self._subscribed:
+                # Chunks of the answer received but not yet taken belong to it too: not spoken either.
+                self._muted.update(m.stream_id for m in self._received if isinstance(m, StreamingString) and not m.done)
+                self._received = [m for m in self._received if not isinstance(m, StreamingString)]
+                self.stop_playback()
+            return False
         if topic_name in self._subscribed:
             self._received.append(msg)  # every chunk of a stream, not only the latest
         return super().on_message(topic_name, msg, now)

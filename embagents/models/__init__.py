@@ -33,6 +33,7 @@ from embagents.models.declarations import (
     Model,
     SpeechToTextModel,
     TextToSpeechModel,
+    TurnDetectorModel,
     VLMModel,
 )
 from embagents.models.gr00t import Gr00tPolicyClient
@@ -65,6 +66,7 @@ __all__ = [
     "ModelUnavailable",
     "OpenPIPolicyClient",
     "StaleInput",
+    "TurnDetectorModel",
     "PolicyClient",
     "PolicyError",
     "PolicyLate",

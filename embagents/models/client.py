@@ -278,6 +278,10 @@ class LocalModelClient:
         """The text said in ``audio`` (1-D 16 kHz float32 or int16 samples): ``{"text", "seconds"}``."""
         return self.infer("transcribe", {"audio": audio}, **options)
 
+    def end_of_turn(self, audio: Any) -> dict[str, Any]:
+        """Whether the user has finished, from their speech so far (1-D 16 kHz): ``{"probability", "complete"}``."""
+        return self.infer("end_of_turn", {"audio": audio})
+
     def speak(self, text: str, **options: Any) -> Iterator[dict[str, Any]]:
         """Speech for ``text``, a chunk per sentence: ``{"audio": float32 samples, "sample_rate", "text"}``.
 

@@ -310,6 +310,43 @@ class VLMModel(Model):
 
 
 @attrs.define(kw_only=True)
+class TurnDetectorModel(Model):
+    """An end-of-turn model on onnxruntime in its own process: Smart Turn v3 (Pipecat's, BSD-2-Clause).
+
+    ``local_model_path``: a Smart Turn v3 ``.onnx`` file, or None for the offline default
+    ``smart-turn-v3.2-cpu.onnx`` (the file only, from PyPI's pipecat-ai wheel:
+    :func:`embagents.speechfiles.smart_turn_path`); ``threads``: intra-op threads.
+    SpeechToText asks it after a short pause (``turn_model_client``).
+
+    >>> TurnDetectorModel(name="turn").options()
+    {'threads': 1}
+    """
+
+    kind: ClassVar[str] = "turn"
+    local_model_path: str | None = None
+    threads: int = 1
+
+    def resolve(self) -> str:
+        from embagents.speechfiles import smart_turn_path
+
+        if self.local_model_path is None:
+            return smart_turn_path()
+        problem = self.file_problem()
+        if problem:
+            raise FileNotFoundError(problem)
+        return os.path.abspath(os.path.expanduser(self.local_model_path))
+
+    def file_problem(self) -> str | None:
+        if self.local_model_path is None or os.path.isfile(os.path.expanduser(self.local_model_path)):
+            return None
+        return (f"turn model {self.name!r}: {self.local_model_path!r} is not a file; pass a Smart Turn v3 .onnx "
+                "file, or local_model_path=None for smart-turn-v3.2-cpu.onnx (from PyPI's pipecat-ai wheel)")
+
+    def options(self) -> dict[str, Any]:
+        return {"threads": self.threads}
+
+
+@attrs.define(kw_only=True)
 class EmbeddingModel(Model):
     """A sentence-embedding model served by onnxruntime; requests of several components run as one batch.
 

@@ -7,7 +7,7 @@ a batch of requests of several clients in one backend call.
 Example::
 
     >>> serving_kinds()
-    ['detector', 'embedding', 'llama', 'policy', 'stt', 'tts', 'vlm']
+    ['detector', 'embedding', 'llama', 'policy', 'stt', 'tts', 'turn', 'vlm']
 """
 
 from __future__ import annotations
@@ -169,6 +169,12 @@ def _tts(path: str, options: dict[str, Any]) -> Any:
     return TextToSpeechServing(path, options)
 
 
+def _turn(path: str, options: dict[str, Any]) -> Any:
+    from embagents.models.speech_serving import TurnServing
+
+    return TurnServing(path, options)
+
+
 def _policy(path: str, options: dict[str, Any]) -> Any:
     if options.get("openpi"):  # also served over openpi's WebSocket protocol (embagents serve-policy)
         from embagents.models.openpi_server import OpenPIPolicyServing
@@ -225,7 +231,7 @@ class EmbeddingServing:
 
 _KINDS: dict[str, Callable[[str, dict[str, Any]], Any]] = {
     "llama": ChatServing, "detector": DetectorServing, "embedding": EmbeddingServing, "policy": _policy, "stt": _stt,
-    "tts": _tts, "vlm": VLMServing,
+    "tts": _tts, "vlm": VLMServing, "turn": _turn,
 }
 
 

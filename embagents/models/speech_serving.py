@@ -22,7 +22,7 @@ import numpy as np
 
 from embagents.models.protocol import BadRequest
 
-__all__ = ["SPEAK_OPTIONS", "TRANSCRIBE_OPTIONS", "SpeechToTextServing", "TextToSpeechServing"]
+__all__ = ["SPEAK_OPTIONS", "TRANSCRIBE_OPTIONS", "SpeechToTextServing", "TextToSpeechServing", "TurnServing"]
 
 #: Options a ``transcribe`` request may carry.
 TRANSCRIBE_OPTIONS = ("sample_rate",)
@@ -130,3 +130,47 @@ class TextToSpeechServing:
 
     def close(self) -> None:
         self.speaker = None
+
+
+class TurnServing:
+    """Smart Turn v3 (:class:`~embagents.models.backends.smart_turn.SmartTurn`) behind the ``end_of_turn`` task.
+
+    A request carries ``{"audio": 1-D 16 kHz samples}`` (the user's speech so far; the last 8 s count);
+    the answer is ``{"probability": float, "complete": bool}`` (complete: probability > 0.5).
+    """
+
+    batchable = False
+
+    def __init__(self, path: str, options: dict[str, Any]) -> None:
+        self.path, self.options = path, {k: v for k, v in options.items() if v is not None}
+        self.model: Any = None
+
+    def load(self) -> None:
+        from embagents.models.backends.smart_turn import SmartTurn
+
+        self.model = SmartTurn(self.path, **self.options)
+
+    def warmup(self) -> None:
+        self.model.probability(np.zeros(16000, np.float32))
+
+    def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
+        from embagents.models.backends.sherpa_stt import check_samples
+
+        if task != "end_of_turn":
+            raise BadRequest(f"a turn model serves task 'end_of_turn', not {task!r}")
+        if options:
+            raise BadRequest(f"unknown option(s) {', '.join(sorted(options))}; a turn model takes none")
+        try:
+            check_samples(inputs.get("audio"))
+        except ValueError as exc:
+            raise BadRequest(str(exc)) from None
+
+    def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
+        p = self.model.probability(inputs["audio"])
+        yield {"probability": p, "complete": p > 0.5, "done": True}
+
+    def run_batch(self, task: str, batch: list[dict[str, Any]], options: dict[str, Any]) -> list[dict[str, Any]]:
+        raise NotImplementedError("one turn at a time")
+
+    def close(self) -> None:
+        self.model = None

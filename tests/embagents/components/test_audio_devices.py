@@ -248,3 +248,41 @@ def test_the_microphone_hears_the_clip_and_speech_to_text_gets_its_words(
         stats = wait_until(lambda: (s := asys.ref("mic").ask(Call("stats"), timeout=5).get())["chunks"] >= 100 and s,
                            30, "the clip's 100 chunks published", interval=0.1)
         assert stats["open"] and stats["overflows"] == 0, stats
+
+
+def test_the_speaker_publishes_what_it_plays_stamped_and_a_pause_holds_the_rest_until_resume(devices: Path) -> None:
+    with ActorSystem() as asys:
+        path = str(devices / "system.py")
+        Path(path).write_text(textwrap.dedent(SYSTEM).replace("SPEAKER", repr("robotspeaker")).replace(
+            'Speaker(name="speaker", inputs=[said],',
+            'Speaker(name="speaker", inputs=[said], outputs=[Topic("played", Audio, queue_size=1000, keep="all")],'))
+        remember_system(path, load_system(path))
+        got = collect(asys, "played")
+        asys.spawn(ComponentActor, "speaker", path, "speaker", wait=30)
+        pub = asys.rt.on_client(lambda: Publisher(asys.rt, "said"))
+
+        def stats() -> dict[str, Any]:
+            return dict(asys.ref("speaker").ask(Call("stats"), timeout=5).get())
+
+        wait_until(lambda: stats()["utterances"] >= 1, 10, "the speaker's subscription", interval=0.2,
+                   poke=lambda: asys.rt.on_client(lambda: pub.publish(Audio(data=np.zeros(0, np.int16)))))
+        sent = (np.arange(160000) % 20000).astype(np.int16)  # 10 s the device takes 0.2 s of per 0.1 s
+        before = time.time()
+        asys.rt.on_client(lambda: pub.publish(Audio(data=sent)))
+        wait_until(lambda: stats()["played_s"] > 0.5, 10, "playing")
+        held = asys.ref("speaker").ask(Call("pause"), timeout=5).get()
+        assert 5.0 < held < 10.0
+        size = played(devices).size
+        time.sleep(0.5)
+        assert played(devices).size == size, "nothing is played while paused"
+        chunks: list[Any] = []
+        while not got.empty():
+            chunks.append(got.get())
+        assert chunks[-1].data.size == 0, "a pause says on the played stream that nothing plays from then on"
+        sound = [c for c in chunks if c.data.size]
+        stamps = [c.stamp for c in sound]
+        assert stamps == sorted(stamps) and before <= stamps[0] < before + 5
+        assert np.array_equal(np.concatenate([c.data for c in sound]), sent[:sum(c.data.size for c in sound)])
+        # (ALSA's null device does not pace: what was written counts as held, as the device's buffer would)
+        assert 0 < asys.ref("speaker").ask(Call("resume"), timeout=5).get() <= held
+        wait_until(lambda: played(devices).size >= size + 16000, 30, "the rest played after resume")

@@ -1,0 +1,154 @@
+"""Barge-in on real audio made offline: the robot's Piper voice through a simulated room, the user over it.
+
+SpeechToText hears, through the echo canceller, a microphone on which the
+robot's own answer plays (its echo) and the user speaks over it
+(:class:`embagents.bench.cases_voice_turns.BargeTrial` builds the clip and
+plays the Speaker's part: a ``pause`` stops the simulated speaker, ``resume``
+plays on). Whisper runs in a real model actor. The LLM, TextToSpeech and the
+Speaker's reactions to a ``BargeIn`` are tested on their own.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("sherpa_onnx")
+pytest.importorskip("livekit")
+
+from actors import ActorSystem  # noqa: E402
+from embagents.bench.cases_voice_turns import BargeTrial, barge_ears, cough  # noqa: E402
+from embagents.bench.echo_room import ROBOT_LINES, robot_says, room_impulse_response  # noqa: E402
+from embagents.components import LLM, LLMConfig  # noqa: E402
+from embagents.components.speech_to_text import is_backchannel  # noqa: E402
+from embagents.msgs import BargeIn, StreamingString, String  # noqa: E402
+from embagents.runtime.model_actor import ModelActor  # noqa: E402
+from embagents.topic import Topic  # noqa: E402
+
+RATE = 16000
+
+
+@pytest.fixture(scope="module")
+def whisper(whisper_dir: str) -> Iterator[str]:
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "whisper_barge", "stt", whisper_dir, {"threads": 1}, True, wait=60)
+        yield "whisper_barge"
+
+
+def trial(whisper: str, user: np.ndarray, seed: int = 1, **config: Any) -> dict[str, Any]:
+    h = room_impulse_response(RATE, delay_ms=30, rt60_s=0.3, seed=seed)
+    t = BargeTrial(barge_ears(whisper, **config), robot_says(ROBOT_LINES[1]), user, h, at_s=1.2, seed=seed)
+    return t.run(time.time())
+
+
+def test_the_user_speaking_over_the_robot_pauses_it_then_interrupts_and_the_question_is_heard(whisper: str) -> None:
+    got = trial(whisper, robot_says("No, tell me about Berlin instead."))
+    assert got["actions"][-2:] == ["pause", "interrupt"], got  # (an earlier pause by the echo resumed: counted
+    assert got["interrupted"], got                               # by the bench as echo_pauses)
+    assert got["stop_ms"] is not None and got["stop_ms"] < 1000, got
+    assert any("berlin" in h.lower() for h in got["heard"]), got
+
+
+@pytest.mark.parametrize("said", ["Yeah.", "Okay.", "Right."])
+def test_a_backchannel_pauses_the_robot_then_resumes_it_and_is_not_passed_on(whisper: str, said: str) -> None:
+    got = trial(whisper, robot_says(said))
+    assert "interrupt" not in got["actions"], got
+    assert got["actions"][-1:] == ["resume"] or not got["actions"], got
+    assert got["heard"] == [], got
+
+
+def test_a_cough_does_not_interrupt_the_robot(whisper: str) -> None:
+    got = trial(whisper, cough(0))
+    assert "interrupt" not in got["actions"] and got["heard"] == [], got
+
+
+def test_with_no_speaker_stream_the_same_speech_is_a_question_and_nothing_is_paused(whisper: str) -> None:
+    ears = barge_ears(whisper)
+    sent: list[Any] = []
+    ears.attach(lambda topic, msg: sent.append(msg))
+    from embagents.msgs import Audio
+
+    x = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("No, tell me about Berlin instead."),
+                        np.zeros(RATE, np.int16)])
+    for i in range(0, len(x), 320):
+        if ears.on_message("mic", Audio(data=x[i:i + 320], stamp=time.time())):
+            ears.execute()
+    assert not any(isinstance(m, BargeIn) for m in sent)
+    assert any(isinstance(m, String) and "berlin" in m.data.lower() for m in sent), sent
+
+
+def test_backchannels_are_told_from_words_word_by_word() -> None:
+    assert is_backchannel("Yeah, okay.") and is_backchannel("Mm-hmm.") and is_backchannel("[BLANK_AUDIO]")
+    assert not is_backchannel("Yeah, but stop.") and not is_backchannel("Berlin")
+    assert is_backchannel("sure thing", ("sure", "thing"))
+
+
+# --- the LLM: an interrupt cancels the generation and marks the answer cut short -------------------
+
+
+class EndlessClient:
+    """Streams "word0 word1 ..." until its stream is closed (as LocalModelClient cancels in the model actor)."""
+
+    def __init__(self) -> None:
+        self.closed = 0
+        self.calls: list[list[dict[str, Any]]] = []
+
+    def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
+        self.calls.append([dict(m) for m in messages])
+        try:
+            for i in range(10_000):
+                yield {"delta": f"word{i} "}
+            yield {"done": True, "finish_reason": "length", "tool_calls": None}
+        finally:
+            self.closed += 1
+
+
+def llm_with_barge_in(client: Any) -> tuple[LLM, list[Any], list[Callable[[], None]]]:
+    llm = LLM(name="llm", inputs=[Topic("heard", String), Topic("barge", BargeIn)],
+              outputs=[Topic("answer", StreamingString)], model_client=client,
+              config=LLMConfig(stream=True, chat_history=True))
+    sent: list[Any] = []
+    later: list[Callable[[], None]] = []
+    llm.attach(lambda topic, msg: sent.append(msg), None, lambda delay, fn: later.append(fn))
+    return llm, sent, later
+
+
+def test_an_interrupt_cancels_the_generation_where_it_is_and_the_history_says_cut_short() -> None:
+    client = EndlessClient()
+    llm, sent, later = llm_with_barge_in(client)
+    assert llm.on_message("heard", String("Tell me about Paris.")) and llm.execute()
+    for _ in range(3):  # three turns of the loop: three tokens
+        later.pop(0)()
+    assert not llm.on_message("barge", BargeIn(action="interrupt", text="No, Berlin."))
+    assert client.closed == 1, "the model's stream is closed: the model actor stops generating"
+    while later:
+        later.pop(0)()  # the turn scheduled before the interrupt finds nothing to do
+    deltas = [m.data for m in sent if not m.done]
+    assert deltas == ["word0 ", "word1 ", "word2 "] and sent[-1].done
+    assert llm.history[-1] == {"role": "assistant", "content": "word0 word1 word2 ", "interrupted": True}
+    assert llm.interrupted == 1
+    # The next question: the model reads the cut answer with "..." (no unknown key reaches it).
+    assert llm.on_message("heard", String("And Berlin?")) and llm.execute()
+    later.pop(0)()
+    assert client.calls[-1][-2] == {"role": "assistant", "content": "word0 word1 word2 ..."}
+
+
+def test_an_interrupt_after_the_answer_was_written_marks_it_while_it_is_still_spoken() -> None:
+    class Short(EndlessClient):
+        def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
+            yield {"delta": "Paris is big."}
+            yield {"done": True, "finish_reason": "stop", "tool_calls": None}
+
+    llm, sent, later = llm_with_barge_in(Short())
+    assert llm.on_message("heard", String("Tell me about Paris.")) and llm.execute()
+    while later:
+        later.pop(0)()
+    assert llm.history[-1] == {"role": "assistant", "content": "Paris is big."}
+    llm.on_message("barge", BargeIn(action="interrupt"))
+    assert llm.history[-1]["interrupted"] is True
+    llm.on_message("barge", BargeIn(action="pause"))  # a pause is the Speaker's business, not the LLM's
+    assert llm.interrupted == 1

@@ -1,0 +1,81 @@
+"""End of turn from Smart Turn v3 in its own model actor, on questions spoken offline by the Piper voice."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+pytest.importorskip("sherpa_onnx")
+pytest.importorskip("onnxruntime")
+
+from actors import ActorSystem  # noqa: E402
+from embagents.bench.cases_voice_turns import turn_run  # noqa: E402
+from embagents.bench.echo_room import robot_says  # noqa: E402
+from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
+from embagents.models import BadRequest, LocalModelClient, TurnDetectorModel  # noqa: E402
+from embagents.msgs import Audio, String  # noqa: E402
+from embagents.runtime.model_actor import ModelActor  # noqa: E402
+from embagents.topic import Topic  # noqa: E402
+
+RATE = 16000
+
+
+@pytest.fixture(scope="module")
+def actors(whisper_dir: str) -> Iterator[tuple[str, str]]:
+    turn = TurnDetectorModel(name="turn_t")
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "whisper_t", "stt", whisper_dir, {"threads": 1}, True, wait=60)
+        asys.spawn(ModelActor, "turn_t", "turn", turn.resolve(), turn.options(), True, wait=60)
+        yield "whisper_t", "turn_t"
+
+
+def test_the_turn_model_says_a_finished_question_is_finished_and_one_trailing_off_is_not(
+        actors: tuple[str, str]) -> None:
+    client = LocalModelClient(actors[1])
+    pause = np.zeros(RATE // 5, np.int16)  # SpeechToText asks after a short pause: the model reads it too
+    done = client.end_of_turn(np.concatenate([robot_says("Where did you put my keys this morning?"), pause]))
+    trailing = client.end_of_turn(np.concatenate([robot_says("What is the weather like in"), pause]))
+    assert done["complete"] and done["probability"] > 0.5, done
+    assert not trailing["complete"] and trailing["probability"] < 0.5, trailing
+
+
+def test_audio_the_turn_model_cannot_read_is_refused_at_once_with_what_to_send(actors: tuple[str, str]) -> None:
+    with pytest.raises(BadRequest, match="audio"):
+        LocalModelClient(actors[1]).end_of_turn(np.zeros((2, 100), np.float32))
+
+
+def ears(actors: tuple[str, str], turn: bool, min_silence_ms: float) -> SpeechToText:
+    comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                        model_client=LocalModelClient(actors[0]),
+                        turn_model_client=LocalModelClient(actors[1]) if turn else None,
+                        config=SpeechToTextConfig(min_silence_ms=min_silence_ms))
+    comp.on_configure()
+    return comp
+
+
+def test_a_pause_mid_sentence_does_not_end_the_turn_with_the_model_and_does_with_silence_alone(
+        actors: tuple[str, str]) -> None:
+    a, b = robot_says("What is the weather like in"), robot_says("Paris today?")
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), a, np.zeros(int(0.7 * RATE), np.int16), b,
+                           np.zeros(2 * RATE, np.int16)])
+    with_model = ears(actors, True, 1000.0)
+    heard, _ = turn_run(with_model, clip, time.time())
+    assert heard == 1 and with_model.turns["not_yet"] >= 1
+    heard, _ = turn_run(ears(actors, False, 500.0), clip, time.time())
+    assert heard == 2, "silence endpointing at 500 ms cuts the question at its 700 ms pause"
+
+
+def test_a_finished_question_ends_the_turn_at_the_models_word_before_the_silence_fallback(
+        actors: tuple[str, str]) -> None:
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(2 * RATE, np.int16)])
+    comp = ears(actors, True, 1500.0)
+    heard, delay = turn_run(comp, clip, time.time())
+    assert heard == 1 and comp.turns["model"] == 1 and comp.turns["silence"] == 0
+    assert delay is not None and delay < 1.5
+    stats = comp.stats()  # what `embagents call ears stats` shows
+    assert stats["eou_delay"] == pytest.approx(delay * 1000, abs=0.1) and stats["transcription_delay"] > 0
+    assert stats["turns"]["model"] == 1 and stats["turns"]["silence"] == 0
