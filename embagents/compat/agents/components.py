@@ -39,7 +39,8 @@ from embagents.events import Action, Fallback
 from embagents.msgs import Audio, Pose, PoseStamped, StreamingString, String
 from embagents.topic import Topic
 
-__all__ = ["LLM", "MLLM", "VLA", "VLM", "MapEncoding", "SemanticRouter", "SpeechToText", "TextToSpeech", "Vision"]
+__all__ = ["LLM", "MLLM", "VLA", "VLM", "Cortex", "MapEncoding", "Memory", "SemanticRouter", "SpeechToText",
+           "TextToSpeech", "Vision"]
 
 
 def _translate(cls: type, role: str, kw: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -149,6 +150,20 @@ class _Clients(_Fallbacks):
             self._add_client(str(key), built)  # type: ignore[attr-defined]
             if self._client_problems:  # type: ignore[attr-defined]
                 raise CompatError("; ".join(text for _, text in self._client_problems))  # type: ignore[attr-defined]
+
+    def fallback_to_local(self) -> str:
+        """EmbodiedAgents' switch to the built-in local model: ``Action(method=component.fallback_to_local)``
+        switches the component to the offline default model (a standby client here)."""
+        raise CompatError("fallback_to_local() is an action here: use Action(method=component.fallback_to_local)")
+
+    def local_fallback_client(self) -> str:
+        """The name of the standby local client ``fallback_to_local`` switches to (added on the first call)."""
+        key = f"{getattr(self, 'name', '')}_local"
+        if key not in self.clients:
+            client = local_default(self._role, key, f"{type(self).__name__} {getattr(self, 'name', '')!r}'s model "
+                                   "after fallback_to_local", "a standby client the fallback switches to")
+            self._add_client(key, client)  # type: ignore[attr-defined]
+        return key
 
 
 def _pose(value: Any) -> PoseStamped | None:

@@ -160,6 +160,8 @@ def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping
         return _SUPERVISOR[fname](owner)
     if fname == "change_model_client":
         return native_events.switch_model_client(str(args[0]), owner)
+    if fname == "fallback_to_local" and callable(getattr(owner, "local_fallback_client", None)):
+        return native_events.switch_model_client(owner.local_fallback_client(), owner)
     if fname == "publish_message":
         unsupported("Action(method=component.publish_message)", "embagents.events.publish(topic, msg)")
     return native_events.call(owner, fname, *args, **dict(kwargs or {}))
