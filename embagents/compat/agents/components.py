@@ -25,7 +25,8 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import time
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import attrs
@@ -281,6 +282,10 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         keep.__name__, keep.__doc__ = name, function.get("description") or tool.__doc__
         super().register_tool(keep, function.get("parameters"), name=name,
                               send_tool_response_to_model=send_tool_response_to_model)
+        if not send_tool_response_to_model:  # EmbodiedAgents publishes the tool's own result on a typed output
+            for out in self.outputs:
+                if isinstance(self.output_converters.get(out.name), _NeedsPreprocessor):
+                    self.add_publisher_preprocessor(out, lambda value: value)
 
     def add_publisher_preprocessor(self, topic: Topic, fn: Callable[[Any], Any]) -> None:
         """Publish ``fn(output)`` on ``topic`` (``None``: nothing); the output is a tool's own result when the
@@ -294,6 +299,9 @@ class LLM(_Clients, native.LLM, _Lifecycle):
                 return _pose(value)
             if isinstance(value, str) and out.msg_type in (String, StreamingString):
                 return out.msg_type(data=value)
+            if value is not None and not isinstance(value, out.msg_type):
+                raise TypeError(f"{self._label()}: the publisher preprocessor of {out.name!r} returned {value!r}, "
+                                f"not a {out.type_name}")
             return value
 
         self.output_converters[out.name] = convert
@@ -386,3 +394,96 @@ class VLA(_Fallbacks, native.VLA, _Lifecycle):
         if model_client is not None:
             kw["policy"] = build_client(model_client, "policy", str(kw["name"]))
         super().__init__(**kw)
+
+
+def _where(item: Mapping[str, Any]) -> str:
+    pos = [float(v) for v in item.get("position", ())][:3]
+    pos += [0.0] * (3 - len(pos))
+    ago = time.time() - float(item.get("time", time.time()))
+    return f"[{item.get('layer', '')}] {item.get('text', '')} ({ago:.0f} s ago) Location: ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f})"
+
+
+class Memory(_Fallbacks, native.Memory, _Lifecycle):
+    """EmbodiedAgents' Memory (eMEM), built on embagents' Memory (SQLite, sqlite-vec index).
+
+    Its tools keep eMEM's names and answer in text, a place as ``Location: (x, y, z)``:
+    ``locate(concept)``, ``recall(concept)``, ``semantic_search(query, n_results)``,
+    ``spatial_query(x, y, radius)``, ``temporal_query(seconds_ago)``, ``body_status()``
+    (the latest item of each ``is_internal_state`` layer). eMEM's episodes, gists and
+    entities (consolidation by ``model_client``) are not done here: items are kept as they came.
+    """
+
+    llm_tools = ("locate", "recall", "semantic_search", "spatial_query", "temporal_query", "body_status")
+
+    def __init__(self, *, layers: list[Any], position: Topic | None = None, model_client: Any = None,
+                 embedding_client: Any = None, config: Any = None, trigger: Any = 10.0,
+                 component_name: str | None = None, **kw: Any) -> None:
+        from embagents.compat._core import note
+
+        if component_name is not None:
+            kw["component_name"] = component_name
+        kw, self._extras = _translate(type(self), "", {**kw, "config": config, "trigger": trigger})
+        name = str(kw.pop("name"))
+        if kw.get("config") is None:
+            kw.pop("config")
+        if model_client is not None:
+            note(f"Memory {name!r}: model_client (eMEM's consolidation into gists and entities) is not used here: "
+                 "items are kept as they came")
+        if embedding_client is None:
+            embedding = local_default("embedding", "minilm", f"Memory {name!r}'s sentence-transformers embeddings",
+                                      "no embedding_client given")
+        else:
+            embedding = build_client(embedding_client, "embedding", name)
+        self.internal_layers = [layer.name for layer in layers if getattr(layer, "is_internal_state", False)]
+        super().__init__(name=name, layers=layers, position=position, embedding_client=embedding, **kw)
+
+    def locate(self, concept: str = "", what: str = "") -> str:  # type: ignore[override]
+        """Where something (a ``concept``: "cup", "kitchen") was last seen: its text and ``Location: (x, y, z)``."""
+        found = native.Memory.locate(self, concept or what)
+        if not found.get("found"):
+            return str(found["summary"])
+        near = f"; near {'; '.join(found['near'])}" if found.get("near") else ""
+        return _where({**found, "layer": found.get("layer", "")}) + near
+
+    def recall(self, concept: str, n_results: int = 5) -> str:
+        """Everything remembered about a ``concept``, closest in meaning first."""
+        return self.semantic_search(concept, n_results)
+
+    def semantic_search(self, query: str, n_results: int = 5, layer: str | None = None) -> str:
+        """The ``n_results`` remembered items closest in meaning to ``query``, one a line."""
+        items = native.Memory.query(self, query, k=n_results, layer=layer)
+        return "\n".join(_where(it) for it in items) or f"nothing is remembered about {query!r}"
+
+    def spatial_query(self, x: float, y: float, radius: float = 2.0, layer: str | None = None) -> str:
+        """What was seen within ``radius`` metres of (``x``, ``y``), nearest first, one a line."""
+        items = self.near(x, y, radius, layer)
+        return "\n".join(_where(it) for it in items) or f"nothing is remembered within {radius} m of ({x}, {y})"
+
+    def temporal_query(self, seconds_ago: float = 300.0, layer: str | None = None) -> str:
+        """What was seen in the last ``seconds_ago`` seconds, one a line."""
+        items = self.between(-abs(float(seconds_ago)), None, layer)
+        return "\n".join(_where(it) for it in items) or f"nothing was stored in the last {seconds_ago} s"
+
+    def body_status(self) -> str:
+        """The latest reading of each internal-state layer (battery...)."""
+        lines = []
+        for name in self.internal_layers:
+            items = self.between(0.0, None, name)
+            if items:
+                lines.append(_where(max(items, key=lambda it: float(it.get("time", 0.0)))))
+        return "\n".join(lines) or "no internal-state reading is stored yet"
+
+    def register_tools_on(self, llm: Any, tools: Sequence[str] | None = None,
+                          send_tool_response_to_model: bool = True) -> None:
+        """Offer this memory's tools (all, or ``tools``) to ``llm``; ``send_tool_response_to_model=False``:
+        the tool's text is the answer (a publisher preprocessor turns it into the output)."""
+        from embagents.llm_tools import register_tools_on
+
+        for t in tools or ():
+            if t not in self.llm_tools:
+                unsupported(f"Memory tool {t!r} (eMEM's episodes, gists and entities)",
+                            f"one of {', '.join(self.llm_tools)}")
+        names = register_tools_on(llm, self, methods=list(tools) if tools else list(self.llm_tools))
+        if not send_tool_response_to_model:
+            direct = [*llm.config.tools_answer_directly, *(n for n in names if n not in llm.config.tools_answer_directly)]
+            llm.config = attrs.evolve(llm.config, tools_answer_directly=direct)

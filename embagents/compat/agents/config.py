@@ -25,7 +25,7 @@ from embagents import components as native
 from embagents.compat._core import CompatError, note, unsupported
 from embagents.config import config_fields
 
-__all__ = ["LLMConfig", "MapConfig", "SemanticRouterConfig", "SpeechToTextConfig", "TextToSpeechConfig",
+__all__ = ["CortexConfig", "LLMConfig", "MapConfig", "MemoryConfig", "SemanticRouterConfig", "SpeechToTextConfig", "TextToSpeechConfig",
            "VLAConfig", "VLMConfig", "VisionConfig"]
 
 #: Fields only the compat components read (they decide which client a component gets, or what it adds).
@@ -200,6 +200,50 @@ class MapConfig(_Config):
     native_class = native.MapConfig
     renames = {"db_path": "db_path"}
     inert = {"distance_func": "the memory's vector index uses cosine distance"}
+
+
+_EMEM = "eMEM's consolidation (gists, entities, archival) is not done here: every item is kept as it came"
+
+
+class MemoryConfig(_Config):
+    """EmbodiedAgents' MemoryConfig (eMEM) -> :class:`embagents.components.MemoryConfig`."""
+
+    native_class = native.MemoryConfig
+    inert = {
+        "embedding_checkpoint": "without an embedding_client, embeddings come from all-MiniLM-L6-v2 locally",
+        "auto_store": "each layer's message is stored on the step it triggers",
+        "working_memory_size": "an item is committed to SQLite on the step that stores it",
+        "flush_interval": "an item is committed to SQLite on the step that stores it",
+        "flush_batch_size": "an item is committed to SQLite on the step that stores it",
+        "consolidation_window": _EMEM,
+        "consolidation_spatial_eps": _EMEM,
+        "consolidation_min_samples": _EMEM,
+        "archive_after_seconds": _EMEM,
+        "entity_extract_flush_interval": _EMEM,
+        "entity_extract_time_interval": _EMEM,
+        "entity_similarity_threshold": _EMEM,
+        "entity_spatial_radius": _EMEM,
+        "recency_weight": "locate returns the latest close match; query orders by meaning",
+    }
+
+
+class CortexConfig(_Config):
+    """EmbodiedAgents' CortexConfig -> :class:`embagents.components.LLMConfig` of the planning LLM:
+    ``max_execution_steps`` is its ``max_tool_rounds``; the chat history is kept."""
+
+    native_class = native.LLMConfig
+    renames = {**_LLM_RENAMES, "max_execution_steps": "max_tool_rounds"}
+    refused = _LLM_REFUSED
+    inert = {
+        **_LLM_INERT,
+        "max_planning_steps": "the model plans and acts in one tool loop of max_execution_steps rounds",
+        "confirmation_temperature": "there is no separate confirmation call here",
+        "confirmation_max_tokens": "there is no separate confirmation call here",
+        "strip_think_tokens": "the answer is published as the model gives it",
+    }
+
+    def __init__(self, **fields: Any) -> None:
+        super().__init__(**{"chat_history": True, **fields})
 
 
 class VLAConfig(_Config):

@@ -39,7 +39,7 @@ from embagents.system import System, loading, register
 from embagents.topic import FixedInput as _NativeFixedInput
 from embagents.topic import Topic as _NativeTopic
 
-__all__ = ["Action", "Event", "FixedInput", "Launcher", "MapLayer", "Route", "Topic"]
+__all__ = ["Action", "Event", "FixedInput", "Launcher", "MapLayer", "MemLayer", "Route", "Topic"]
 
 _event_ids = itertools.count(1)
 
@@ -99,13 +99,26 @@ def FixedInput(name: str, msg_type: Any, fixed: Any) -> _NativeFixedInput:  # no
     return _NativeFixedInput(name, msg_type, fixed=fixed)
 
 
+@attrs.define(kw_only=True)
+class _MemLayer(_NativeMapLayer):
+    """A native layer that also says whether it is internal state (read by Memory's ``body_status``)."""
+
+    is_internal_state: bool = False
+
+
 def MapLayer(subscribes_to: _NativeTopic, temporal_change: bool = True, resolution_multiple: int | None = None,
-             pre_defined: Any = None) -> _NativeMapLayer:  # noqa: N802
-    """A layer of the map memory (``resolution_multiple`` counts the map's cells; here: metres, 0.5)."""
+             pre_defined: Any = None, is_internal_state: bool = False) -> _NativeMapLayer:  # noqa: N802
+    """A layer of the map memory (``resolution_multiple`` counts the map's cells; here: metres, 0.5);
+    ``is_internal_state``: a Memory's body-state layer (battery...), read by its ``body_status`` tool."""
     if pre_defined:
         unsupported("MapLayer(pre_defined=...) (a layer filled from a file)",
                     "Memory.remember(text, layer) from a component's on_activate")
-    return _NativeMapLayer(subscribes_to=subscribes_to, temporal_change=temporal_change)
+    return _MemLayer(subscribes_to=subscribes_to, temporal_change=temporal_change,
+                     is_internal_state=bool(is_internal_state))
+
+
+#: EmbodiedAgents' newer name of a memory layer.
+MemLayer = MapLayer
 
 
 def Route(routes_to: _NativeTopic, samples: Sequence[str]) -> _NativeRoute:  # noqa: N802
