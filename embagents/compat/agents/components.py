@@ -37,7 +37,7 @@ from embagents.compat._core import CompatError, unsupported
 from embagents.compat.agents.clients import build_client, local_default
 from embagents.compat.agents.config import _Config
 from embagents.events import Action, Fallback
-from embagents.msgs import Audio, Pose, PoseStamped, StreamingString, String
+from embagents.msgs import Audio, CompressedImage, Detections, Image, Pose, PoseStamped, StreamingString, String
 from embagents.topic import Topic
 
 __all__ = ["LLM", "MLLM", "VLA", "VLM", "Cortex", "MapEncoding", "Memory", "SemanticRouter", "SpeechToText",
@@ -261,7 +261,7 @@ class LLM(_Clients, native.LLM, _Lifecycle):
             return super().question_text(topic, inputs)
         import jinja2
 
-        values = {t.name: getattr(inputs.get(t.name), "data", "") for t in self.inputs}
+        values = {t.name: _prompt_value(inputs.get(t.name)) for t in self.inputs}
         values.update({k.replace("/", "_"): v for k, v in values.items()})
         return jinja2.Template(template).render(values)
 
@@ -307,10 +307,19 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         self.output_converters[out.name] = convert
 
 
+def _prompt_value(msg: Any) -> str:
+    """A message as a prompt template shows it: a text's data, detections as their labels ("cup, chair")."""
+    if isinstance(msg, Detections):
+        return ", ".join(dict.fromkeys(str(label) for label in msg.labels))
+    data = getattr(msg, "data", "")
+    return data if isinstance(data, str) else ""  # an image is the model's to see, not the prompt's text
+
+
 class VLM(LLM, native.VLM, _Lifecycle):
-    """EmbodiedAgents' VLM (MLLM)."""
+    """EmbodiedAgents' VLM (MLLM); a Detections input fills its prompt template with the labels seen."""
 
     _role = "vlm"
+    allowed_inputs = {"Required": [String], "Optional": [String, Image, CompressedImage, Detections]}
 
 
 MLLM = VLM
