@@ -496,3 +496,50 @@ class Memory(_Fallbacks, native.Memory, _Lifecycle):
         if not send_tool_response_to_model:
             direct = [*llm.config.tools_answer_directly, *(n for n in names if n not in llm.config.tools_answer_directly)]
             llm.config = attrs.evolve(llm.config, tools_answer_directly=direct)
+
+
+class Cortex(LLM):
+    """EmbodiedAgents' Cortex, mapped to an LLM that plans and acts through tools.
+
+    Its tools are the ``actions`` (``Action(method=fn, description=...)`` of plain
+    functions, run in its own process) and, at ``bringup()``, the tools every
+    other component of the launcher offers (a Memory's ``locate``, ``recall``...),
+    called in their own processes. A goal sent on ``ui_main_action_input``
+    (``<name>_input``) is answered on ``output``; ``CortexConfig(max_execution_steps=)``
+    bounds the tool rounds. EmbodiedAgents' separate planning and per-step confirmation
+    calls are one tool loop here.
+    """
+
+    def __init__(self, *, actions: Sequence[Any] | None = None, output: Topic | None = None, model_client: Any = None,
+                 db_client: Any = None, config: Any = None, component_name: str | None = None, **kw: Any) -> None:
+        from embagents.compat.agents.config import CortexConfig
+        from embagents.compat.agents.ros import FunctionAction
+
+        name = str(component_name or kw.pop("name", "") or "")
+        if not name:
+            raise CompatError("Cortex: needs component_name= (the component's name)")
+        config = config if config is not None else CortexConfig()
+        if model_client is None and not getattr(config, "enable_local_model", False):
+            raise CompatError("Cortex: needs a model_client or CortexConfig(enable_local_model=True)")
+        self.ui_main_action_input = Topic(f"{name}_input", String)
+        out = output if output is not None else Topic(f"{name}_output", String)
+        super().__init__(inputs=[self.ui_main_action_input], outputs=[out], model_client=model_client,
+                         db_client=db_client, config=config, trigger=self.ui_main_action_input,
+                         component_name=name, **kw)
+        if not self.config.system_prompt:
+            self.set_system_prompt("You are the robot's planner. Reach the user's goal by calling the tools you are "
+                                   "given, one step at a time; when it is reached or cannot be, say so briefly.")
+        for action in actions or ():
+            if not isinstance(action, FunctionAction):
+                raise CompatError(f"Cortex {name!r}: actions must be Action(method=function, description=...), "
+                                  f"got {action!r}")
+            fn = action.method
+            self.register_tool(fn, {"name": fn.__name__, "description": action.description},
+                               send_tool_response_to_model=True)
+
+    def discover_tools(self, components: Sequence[native.Component]) -> list[str]:
+        """Offer ``components``' tools (their ``llm_tools``) to this Cortex; returns the tool names added."""
+        from embagents.llm_tools import register_tools_on, tool_methods
+
+        offering = [c for c in components if tool_methods(c) and not isinstance(c, Cortex)]
+        return register_tools_on(self, *offering) if offering else []

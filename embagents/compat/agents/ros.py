@@ -160,11 +160,22 @@ def Event(event_condition: Any, on_change: bool = False, keep_event_delay: float
 _SUPERVISOR = {"start": native_events.start, "stop": native_events.stop, "restart": native_events.restart}
 
 
-def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping[str, Any] | None = None  # noqa: N802
-           ) -> native_events.Action:
-    """``component.method(*args, **kwargs)`` as an embagents action (run in that component's process)."""
+@attrs.frozen
+class FunctionAction:
+    """``Action(method=fn, description=...)`` of a plain function: a tool of a Cortex (run in its process)."""
+
+    method: Callable[..., Any]
+    description: str
+
+
+def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping[str, Any] | None = None,  # noqa: N802
+           description: str | None = None) -> Any:
+    """``component.method(*args, **kwargs)`` as an embagents action (run in that component's process);
+    a plain function with a ``description`` is a Cortex's tool (:class:`FunctionAction`)."""
     owner = getattr(method, "__self__", None)
     fname = getattr(method, "__name__", repr(method))
+    if not isinstance(owner, Component) and description is not None and callable(method):
+        return FunctionAction(method, description)
     if not isinstance(owner, Component):
         unsupported(f"Action(method={fname}) on something that is not a component (it would run in the launcher's "
                     "process)", "a public method of a component: Action(method=component.method)")
@@ -194,6 +205,7 @@ class Launcher:
         self.external: list[_NativeTopic] = []
         self.name = "agents"
         self.fallback_rate: float | None = None
+        self.supervision: dict[str, Any] | None = None
 
     def add_pkg(self, components: Sequence[Component], events_actions: Mapping[Any, Any] | None = None,
                 package_name: str | None = None, executable_entry_point: str | None = None,
@@ -206,6 +218,10 @@ class Launcher:
             self.components.append(c)
             self.components += getattr(c, "companions", [])
         for event, actions in (events_actions or {}).items():
+            for a in actions if isinstance(actions, (list, tuple)) else [actions]:
+                if isinstance(a, FunctionAction):
+                    unsupported(f"Action(method={a.method.__name__}) of a plain function in an event (it would run "
+                                "in the launcher's process)", "a public method of a component: Action(method=component.method)")
             self.events.append((event, actions))
         if package_name:
             self.name = package_name
@@ -219,9 +235,21 @@ class Launcher:
         note(f"enable_ui: type into {names} with `embagents publish TOPIC TEXT`; watch with `embagents topic echo "
              "TOPIC` (or `embagents supervise --dashboard`)")
 
+    def on_process_fail(self, max_retries: int = 3) -> None:
+        """Restart a component whose process dies: the supervisor always does; here at most ``max_retries``
+        restarts within its period (OTP's intensity) before the supervisor gives up."""
+        if int(max_retries) < 1:
+            raise CompatError(f"on_process_fail: max_retries must be at least 1, got {max_retries!r}")
+        self.supervision = {"intensity": int(max_retries)}
+
     def system(self) -> System:
-        """The embagents System these components and events make."""
-        return System(self.components, events=self.events, external=self.external, name=self.name)
+        """The embagents System these components and events make (a Cortex gets the others' tools)."""
+        for c in self.components:
+            wire = getattr(c, "discover_tools", None)
+            if callable(wire):
+                wire([o for o in self.components if o is not c])
+        return System(self.components, events=self.events, external=self.external, name=self.name,
+                      supervision=self.supervision)
 
     def bringup(self) -> None:
         """Register the System (under ``embagents check``/``supervise``), else supervise it (``python recipe.py``)."""
