@@ -35,6 +35,7 @@ from embagents.compat._core import CompatError, note, unsupported
 from embagents.components.component import Component
 from embagents.components.memory import MapLayer as _NativeMapLayer
 from embagents.components.router import Route as _NativeRoute
+from embagents.msgs import RosMessage
 from embagents.system import System, loading, register
 from embagents.topic import FixedInput as _NativeFixedInput
 from embagents.topic import Topic as _NativeTopic
@@ -83,11 +84,31 @@ class _Msg:
         return _Field(self._topic, name)
 
 
+#: ROS message types with no embagents class: such a topic carries a RosMessage (the ROS bridge's generic one).
+_ROS_ONLY = {
+    **{t: "std_msgs" for t in ("Bool", "Byte", "Char", "Float32", "Float64", "Int8", "Int16", "Int32", "Int64",
+                               "UInt8", "UInt16", "UInt32", "UInt64", "ColorRGBA", "Header", "Empty")},
+    **{t: "sensor_msgs" for t in ("BatteryState", "Temperature", "RelativeHumidity", "FluidPressure", "Illuminance",
+                                  "Range", "NavSatFix", "Joy", "MagneticField")},
+}
+
+
 @attrs.frozen
 class Topic(_NativeTopic):
-    """``Topic(name=..., msg_type="String", qos_profile=...)``; ``.msg.<field>`` builds conditions."""
+    """``Topic(name=..., msg_type="String", qos_profile=...)``; ``.msg.<field>`` builds conditions.
+
+    A ROS type embagents has no class for (``"Float32"``, ``"BatteryState"``) carries a
+    :class:`~embagents.msgs.RosMessage` (its fields by their ROS names).
+    """
 
     qos_profile: Any = attrs.field(default=None, kw_only=True, eq=False)
+
+    def __attrs_post_init__(self) -> None:
+        if isinstance(self.msg_type, str) and self.msg_type in _ROS_ONLY:
+            note(f"topic {self.name!r}: {_ROS_ONLY[self.msg_type]}/msg/{self.msg_type} carries a RosMessage here "
+                 "(its fields by their ROS names)")
+            object.__setattr__(self, "msg_type", RosMessage)
+        super().__attrs_post_init__()
 
     @property
     def msg(self) -> _Msg:
