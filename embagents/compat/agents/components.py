@@ -179,6 +179,37 @@ def _pose(value: Any) -> PoseStamped | None:
     return PoseStamped(Pose((*xyz, *[0.0] * (3 - len(xyz)))))
 
 
+class _Rag:
+    """EmbodiedAgents' RAG: the items of the Memory database ``collection`` (a Memory or MapEncoding with
+    ``MemoryConfig(map_name=collection)``) closest in meaning to the question, put before it."""
+
+    def __init__(self, client: Any, collection: str, n_results: int, add_metadata: bool) -> None:
+        self.client, self.collection, self.n_results, self.add_metadata = client, collection, n_results, add_metadata
+        self.store: Any = None
+
+    @property
+    def path(self) -> str:
+        from embagents.wheelfiles import cache_dir
+
+        return str(cache_dir() / "memory" / f"{self.collection}.db")  # where a Memory of that map_name keeps it
+
+    def context(self, question: str) -> str:
+        """The retrieved items as lines (with position, layer and time when ``add_metadata``); "" for none."""
+        import json
+
+        from embagents.components.memory import embedding_dim
+        from embagents.components.memory_store import MemoryStore
+
+        if self.store is None:
+            name = getattr(self.client, "name", None) or type(self.client).__name__
+            self.store = MemoryStore(self.path, dim=embedding_dim(self.client), model=str(name))
+        items = self.store.semantic(self.client.embed([question])[0], k=self.n_results)
+        if not self.add_metadata:
+            return "\n".join(str(it["text"]) for it in items)
+        return "\n".join(f"{it['text']} " + json.dumps({"position": [round(float(v), 3) for v in it["position"]],
+                                                        "layer": it["layer"], "time": it["time"]}) for it in items)
+
+
 class _NeedsPreprocessor:
     """The converter of a typed output until ``add_publisher_preprocessor`` gives one (check says so)."""
 
@@ -197,10 +228,24 @@ class LLM(_Clients, native.LLM, _Lifecycle):
     def __init__(self, *, component_name: str | None = None, db_client: Any = None, **kw: Any) -> None:
         if component_name is not None:
             kw["component_name"] = component_name
-        if db_client is not None:
-            unsupported(f"{type(self).__name__}(db_client=...) (RAG)",
-                        "a Memory component whose queries the LLM calls as tools: register_tools_on(llm, memory)")
         kw, self._extras = _translate(type(self), self._role, kw)
+        self.rag: _Rag | None = None
+        if self._extras.get("enable_rag"):
+            if db_client is None:
+                raise CompatError(f"{type(self).__name__} {kw['name']!r}: LLMConfig(enable_rag=True) needs "
+                                  "db_client= (the vector database the answers come from)")
+            self.rag = _Rag(build_client(db_client, "embedding", str(kw["name"])),
+                            str(self._extras.get("collection_name", "map")), int(self._extras.get("n_results", 1)),
+                            bool(self._extras.get("add_metadata", False)))
+            from embagents.compat._core import note
+
+            note(f"{kw['name']}: RAG reads the memory database {self.rag.collection!r} (a Memory or MapEncoding "
+                 f"with MemoryConfig(map_name={self.rag.collection!r}) writes it); its {self.rag.n_results} closest "
+                 "items come before each question")
+        elif db_client is not None:
+            from embagents.compat._core import note
+
+            note(f"{kw['name']}: db_client= is unused without LLMConfig(enable_rag=True) (as in EmbodiedAgents)")
         self._templates: dict[str, str] = {}
         self._component_template: str | None = None
         self._raw_tool_result: Any = None
@@ -256,6 +301,13 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         self.config = attrs.evolve(self.config, system_prompt=prompt)
 
     def question_text(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
+        text = self._templated(topic, inputs)
+        if self.rag is None:
+            return text
+        found = self.rag.context(str(getattr(inputs.get(topic.name), "data", "")) or text)
+        return f"{found}\n\n{text}" if found else text
+
+    def _templated(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
         template = self._templates.get(topic.name) or self._component_template
         if template is None:
             return super().question_text(topic, inputs)

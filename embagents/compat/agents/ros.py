@@ -269,8 +269,11 @@ class Launcher:
             wire = getattr(c, "discover_tools", None)
             if callable(wire):
                 wire([o for o in self.components if o is not c])
+        # A RAG's embeddings in a local model actor: the system serves that model (it is no chat client).
+        rag = [getattr(getattr(c, "rag", None), "client", None) for c in self.components]
+        models = [client.model for client in rag if getattr(client, "in_run", False) and getattr(client, "model", None)]
         return System(self.components, events=self.events, external=self.external, name=self.name,
-                      supervision=self.supervision)
+                      supervision=self.supervision, models=models)
 
     def bringup(self) -> None:
         """Register the System (under ``embagents check``/``supervise``), else supervise it (``python recipe.py``)."""
