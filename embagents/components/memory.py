@@ -123,7 +123,7 @@ class Memory(Component):
     """Stores layers of what the robot perceives with position, time and meaning (module docstring)."""
 
     #: The actions :func:`~embagents.llm_tools.register_tools_on` offers an LLM.
-    llm_tools = ("locate", "query", "near", "between")
+    llm_tools: tuple[str, ...] = ("locate", "query", "near", "between")
 
     # Odometry is checked in validate(), not Required: a layer's message before the first
     # odometry is still stored (position_known False), not held back.

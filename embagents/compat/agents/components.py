@@ -37,7 +37,16 @@ from embagents.compat._core import CompatError, unsupported
 from embagents.compat.agents.clients import build_client, local_default
 from embagents.compat.agents.config import _Config
 from embagents.events import Action, Fallback
-from embagents.msgs import Audio, CompressedImage, Detections, Image, Pose, PoseStamped, StreamingString, String
+from embagents.msgs import (
+    Audio,
+    CompressedImage,
+    Detections,
+    Image,
+    Pose,
+    PoseStamped,
+    StreamingString,
+    String,
+)
 from embagents.topic import Topic
 
 __all__ = ["LLM", "MLLM", "VLA", "VLM", "Cortex", "MapEncoding", "Memory", "SemanticRouter", "SpeechToText",
@@ -474,7 +483,8 @@ class Memory(_Fallbacks, native.Memory, _Lifecycle):
     entities (consolidation by ``model_client``) are not done here: items are kept as they came.
     """
 
-    llm_tools = ("locate", "recall", "semantic_search", "spatial_query", "temporal_query", "body_status")
+    llm_tools: tuple[str, ...] = ("locate", "recall", "semantic_search", "spatial_query", "temporal_query",
+                                  "body_status")
 
     def __init__(self, *, layers: list[Any], position: Topic | None = None, model_client: Any = None,
                  embedding_client: Any = None, config: Any = None, trigger: Any = 10.0,

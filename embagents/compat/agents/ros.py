@@ -205,8 +205,9 @@ def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping
         return _SUPERVISOR[fname](owner)
     if fname == "change_model_client":
         return native_events.switch_model_client(str(args[0]), owner)
-    if fname == "fallback_to_local" and callable(getattr(owner, "local_fallback_client", None)):
-        return native_events.switch_model_client(owner.local_fallback_client(), owner)
+    local = getattr(owner, "local_fallback_client", None)
+    if fname == "fallback_to_local" and callable(local):
+        return native_events.switch_model_client(local(), owner)
     if fname == "publish_message":
         unsupported("Action(method=component.publish_message)", "embagents.events.publish(topic, msg)")
     return native_events.call(owner, fname, *args, **dict(kwargs or {}))
@@ -271,9 +272,9 @@ class Launcher:
                 wire([o for o in self.components if o is not c])
         # A RAG's embeddings in a local model actor: the system serves that model (it is no chat client).
         rag = [getattr(getattr(c, "rag", None), "client", None) for c in self.components]
-        models = [client.model for client in rag if getattr(client, "in_run", False) and getattr(client, "model", None)]
+        models = [getattr(client, "model", None) for client in rag if getattr(client, "in_run", False)]
         return System(self.components, events=self.events, external=self.external, name=self.name,
-                      supervision=self.supervision, models=models)
+                      supervision=self.supervision, models=[m for m in models if m is not None])
 
     def bringup(self) -> None:
         """Register the System (under ``embagents check``/``supervise``), else supervise it (``python recipe.py``)."""
