@@ -381,6 +381,8 @@ class VLM(LLM, native.VLM, _Lifecycle):
 
     _role = "vlm"
     allowed_inputs = {"Required": [String], "Optional": [String, Image, CompressedImage, Detections]}
+    #: What a Cortex may ask it (EmbodiedAgents' Cortex discovers the components' actions).
+    llm_tools: tuple[str, ...] = ("describe",)
 
 
 MLLM = VLM
@@ -565,8 +567,8 @@ class Cortex(LLM):
 
     Its tools are the ``actions`` (``Action(method=fn, description=...)`` of plain
     functions, run in its own process) and, at ``bringup()``, the tools every
-    other component of the launcher offers (a Memory's ``locate``, ``recall``...),
-    called in their own processes. A goal sent on ``ui_main_action_input``
+    other component of the launcher offers (a Memory's ``locate``, ``recall``...,
+    a VLM's ``describe``), called in their own processes. A goal sent on ``ui_main_action_input``
     (``<name>_input``) is answered on ``output``; ``CortexConfig(max_execution_steps=)``
     bounds the tool rounds. EmbodiedAgents' separate planning and per-step confirmation
     calls are one tool loop here.

@@ -289,11 +289,16 @@ def test_a_cortex_plans_with_its_actions_and_the_other_components_tools(tmp_path
     cortex = Cortex(actions=[EAAction(method=wave, description="Wave the robot's arm.")], model_client=Parrot(),
                     config=CortexConfig(max_execution_steps=4, max_planning_steps=2), component_name="cortex")
     assert cortex.ui_main_action_input.name == "cortex_input" and cortex.config.max_tool_rounds == 4
+    from embagents.compat.agents.components import VLM
+    from embagents.msgs import Image
+
+    vlm = VLM(inputs=[Topic("ask", String), Topic("cam", Image)], outputs=[Topic("said", String)],
+              model_client=Parrot(), trigger=Topic("ask", String), component_name="vlm")
     launcher = Launcher()
-    launcher.add_pkg(components=[mem, cortex])
+    launcher.add_pkg(components=[mem, vlm, cortex])
     launcher.on_process_fail(max_retries=5)
     system = launcher.system()
-    assert {"wave", "locate", "recall", "body_status"} <= set(cortex.config.tools)
+    assert {"wave", "locate", "recall", "body_status", "describe"} <= set(cortex.config.tools)
     assert system.supervision["intensity"] == 5
     with pytest.raises(CompatError, match="Action\\(method=wave\\) of a plain function in an event"):
         from embagents.compat.agents.ros import Event
