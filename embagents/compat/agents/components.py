@@ -510,9 +510,9 @@ class Memory(_Fallbacks, native.Memory, _Lifecycle):
         self.internal_layers = [layer.name for layer in layers if getattr(layer, "is_internal_state", False)]
         super().__init__(name=name, layers=layers, position=position, embedding_client=embedding, **kw)
 
-    def locate(self, concept: str = "", what: str = "") -> str:  # type: ignore[override]
+    def locate(self, concept: str) -> str:  # type: ignore[override]  # eMEM's tool: text, not the native dict
         """Where something (a ``concept``: "cup", "kitchen") was last seen: its text and ``Location: (x, y, z)``."""
-        found = native.Memory.locate(self, concept or what)
+        found = native.Memory.locate(self, concept)
         if not found.get("found"):
             return str(found["summary"])
         near = f"; near {'; '.join(found['near'])}" if found.get("near") else ""

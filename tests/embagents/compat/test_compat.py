@@ -118,6 +118,49 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, topic_
         assert "data: Take me to the kitchen please" in answer  # routed by meaning to the go-to topic
 
 
+def test_memory_go_to_runs_offline_from_a_remembered_note_to_a_goal_pose(tmp_path: Path) -> None:
+    """Memory stores a note where the robot is; the LLM's locate tool (in Memory's process) answers
+    "Location: (x, y, z)", which the recipe's preprocessor publishes as the goal pose."""
+    pytest.importorskip("llama_cpp", reason="the offline default model is SmolLM2 on llama.cpp")
+    recipe = rewrite_imports(RECIPES / "memory_go_to.py", tmp_path)
+    text = recipe.read_text().replace("/tmp/memory_go_to.db", str(tmp_path / "m.db"))
+    # SmolLM2-135M calls a tool reliably only when held to it (a grammar): the one change besides imports.
+    recipe.write_text(text.replace("LLMConfig(temperature=0.0)", 'LLMConfig(temperature=0.0, tool_choice="required")'))
+    proc = subprocess.Popen([sys.executable, str(recipe), "--offline"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env())
+    cli = [sys.executable, "-m", "embagents.cli"]
+    run = ["--run", "memory_go_to"]
+
+    def publish(*args: str) -> int:
+        return subprocess.run([*cli, "publish", *run, *args], capture_output=True, env=env(), timeout=30).returncode
+
+    echo: subprocess.Popen[str] | None = None
+    try:
+        deadline = time.monotonic() + 240
+        while publish("odom", "--fields", '{"position": [4.0, 2.5, 0.0]}') != 0:
+            assert proc.poll() is None and time.monotonic() < deadline, "the system did not start"
+            time.sleep(1)
+        assert publish("notes", "the kitchen has a red cup") == 0
+        time.sleep(6)  # Memory stores on its 5 s tick
+        echo = subprocess.Popen([*cli, "topic", "echo", "goal_point", "-n", "1", *run], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=env())
+        time.sleep(2)
+        assert publish("goto_in", "go to the kitchen") == 0
+        goal, _ = echo.communicate(timeout=120)
+        assert re.search(r"x: 4\.0\s+y: 2\.5", goal), goal
+    finally:
+        if echo is not None and echo.poll() is None:
+            echo.kill()
+            echo.communicate()
+        subprocess.run([*cli, "stop", *run], capture_output=True, env=env(), timeout=60)
+        try:
+            _, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    assert "tool memory.locate answered" in err and "Location: (4.00, 2.50, 0.00)" in err, err[-3000:]
+
+
 # --- spellings ---------------------------------------------------------------------------------------
 
 
