@@ -2,8 +2,9 @@
 
 Inputs: an ``Odometry`` topic (where the robot is), optionally an
 ``OccupancyGrid`` (the map, kept as the frame of positions), and *layers*:
-``String``, ``StreamingString`` (a stream is one item once ``done``) or
-``Detections`` (one item per label, e.g. "cup") topics. Each item is stored
+``String``, ``StreamingString`` (a stream is one item once ``done``),
+``Detections`` (one item per label, e.g. "cup") or ``RosMessage`` (a bridged
+ROS message such as a battery state: its fields as text) topics. Each item is stored
 with the robot's position, the time, its layer and its embedding (an
 embedding client: ``LocalModelClient(EmbeddingModel(...))`` or
 :class:`~embagents.clients.OpenAIEmbeddingClient`) in a SQLite file
@@ -55,12 +56,12 @@ from embagents.components.memory_store import (
     MemoryStoreError,
 )
 from embagents.config import BaseComponentConfig, int_at_least, one_of, positive_float
-from embagents.msgs import Detections, OccupancyGrid, Odometry, StreamingString, String
+from embagents.msgs import Detections, OccupancyGrid, Odometry, RosMessage, StreamingString, String
 from embagents.topic import Topic
 
 __all__ = ["MapConfig", "MapEncoding", "MapLayer", "Memory", "MemoryConfig", "embedding_dim"]
 
-_LAYER_TYPES = (String, StreamingString, Detections)
+_LAYER_TYPES = (String, StreamingString, Detections, RosMessage)
 
 
 @define(kw_only=True)
@@ -122,11 +123,11 @@ class Memory(Component):
     """Stores layers of what the robot perceives with position, time and meaning (module docstring)."""
 
     #: The actions :func:`~embagents.llm_tools.register_tools_on` offers an LLM.
-    llm_tools = ("locate", "query", "near", "between")
+    llm_tools: tuple[str, ...] = ("locate", "query", "near", "between")
 
     # Odometry is checked in validate(), not Required: a layer's message before the first
     # odometry is still stored (position_known False), not held back.
-    allowed_inputs = {"Optional": [Odometry, OccupancyGrid, String, StreamingString, Detections]}
+    allowed_inputs = {"Optional": [Odometry, OccupancyGrid, String, StreamingString, Detections, RosMessage]}
     allowed_outputs = None
     config_class = MemoryConfig
 
@@ -164,7 +165,7 @@ class Memory(Component):
             if layer.subscribes_to.msg_type not in _LAYER_TYPES:
                 problems.append(("bad-input", f"{self._label()}: layer {layer.name!r} is a "
                                               f"{getattr(layer.subscribes_to.msg_type, '__name__', '?')} topic; layers are "
-                                              "String, StreamingString or Detections topics"))
+                                              "String, StreamingString, Detections or RosMessage topics"))
         if len(set(names)) != len(names):
             problems.append(("bad-input", f"{self._label()}: two layers read the same topic"))
         return problems
@@ -250,6 +251,9 @@ class Memory(Component):
                     continue
                 out.append((layer.name, label, {"score": round(score, 3), "frame_id": msg.frame_id}))
             return out
+        if isinstance(msg, RosMessage):  # a bridged ROS message (a battery state): its fields as text
+            shown = ", ".join(f"{k}={v}" for k, v in msg.fields.items() if isinstance(v, (str, int, float, bool)))
+            return [(layer.name, f"{layer.name}: {shown}", {"ros_type": msg.ros_type})] if shown else []
         return []
 
     def _seen_here(self, layer: MapLayer, label: str) -> bool:

@@ -126,7 +126,7 @@ class VLM(LLM):
         if question is not None:
             context = {t.name.replace("/", "_"): inputs[t.name].data for t in texts
                        if t is not question and inputs.get(t.name) is not None}
-            self._pending = (inputs[question.name].data, context)
+            self._pending = (self.question_text(question, inputs), context)
         if self._pending is None:
             return  # a frame, and no question waiting
         frames = [(t.name, inputs[t.name]) for t in self.image_topics if inputs.get(t.name) is not None]

@@ -175,6 +175,12 @@ class ChromaClient(_Client):
     def build(self, role: str, component: str, enable_local_model: bool = False) -> Any:
         from embagents.models import EmbeddingModel, LocalModelClient
 
+        if getattr(self.db, "embeddings", "") == "ollama":  # ChromaDB(embeddings="ollama"): the server's embeddings
+            from embagents.compat.agents.models import OllamaModel
+
+            model = OllamaModel(name="chroma_embeddings", checkpoint=self.db.checkpoint)
+            server = OllamaClient(model, host=self.db.ollama_host, port=self.db.ollama_port)
+            return server.build("embedding", component, enable_local_model)
         note(f"ChromaClient of {component!r}: the vector database is built in here (SQLite, sqlite-vec); "
              "embeddings come from all-MiniLM-L6-v2 in the local model actor 'minilm'")
         return LocalModelClient(EmbeddingModel(name="minilm"))

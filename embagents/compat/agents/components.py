@@ -25,7 +25,8 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import time
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import attrs
@@ -36,10 +37,20 @@ from embagents.compat._core import CompatError, unsupported
 from embagents.compat.agents.clients import build_client, local_default
 from embagents.compat.agents.config import _Config
 from embagents.events import Action, Fallback
-from embagents.msgs import Audio, Pose, PoseStamped, StreamingString, String
+from embagents.msgs import (
+    Audio,
+    CompressedImage,
+    Detections,
+    Image,
+    Pose,
+    PoseStamped,
+    StreamingString,
+    String,
+)
 from embagents.topic import Topic
 
-__all__ = ["LLM", "MLLM", "VLA", "VLM", "MapEncoding", "SemanticRouter", "SpeechToText", "TextToSpeech", "Vision"]
+__all__ = ["LLM", "MLLM", "VLA", "VLM", "Cortex", "MapEncoding", "Memory", "SemanticRouter", "SpeechToText",
+           "TextToSpeech", "Vision"]
 
 
 def _translate(cls: type, role: str, kw: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -150,6 +161,20 @@ class _Clients(_Fallbacks):
             if self._client_problems:  # type: ignore[attr-defined]
                 raise CompatError("; ".join(text for _, text in self._client_problems))  # type: ignore[attr-defined]
 
+    def fallback_to_local(self) -> str:
+        """EmbodiedAgents' switch to the built-in local model: ``Action(method=component.fallback_to_local)``
+        switches the component to the offline default model (a standby client here)."""
+        raise CompatError("fallback_to_local() is an action here: use Action(method=component.fallback_to_local)")
+
+    def local_fallback_client(self) -> str:
+        """The name of the standby local client ``fallback_to_local`` switches to (added on the first call)."""
+        key = f"{getattr(self, 'name', '')}_local"
+        if key not in self.clients:
+            client = local_default(self._role, key, f"{type(self).__name__} {getattr(self, 'name', '')!r}'s model "
+                                   "after fallback_to_local", "a standby client the fallback switches to")
+            self._add_client(key, client)  # type: ignore[attr-defined]
+        return key
+
 
 def _pose(value: Any) -> PoseStamped | None:
     """A preprocessor's result for a PoseStamped topic: a pose, x/y/z coordinates, or a dict with them."""
@@ -161,6 +186,37 @@ def _pose(value: Any) -> PoseStamped | None:
         value = value.get("position", [value.get("x", 0.0), value.get("y", 0.0), value.get("z", 0.0)])
     xyz = [float(v) for v in np.asarray(value, dtype=np.float64).ravel()[:3]]
     return PoseStamped(Pose((*xyz, *[0.0] * (3 - len(xyz)))))
+
+
+class _Rag:
+    """EmbodiedAgents' RAG: the items of the Memory database ``collection`` (a Memory or MapEncoding with
+    ``MemoryConfig(map_name=collection)``) closest in meaning to the question, put before it."""
+
+    def __init__(self, client: Any, collection: str, n_results: int, add_metadata: bool) -> None:
+        self.client, self.collection, self.n_results, self.add_metadata = client, collection, n_results, add_metadata
+        self.store: Any = None
+
+    @property
+    def path(self) -> str:
+        from embagents.wheelfiles import cache_dir
+
+        return str(cache_dir() / "memory" / f"{self.collection}.db")  # where a Memory of that map_name keeps it
+
+    def context(self, question: str) -> str:
+        """The retrieved items as lines (with position, layer and time when ``add_metadata``); "" for none."""
+        import json
+
+        from embagents.components.memory import embedding_dim
+        from embagents.components.memory_store import MemoryStore
+
+        if self.store is None:
+            name = getattr(self.client, "name", None) or type(self.client).__name__
+            self.store = MemoryStore(self.path, dim=embedding_dim(self.client), model=str(name))
+        items = self.store.semantic(self.client.embed([question])[0], k=self.n_results)
+        if not self.add_metadata:
+            return "\n".join(str(it["text"]) for it in items)
+        return "\n".join(f"{it['text']} " + json.dumps({"position": [round(float(v), 3) for v in it["position"]],
+                                                        "layer": it["layer"], "time": it["time"]}) for it in items)
 
 
 class _NeedsPreprocessor:
@@ -181,10 +237,24 @@ class LLM(_Clients, native.LLM, _Lifecycle):
     def __init__(self, *, component_name: str | None = None, db_client: Any = None, **kw: Any) -> None:
         if component_name is not None:
             kw["component_name"] = component_name
-        if db_client is not None:
-            unsupported(f"{type(self).__name__}(db_client=...) (RAG)",
-                        "a Memory component whose queries the LLM calls as tools: register_tools_on(llm, memory)")
         kw, self._extras = _translate(type(self), self._role, kw)
+        self.rag: _Rag | None = None
+        if self._extras.get("enable_rag"):
+            if db_client is None:
+                raise CompatError(f"{type(self).__name__} {kw['name']!r}: LLMConfig(enable_rag=True) needs "
+                                  "db_client= (the vector database the answers come from)")
+            self.rag = _Rag(build_client(db_client, "embedding", str(kw["name"])),
+                            str(self._extras.get("collection_name", "map")), int(self._extras.get("n_results", 1)),
+                            bool(self._extras.get("add_metadata", False)))
+            from embagents.compat._core import note
+
+            note(f"{kw['name']}: RAG reads the memory database {self.rag.collection!r} (a Memory or MapEncoding "
+                 f"with MemoryConfig(map_name={self.rag.collection!r}) writes it); its {self.rag.n_results} closest "
+                 "items come before each question")
+        elif db_client is not None:
+            from embagents.compat._core import note
+
+            note(f"{kw['name']}: db_client= is unused without LLMConfig(enable_rag=True) (as in EmbodiedAgents)")
         self._templates: dict[str, str] = {}
         self._component_template: str | None = None
         self._raw_tool_result: Any = None
@@ -240,12 +310,19 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         self.config = attrs.evolve(self.config, system_prompt=prompt)
 
     def question_text(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
+        text = self._templated(topic, inputs)
+        if self.rag is None:
+            return text
+        found = self.rag.context(str(getattr(inputs.get(topic.name), "data", "")) or text)
+        return f"{found}\n\n{text}" if found else text
+
+    def _templated(self, topic: Topic, inputs: Mapping[str, Any]) -> str:
         template = self._templates.get(topic.name) or self._component_template
         if template is None:
             return super().question_text(topic, inputs)
         import jinja2
 
-        values = {t.name: getattr(inputs.get(t.name), "data", "") for t in self.inputs}
+        values = {t.name: _prompt_value(inputs.get(t.name)) for t in self.inputs}
         values.update({k.replace("/", "_"): v for k, v in values.items()})
         return jinja2.Template(template).render(values)
 
@@ -266,6 +343,10 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         keep.__name__, keep.__doc__ = name, function.get("description") or tool.__doc__
         super().register_tool(keep, function.get("parameters"), name=name,
                               send_tool_response_to_model=send_tool_response_to_model)
+        if not send_tool_response_to_model:  # EmbodiedAgents publishes the tool's own result on a typed output
+            for out in self.outputs:
+                if isinstance(self.output_converters.get(out.name), _NeedsPreprocessor):
+                    self.add_publisher_preprocessor(out, lambda value: value)
 
     def add_publisher_preprocessor(self, topic: Topic, fn: Callable[[Any], Any]) -> None:
         """Publish ``fn(output)`` on ``topic`` (``None``: nothing); the output is a tool's own result when the
@@ -279,15 +360,29 @@ class LLM(_Clients, native.LLM, _Lifecycle):
                 return _pose(value)
             if isinstance(value, str) and out.msg_type in (String, StreamingString):
                 return out.msg_type(data=value)
+            if value is not None and not isinstance(value, out.msg_type):
+                raise TypeError(f"{self._label()}: the publisher preprocessor of {out.name!r} returned {value!r}, "
+                                f"not a {out.type_name}")
             return value
 
         self.output_converters[out.name] = convert
 
 
+def _prompt_value(msg: Any) -> str:
+    """A message as a prompt template shows it: a text's data, detections as their labels ("cup, chair")."""
+    if isinstance(msg, Detections):
+        return ", ".join(dict.fromkeys(str(label) for label in msg.labels))
+    data = getattr(msg, "data", "")
+    return data if isinstance(data, str) else ""  # an image is the model's to see, not the prompt's text
+
+
 class VLM(LLM, native.VLM, _Lifecycle):
-    """EmbodiedAgents' VLM (MLLM)."""
+    """EmbodiedAgents' VLM (MLLM); a Detections input fills its prompt template with the labels seen."""
 
     _role = "vlm"
+    allowed_inputs = {"Required": [String], "Optional": [String, Image, CompressedImage, Detections]}
+    #: What a Cortex may ask it (EmbodiedAgents' Cortex discovers the components' actions).
+    llm_tools: tuple[str, ...] = ("describe",)
 
 
 MLLM = VLM
@@ -371,3 +466,144 @@ class VLA(_Fallbacks, native.VLA, _Lifecycle):
         if model_client is not None:
             kw["policy"] = build_client(model_client, "policy", str(kw["name"]))
         super().__init__(**kw)
+
+
+def _where(item: Mapping[str, Any]) -> str:
+    pos = [float(v) for v in item.get("position", ())][:3]
+    pos += [0.0] * (3 - len(pos))
+    ago = time.time() - float(item.get("time", time.time()))
+    return f"[{item.get('layer', '')}] {item.get('text', '')} ({ago:.0f} s ago) Location: ({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f})"
+
+
+class Memory(_Fallbacks, native.Memory, _Lifecycle):
+    """EmbodiedAgents' Memory (eMEM), built on embagents' Memory (SQLite, sqlite-vec index).
+
+    Its tools keep eMEM's names and answer in text, a place as ``Location: (x, y, z)``:
+    ``locate(concept)``, ``recall(concept)``, ``semantic_search(query, n_results)``,
+    ``spatial_query(x, y, radius)``, ``temporal_query(seconds_ago)``, ``body_status()``
+    (the latest item of each ``is_internal_state`` layer). eMEM's episodes, gists and
+    entities (consolidation by ``model_client``) are not done here: items are kept as they came.
+    """
+
+    llm_tools: tuple[str, ...] = ("locate", "recall", "semantic_search", "spatial_query", "temporal_query",
+                                  "body_status")
+
+    def __init__(self, *, layers: list[Any], position: Topic | None = None, model_client: Any = None,
+                 embedding_client: Any = None, config: Any = None, trigger: Any = 10.0,
+                 component_name: str | None = None, **kw: Any) -> None:
+        from embagents.compat._core import note
+
+        if component_name is not None:
+            kw["component_name"] = component_name
+        kw, self._extras = _translate(type(self), "", {**kw, "config": config, "trigger": trigger})
+        name = str(kw.pop("name"))
+        if kw.get("config") is None:
+            kw.pop("config")
+        if model_client is not None:
+            note(f"Memory {name!r}: model_client (eMEM's consolidation into gists and entities) is not used here: "
+                 "items are kept as they came")
+        if embedding_client is None:
+            embedding = local_default("embedding", "minilm", f"Memory {name!r}'s sentence-transformers embeddings",
+                                      "no embedding_client given")
+        else:
+            embedding = build_client(embedding_client, "embedding", name)
+        self.internal_layers = [layer.name for layer in layers if getattr(layer, "is_internal_state", False)]
+        super().__init__(name=name, layers=layers, position=position, embedding_client=embedding, **kw)
+
+    def locate(self, concept: str) -> str:  # type: ignore[override]  # eMEM's tool: text, not the native dict
+        """Where something (a ``concept``: "cup", "kitchen") was last seen: its text and ``Location: (x, y, z)``."""
+        found = native.Memory.locate(self, concept)
+        if not found.get("found"):
+            return str(found["summary"])
+        near = f"; near {'; '.join(found['near'])}" if found.get("near") else ""
+        return _where({**found, "layer": found.get("layer", "")}) + near
+
+    def recall(self, concept: str, n_results: int = 5) -> str:
+        """Everything remembered about a ``concept``, closest in meaning first."""
+        return self.semantic_search(concept, n_results)
+
+    def semantic_search(self, query: str, n_results: int = 5, layer: str | None = None) -> str:
+        """The ``n_results`` remembered items closest in meaning to ``query``, one a line."""
+        items = native.Memory.query(self, query, k=n_results, layer=layer)
+        return "\n".join(_where(it) for it in items) or f"nothing is remembered about {query!r}"
+
+    def spatial_query(self, x: float, y: float, radius: float = 2.0, layer: str | None = None) -> str:
+        """What was seen within ``radius`` metres of (``x``, ``y``), nearest first, one a line."""
+        items = self.near(x, y, radius, layer)
+        return "\n".join(_where(it) for it in items) or f"nothing is remembered within {radius} m of ({x}, {y})"
+
+    def temporal_query(self, seconds_ago: float = 300.0, layer: str | None = None) -> str:
+        """What was seen in the last ``seconds_ago`` seconds, one a line."""
+        items = self.between(-abs(float(seconds_ago)), None, layer)
+        return "\n".join(_where(it) for it in items) or f"nothing was stored in the last {seconds_ago} s"
+
+    def body_status(self) -> str:
+        """The latest reading of each internal-state layer (battery...)."""
+        lines = []
+        for name in self.internal_layers:
+            items = self.between(0.0, None, name)
+            if items:
+                lines.append(_where(max(items, key=lambda it: float(it.get("time", 0.0)))))
+        return "\n".join(lines) or "no internal-state reading is stored yet"
+
+    def register_tools_on(self, llm: Any, tools: Sequence[str] | None = None,
+                          send_tool_response_to_model: bool = True) -> None:
+        """Offer this memory's tools (all, or ``tools``) to ``llm``; ``send_tool_response_to_model=False``:
+        the tool's text is the answer (a publisher preprocessor turns it into the output)."""
+        from embagents.llm_tools import register_tools_on
+
+        for t in tools or ():
+            if t not in self.llm_tools:
+                unsupported(f"Memory tool {t!r} (eMEM's episodes, gists and entities)",
+                            f"one of {', '.join(self.llm_tools)}")
+        names = register_tools_on(llm, self, methods=list(tools) if tools else list(self.llm_tools))
+        if not send_tool_response_to_model:
+            direct = [*llm.config.tools_answer_directly, *(n for n in names if n not in llm.config.tools_answer_directly)]
+            llm.config = attrs.evolve(llm.config, tools_answer_directly=direct)
+
+
+class Cortex(LLM):
+    """EmbodiedAgents' Cortex, mapped to an LLM that plans and acts through tools.
+
+    Its tools are the ``actions`` (``Action(method=fn, description=...)`` of plain
+    functions, run in its own process) and, at ``bringup()``, the tools every
+    other component of the launcher offers (a Memory's ``locate``, ``recall``...,
+    a VLM's ``describe``), called in their own processes. A goal sent on ``ui_main_action_input``
+    (``<name>_input``) is answered on ``output``; ``CortexConfig(max_execution_steps=)``
+    bounds the tool rounds. EmbodiedAgents' separate planning and per-step confirmation
+    calls are one tool loop here.
+    """
+
+    def __init__(self, *, actions: Sequence[Any] | None = None, output: Topic | None = None, model_client: Any = None,
+                 db_client: Any = None, config: Any = None, component_name: str | None = None, **kw: Any) -> None:
+        from embagents.compat.agents.config import CortexConfig
+        from embagents.compat.agents.ros import FunctionAction
+
+        name = str(component_name or kw.pop("name", "") or "")
+        if not name:
+            raise CompatError("Cortex: needs component_name= (the component's name)")
+        config = config if config is not None else CortexConfig()
+        if model_client is None and not getattr(config, "enable_local_model", False):
+            raise CompatError("Cortex: needs a model_client or CortexConfig(enable_local_model=True)")
+        self.ui_main_action_input = Topic(f"{name}_input", String)
+        out = output if output is not None else Topic(f"{name}_output", String)
+        super().__init__(inputs=[self.ui_main_action_input], outputs=[out], model_client=model_client,
+                         db_client=db_client, config=config, trigger=self.ui_main_action_input,
+                         component_name=name, **kw)
+        if not self.config.system_prompt:
+            self.set_system_prompt("You are the robot's planner. Reach the user's goal by calling the tools you are "
+                                   "given, one step at a time; when it is reached or cannot be, say so briefly.")
+        for action in actions or ():
+            if not isinstance(action, FunctionAction):
+                raise CompatError(f"Cortex {name!r}: actions must be Action(method=function, description=...), "
+                                  f"got {action!r}")
+            fn = action.method
+            self.register_tool(fn, {"name": fn.__name__, "description": action.description},
+                               send_tool_response_to_model=True)
+
+    def discover_tools(self, components: Sequence[native.Component]) -> list[str]:
+        """Offer ``components``' tools (their ``llm_tools``) to this Cortex; returns the tool names added."""
+        from embagents.llm_tools import register_tools_on, tool_methods
+
+        offering = [c for c in components if tool_methods(c) and not isinstance(c, Cortex)]
+        return register_tools_on(self, *offering) if offering else []

@@ -3,7 +3,7 @@
 A field is renamed where ours differs (``min_silence_duration_ms`` ->
 ``min_silence_ms``, ``observation_sending_rate`` -> ``observation_rate_hz``,
 ``robot_urdf_file`` -> ``urdf``...), kept where it is the same, refused in one
-line where embagents does not have the feature (``enable_rag``), and said once
+line where embagents does not have the feature (``stream_to_ip``), and said once
 on stderr where it has no effect here (``device_local_model``). An unknown
 field is refused naming the fields EmbodiedAgents' spelling and ours accept.
 
@@ -11,9 +11,9 @@ Example::
 
     >>> SpeechToTextConfig(enable_vad=True, min_silence_duration_ms=300).native.min_silence_ms
     300.0
-    >>> LLMConfig(enable_rag=True)
+    >>> TextToSpeechConfig(stream_to_ip="10.0.0.2")
     Traceback (most recent call last):
-    embagents.compat._core.CompatError: EmbodiedAgents' LLMConfig(enable_rag=True) (retrieval-augmented generation) is not supported by embagents; use a Memory component whose queries the LLM calls as tools: register_tools_on(llm, memory) (see examples/memory.py)
+    embagents.compat._core.CompatError: EmbodiedAgents' TextToSpeechConfig(stream_to_ip='10.0.0.2') (streaming audio to an IP) is not supported by embagents; use a Speaker component, or RosOutput of the Audio topic
 """
 
 from __future__ import annotations
@@ -25,14 +25,14 @@ from embagents import components as native
 from embagents.compat._core import CompatError, note, unsupported
 from embagents.config import config_fields
 
-__all__ = ["LLMConfig", "MapConfig", "SemanticRouterConfig", "SpeechToTextConfig", "TextToSpeechConfig",
+__all__ = ["CortexConfig", "LLMConfig", "MapConfig", "MemoryConfig", "SemanticRouterConfig", "SpeechToTextConfig", "TextToSpeechConfig",
            "VLAConfig", "VLMConfig", "VisionConfig"]
 
 #: Fields only the compat components read (they decide which client a component gets, or what it adds).
 _COMPAT_FIELDS = ("enable_local_model", "enable_local_classifier", "play_on_device")
 
-_RAG = ("retrieval-augmented generation", "a Memory component whose queries the LLM calls as tools: "
-                                          "register_tools_on(llm, memory) (see examples/memory.py)")
+#: RAG (EmbodiedAgents' LLM with a db_client): the LLM reads the Memory database named collection_name.
+_RAG_FIELDS = {"enable_rag": False, "collection_name": "map", "n_results": 1, "add_metadata": False}
 _LOCAL_MODEL = "embagents runs every model in its own model actor process: nothing to place"
 
 
@@ -46,6 +46,8 @@ class _Config:
     refused: ClassVar[dict[str, tuple[str, str]]] = {}
     #: Accepted, without effect here: name -> why.
     inert: ClassVar[dict[str, str]] = {}
+    #: This class's own fields that only the compat component reads: name -> default.
+    compat_fields: ClassVar[dict[str, Any]] = {}
 
     def __init__(self, **fields: Any) -> None:
         name = type(self).__name__
@@ -58,7 +60,7 @@ class _Config:
                     feature, instead = self.refused[key]
                     unsupported(f"{name}({key}={value!r}) ({feature})", instead)
                 continue
-            if key in _COMPAT_FIELDS:
+            if key in _COMPAT_FIELDS or key in self.compat_fields:
                 self.extras[key] = value
             elif key in self.inert:
                 note(f"{name}({key}=...) has no effect here: {self.inert[key]}")
@@ -71,7 +73,7 @@ class _Config:
             elif key in ours:
                 mapped[key] = value
             else:
-                theirs = sorted({*self.renames, *self.refused, *self.inert, *_COMPAT_FIELDS})
+                theirs = sorted({*self.renames, *self.refused, *self.inert, *_COMPAT_FIELDS, *self.compat_fields})
                 raise CompatError(f"{name}: unknown field {key!r}; EmbodiedAgents' fields mapped here: "
                                   f"{', '.join(theirs)}; embagents' own: {', '.join(ours)}")
         self.native = self.native_class(**mapped)
@@ -79,20 +81,17 @@ class _Config:
     def __getattr__(self, key: str) -> Any:
         if key in _COMPAT_FIELDS:
             return self.__dict__.get("extras", {}).get(key, False)
+        if key in type(self).compat_fields:
+            return self.__dict__.get("extras", {}).get(key, type(self).compat_fields[key])
         return getattr(self.__dict__["native"], key)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.native!r}, extras={self.extras!r})"
 
 
-_LLM_REFUSED = {
-    "enable_rag": _RAG,
-}
+_LLM_REFUSED: dict[str, tuple[str, str]] = {}
 _LLM_INERT = {
-    "collection_name": "no RAG here (its collection is unused)",
-    "distance_func": "no RAG here",
-    "n_results": "no RAG here",
-    "add_metadata": "no RAG here",
+    "distance_func": "the memory's vector index uses cosine distance",
     "break_character": "TextToSpeech splits a stream into sentences itself",
     "response_terminator": "a stream ends with a StreamingString(done=True)",
     "device_local_model": _LOCAL_MODEL,
@@ -110,6 +109,7 @@ class LLMConfig(_Config):
     renames = _LLM_RENAMES
     refused = _LLM_REFUSED
     inert = _LLM_INERT
+    compat_fields = _RAG_FIELDS
 
 
 class VLMConfig(LLMConfig):
@@ -200,6 +200,51 @@ class MapConfig(_Config):
     native_class = native.MapConfig
     renames = {"db_path": "db_path"}
     inert = {"distance_func": "the memory's vector index uses cosine distance"}
+
+
+_EMEM = "eMEM's consolidation (gists, entities, archival) is not done here: every item is kept as it came"
+
+
+class MemoryConfig(_Config):
+    """EmbodiedAgents' MemoryConfig (eMEM) -> :class:`embagents.components.MemoryConfig`."""
+
+    native_class = native.MemoryConfig
+    inert = {
+        "embedding_checkpoint": "without an embedding_client, embeddings come from all-MiniLM-L6-v2 locally",
+        "auto_store": "each layer's message is stored on the step it triggers",
+        "working_memory_size": "an item is committed to SQLite on the step that stores it",
+        "flush_interval": "an item is committed to SQLite on the step that stores it",
+        "flush_batch_size": "an item is committed to SQLite on the step that stores it",
+        "consolidation_window": _EMEM,
+        "consolidation_spatial_eps": _EMEM,
+        "consolidation_min_samples": _EMEM,
+        "archive_after_seconds": _EMEM,
+        "entity_extract_flush_interval": _EMEM,
+        "entity_extract_time_interval": _EMEM,
+        "entity_similarity_threshold": _EMEM,
+        "entity_spatial_radius": _EMEM,
+        "recency_weight": "locate returns the latest close match; query orders by meaning",
+    }
+
+
+class CortexConfig(_Config):
+    """EmbodiedAgents' CortexConfig -> :class:`embagents.components.LLMConfig` of the planning LLM:
+    ``max_execution_steps`` is its ``max_tool_rounds``; the chat history is kept."""
+
+    native_class = native.LLMConfig
+    renames = {**_LLM_RENAMES, "max_execution_steps": "max_tool_rounds"}
+    refused = _LLM_REFUSED
+    compat_fields = _RAG_FIELDS
+    inert = {
+        **_LLM_INERT,
+        "max_planning_steps": "the model plans and acts in one tool loop of max_execution_steps rounds",
+        "confirmation_temperature": "there is no separate confirmation call here",
+        "confirmation_max_tokens": "there is no separate confirmation call here",
+        "strip_think_tokens": "the answer is published as the model gives it",
+    }
+
+    def __init__(self, **fields: Any) -> None:
+        super().__init__(**{"chat_history": True, **fields})
 
 
 class VLAConfig(_Config):

