@@ -34,6 +34,7 @@ _IMPORT_NAMES = {
     "foxglove-sdk": "foxglove",
     "huggingface-hub": "huggingface_hub",
     "ros-rclpy": "rclpy",
+    "eclipse-zenoh": "zenoh",
     "ros-std-msgs": "std_msgs",
     "ros-sensor-msgs": "sensor_msgs",
     "ros-geometry-msgs": "geometry_msgs",

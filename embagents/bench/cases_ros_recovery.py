@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from actors import private_dir
-from embagents.bench.registry import BenchOptions, case, shm_entries, stop_process
+from embagents.bench.registry import BenchOptions, case, stop_process
 
 __all__ = ["ECHO_SYSTEM", "bridge_pid"]
 
@@ -136,17 +136,13 @@ def _respawned(env: dict[str, str], n: int) -> list[float]:
 
 @case("ros_bridge_recovery", transport="embagents", kind="ros_bridge", needs="rclpy")
 def ros_bridge_recovery(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
+    from embagents.ros.fastdds_shm import sweeping_dead_peers
 
     n = 2 if opts.quick else 12
     env = {**os.environ, "ROS_DOMAIN_ID": str(100 + os.getpid() % 40), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    before = shm_entries()
-    try:
+    with sweeping_dead_peers():  # the processes this case SIGKILLs cannot unlink their Fast DDS files
         ours = np.asarray(_supervised(env, n)) * 1e6
         base = np.asarray(_respawned(env, n)) * 1e6
-    finally:
-        # The processes this case SIGKILLed could not unlink their Fast DDS segments and ports.
-        clean_zombie_fastdds_segments(min_age=0, names=shm_entries() - before)
     p50, p99 = np.percentile(ours, [50, 99])
     b50 = float(np.percentile(base, 50))
     return {

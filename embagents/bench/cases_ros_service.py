@@ -75,6 +75,13 @@ class TriggerTarget(Actor):
 
 @case("ros_service", transport="embagents", payload_bytes=0, kind="ros_bridge", needs="rclpy")
 def ros_service(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.ros.fastdds_shm import sweeping_dead_peers
+
+    with sweeping_dead_peers():  # the rclpy peer is SIGKILLed: its Fast DDS files stay otherwise
+        return _ros_service(opts)
+
+
+def _ros_service(opts: BenchOptions) -> dict[str, Any]:
     from embagents.ros.bridge_actor import RosBridgeActor
 
     warm, n = (10, 50) if opts.quick else (30, 300)

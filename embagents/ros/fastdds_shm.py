@@ -19,9 +19,9 @@ import fcntl
 import os
 import re
 import time
-from collections.abc import Collection
+from collections.abc import Collection, Iterator
 
-__all__ = ["clean_zombie_fastdds_segments", "mapped_fastdds_files"]
+__all__ = ["clean_zombie_fastdds_segments", "mapped_fastdds_files", "sweeping_dead_peers"]
 
 SHM_DIR = "/dev/shm"
 _SEGMENT = re.compile(r"^fastdds_(?:[0-9a-z]{16}|port\d{1,5})$")
@@ -105,3 +105,24 @@ def _mtime(path: str) -> float:
         return os.stat(path).st_mtime
     except OSError:
         return time.time()
+
+
+@contextlib.contextmanager
+def sweeping_dead_peers(shm_dir: str = SHM_DIR) -> Iterator[None]:
+    """On exit, remove the Fast DDS segments and ports made meanwhile whose owner is gone.
+
+    For code that SIGKILLs plain rclpy peers (a bench's subscriber or
+    server): they cannot unlink their files. Only files that appeared
+    inside the block are looked at, so another run's live ones are safe.
+    """
+    def present() -> set[str]:
+        try:
+            return set(os.listdir(shm_dir))
+        except OSError:
+            return set()
+
+    before = present()
+    try:
+        yield
+    finally:
+        clean_zombie_fastdds_segments(shm_dir, min_age=0, names=present() - before)

@@ -56,3 +56,18 @@ def test_min_age_spares_files_being_created_and_names_limit_the_sweep(ports: dic
     assert clean_zombie_fastdds_segments(min_age=3600, names=ports.values()) == []
     assert clean_zombie_fastdds_segments(min_age=0, names=["fastdds_port1"]) == []
     assert {ports["orphan"], ports["zombie"]} <= set(os.listdir(SHM_DIR))
+
+
+def test_a_block_sweeping_dead_peers_removes_only_the_dead_files_made_inside_it(ports: dict[str, str]) -> None:
+    from embagents.ros.fastdds_shm import sweeping_dead_peers
+
+    late = "fastdds_port65435"  # made inside the block by a peer that then died (no lock held)
+    try:
+        with sweeping_dead_peers():
+            with open(_path(late), "wb") as fh:
+                fh.write(b"\0" * 4096)
+        assert not os.path.exists(_path(late))
+        assert {ports["orphan"], ports["zombie"]} <= set(os.listdir(SHM_DIR))  # older than the block: not its own
+    finally:
+        if os.path.exists(_path(late)):
+            os.unlink(_path(late))
