@@ -119,11 +119,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Options whose value is a CURVE public key: 40 Z85 characters, which may begin with "-".
+_KEY_OPTIONS = ("--allow",)
+
+
+def _keys_attached(argv: Sequence[str]) -> list[str]:
+    """``--allow KEY`` as ``--allow=KEY`` when KEY starts with "-" (argparse would take it for an option).
+
+    >>> _keys_attached(["serve-model", "m.gguf", "--allow", "-[UnAGwJQBF2O7&2zL+<@g[$NF)xF4q-6RKN)DTA"])
+    ['serve-model', 'm.gguf', '--allow=-[UnAGwJQBF2O7&2zL+<@g[$NF)xF4q-6RKN)DTA']
+    >>> _keys_attached(["serve-model", "--allow", "-v"])  # not a key: left for argparse to explain
+    ['serve-model', '--allow', '-v']
+    """
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        nxt = argv[i + 1] if i + 1 < len(argv) else ""
+        if a in _KEY_OPTIONS and nxt.startswith("-") and len(nxt) == 40:
+            out.append(f"{a}={nxt}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (2 for usage errors)."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(_keys_attached(sys.argv[1:] if argv is None else argv))
     except SystemExit as exc:  # argparse exits on --help and usage errors
         return int(exc.code or 0)
     return COMMANDS[args.command].run(args)

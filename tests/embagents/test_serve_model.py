@@ -243,3 +243,13 @@ def test_a_public_key_file_given_as_key_names_the_secret_file_to_pass(tmp_path: 
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1
     assert f"{public_file} is a public key (it holds no secret key): pass {keys['server'][1]}" in out.stderr
+
+
+def test_an_allowed_key_that_starts_with_a_dash_is_taken_as_the_key(tmp_path: Path) -> None:
+    # Z85 has "-" in its alphabet: about one public key in 85 starts with it, and argparse took it for an option.
+    from embagents.cli import _keys_attached, build_parser
+
+    key = "-[UnAGwJQBF2O7&2zL+<@g[$NF)xF4q-6RKN)DTA"
+    args = build_parser().parse_args(_keys_attached(["serve-model", "m.gguf", "--bind", "tcp://127.0.0.1:1",
+                                                     "--allow", key]))
+    assert args.allow == [key]
