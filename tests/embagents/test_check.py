@@ -389,13 +389,14 @@ def test_a_bad_start_method_is_a_component_problem(tmp_path):
 
 
 def test_a_model_whose_backend_is_not_installed_names_the_package_and_the_extra(tmp_path):
-    # examples/chat.py, in a Python where llama_cpp cannot be imported (the llm extra left out): here a
-    # None in sys.modules makes it unimportable for the check's process only; nothing is uninstalled.
-    hide = ("import sys; sys.modules['llama_cpp'] = None; from embagents.cli import main; "
-            "sys.exit(main(['check', sys.argv[1]]))")
+    # examples/chat.py in a Python where llama_cpp cannot be found (the llm extra left out), as the examples'
+    # tests hide a module: nothing is uninstalled.
+    from tests.helpers import hide_modules
+
     env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
     example = os.path.join(ROOT, "examples", "chat.py")
-    proc = subprocess.run([sys.executable, "-c", hide, example], capture_output=True, text=True, env=env, timeout=120)
+    proc = subprocess.run([sys.executable, "-m", "embagents.cli", "check", example], capture_output=True, text=True,
+                          env=hide_modules(tmp_path / "hide", ["llama_cpp"], env), timeout=120)
     assert proc.returncode == 1, proc.stdout
     assert ("error: [missing-backend] model 'smollm2' (LlamaModel) needs llama-cpp-python (module llama_cpp), "
             "which is not installed") in proc.stdout
