@@ -51,7 +51,7 @@ html_title = "embagents"
 # Links: only internal ones are checked (external hosts are not reachable from CI).
 linkcheck_ignore = [r"https?://.*", r"ws://.*", r"tcp://.*", r"ipc://.*"]
 
-# Two modules define a class of the same short name (embagents.graph.Node, embagents.manager.Node): a type
+# Two modules define a class of the same short name (embagents.tools.graph.Node, embagents.manager.Node): a type
 # hint naming it is ambiguous to Sphinx's resolver, which picks one and warns. Nothing else is hidden:
 # a reference to nothing is not a warning unless nitpicky.
 suppress_warnings = ["ref.python"]

@@ -17,9 +17,9 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from embagents.components.vad import SpeechSegmenter
     from embagents.models.backends.sherpa_stt import SherpaRecognizer
-    from embagents.models.backends.sherpa_vad import SpeechSegmenter
-    from embagents.speechfiles import silero_vad_path, speech_clip_path, whisper_tiny_en_dir
+    from embagents.models.files.speech import silero_vad_path, speech_clip_path, whisper_tiny_en_dir
 
     with wave.open(speech_clip_path()) as w:
         samples = np.frombuffer(w.readframes(w.getnframes()), np.int16).astype(np.float32) / 32768

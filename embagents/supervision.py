@@ -2,7 +2,7 @@
 
 ``embagents supervise`` starts it; ``embagents check`` builds it too, so a
 system that passes the check passes every rule of :mod:`supervisor.spec`
-(one truth). Kept apart from :mod:`embagents.launch` so the check does not
+(one truth). Kept apart from :mod:`embagents.cli.supervise` so the check does not
 import the launcher.
 
 Example::
@@ -19,10 +19,10 @@ from collections.abc import Collection
 from typing import TYPE_CHECKING, Any
 
 from embagents.models import models_of
+from embagents.models.actor import ModelActor
+from embagents.requests import EVENTS_ACTOR
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
-from embagents.runtime.model_actor import ModelActor
-from embagents.runtime.requests import EVENTS_ACTOR
 
 if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
     from embagents.system import System
@@ -38,7 +38,7 @@ MODEL_HEARTBEAT_S = 120.0
 
 def uses_events_actor(system: System) -> bool:
     """Whether the system runs the events actor (events, fallbacks, LLM tools, route actions)."""
-    from embagents.llm_tools import uses_events_actor as needs_it
+    from embagents.components.llm_tools import uses_events_actor as needs_it
 
     return bool(system.events) or any(getattr(c, "fallback", None) or needs_it(c) for c in system.components)
 
@@ -51,7 +51,7 @@ def wiring(system: System) -> dict[str, dict[str, tuple[str, ...]]]:
     component with none, or with ``config.wait_for_subscribers`` false, is not
     listed: it is activated as it starts, in list order. The others start
     inactive, and ``embagents supervise`` activates each once its subscribers
-    are connected and active (see :mod:`embagents.launch`).
+    are connected and active (see :mod:`embagents.cli.supervise`).
     """
     subs: dict[str, list[str]] = {}
 

@@ -35,7 +35,13 @@ from embagents.components.component import Component, ComponentError, lenient_co
 from embagents.events import Action, Event
 from embagents.topic import Topic
 
-__all__ = ["SUPERVISION_DEFAULTS", "System", "SystemFileError", "counted", "load_system", "loading", "register"]
+__all__ = [
+    "SUPERVISION_DEFAULTS", "SYSTEM_STOP", "System", "SystemFileError", "counted", "load_system", "loaded_system",
+    "loading", "register", "remember_system",
+]
+
+#: Publish anything on this topic to stop the whole system cleanly.
+SYSTEM_STOP = "system_stop"
 
 #: Supervision policy of the system's root supervisor (OTP's meaning of each key).
 SUPERVISION_DEFAULTS: dict[str, Any] = {"strategy": "one_for_one", "intensity": 3, "period": 5.0}
@@ -327,3 +333,19 @@ def load_system(path: str | os.PathLike[str], *, lenient: bool = False) -> Syste
         names = ", ".join(" = ".join(names) for names in found.values())
         raise SystemFileError(path, f"found {len(systems)} Systems ({names}); keep exactly one at top level")
     return next(iter(systems.values()))
+
+
+_SYSTEMS: dict[str, System] = {}
+
+
+def remember_system(path: str, system: System) -> None:
+    """Keep the loaded System so forked actor processes find it without re-importing."""
+    _SYSTEMS[path] = system
+
+
+def loaded_system(path: str) -> System:
+    """The System loaded from ``path``: the one the launcher remembered, else loaded now (once per process)."""
+    system = _SYSTEMS.get(path)
+    if system is None:
+        system = _SYSTEMS[path] = load_system(path)
+    return system

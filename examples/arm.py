@@ -47,7 +47,6 @@ from embagents.components import (
 )
 from embagents.components.sim import PANDA_READY
 from embagents.events import Event, call, on, publish
-from embagents.launch import SYSTEM_STOP
 from embagents.models import (
     LocalModelClient,
     LocalPolicyClient,
@@ -55,10 +54,10 @@ from embagents.models import (
     PolicyModel,
     VLMModel,
 )
+from embagents.models.files.wheels import cache_dir
 from embagents.msgs import Image, JointState, String, TaskFeedback
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
-from embagents.wheelfiles import cache_dir
 
 OUT = os.path.abspath(os.environ.get("EMBAGENTS_ARM_OUT", "arm_out"))
 JOINTS = list(PANDA_READY)  # panda_joint1..7

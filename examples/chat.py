@@ -18,10 +18,9 @@ import os
 import sys
 
 from embagents.components import LLM, Component, LLMConfig
-from embagents.launch import SYSTEM_STOP
 from embagents.models import LlamaModel, LocalModelClient
 from embagents.msgs import StreamingString, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 # A 135M model answers the same on every CPU only where its greedy path has no near-tie:

@@ -28,11 +28,10 @@ import time
 from actors import ActorCrashed, ActorRef
 from actors.runtime import current
 from embagents.components import LLM, Component, LLMConfig
-from embagents.launch import SYSTEM_STOP
 from embagents.models import LlamaModel, LocalModelClient
 from embagents.msgs import StreamingString, String
-from embagents.runtime.requests import Call
-from embagents.system import System
+from embagents.requests import Call
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 from supervisor.client import request
 

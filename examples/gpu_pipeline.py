@@ -23,9 +23,8 @@ import numpy as np
 
 from embagents.components import Component
 from embagents.events import Fallback, restart
-from embagents.launch import SYSTEM_STOP
 from embagents.msgs import Image, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 OUT = os.environ.get("GPU_OUT", "/tmp/gpu_out")

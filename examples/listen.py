@@ -21,10 +21,9 @@ from typing import Any
 import numpy as np
 
 from embagents.components import Component, SpeechToText, SpeechToTextConfig
-from embagents.launch import SYSTEM_STOP
 from embagents.models import LocalModelClient, SpeechToTextModel
 from embagents.msgs import Audio, StreamingString, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 CHUNK = 1600  # 100 ms at 16 kHz
@@ -38,7 +37,7 @@ class ClipPlayer(Component):
     def on_configure(self) -> None:
         import wave
 
-        from embagents.speechfiles import speech_clip_path
+        from embagents.models.files.speech import speech_clip_path
 
         with wave.open(speech_clip_path()) as w:
             self.samples = np.frombuffer(w.readframes(w.getnframes()), np.int16).copy()

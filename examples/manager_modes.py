@@ -26,10 +26,9 @@ import math
 from typing import Any
 
 from embagents.components import Component
-from embagents.launch import SYSTEM_STOP
 from embagents.manager import HandshakeRule, Manager, Node, State
 from embagents.msgs import Odometry, String, Twist
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 GOAL = (1.5, 1.0)  # metres, in the odometry frame

@@ -36,10 +36,9 @@ from typing import Any
 import numpy as np
 
 from embagents.components import Component
-from embagents.launch import SYSTEM_STOP
 from embagents.manager import Agent, HandshakeRule, Manager, Node, State, StateMachineHandler
 from embagents.msgs import Detections, Image, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 W, H, CUBE, BIN_X = 320, 240, 16, 264

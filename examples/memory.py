@@ -28,10 +28,9 @@ import numpy as np
 
 from embagents import register_tools_on
 from embagents.components import LLM, Component, LLMConfig, MapLayer, Memory, MemoryConfig
-from embagents.launch import SYSTEM_STOP
 from embagents.models import EmbeddingModel, LlamaModel, LocalModelClient
 from embagents.msgs import Detections, Odometry, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 DB = os.environ.get("EMBAGENTS_MEMORY_DB") or os.path.join(tempfile.mkdtemp(prefix="embagents-memory-"), "memory.db")
@@ -90,7 +89,7 @@ class Report(Component):
 
     def _execution_step(self, **inputs: Any) -> None:
         from actors import ActorRef
-        from embagents.runtime.requests import Call
+        from embagents.requests import Call
 
         history = ActorRef("llm").ask(Call("snapshot")).get(timeout=30)["history"]
         for m in history:

@@ -31,10 +31,9 @@ from embagents.components import (
     Vision,
     VisionConfig,
 )
-from embagents.launch import SYSTEM_STOP
 from embagents.models import DetectorModel, LocalModelClient
 from embagents.msgs import Detections, Image, String, Video
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 OUT = os.path.abspath(os.environ.get("EMBAGENTS_VISION_OUT", "vision_out"))

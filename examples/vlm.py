@@ -29,10 +29,9 @@ from typing import Any
 
 from embagents.components import VLM, Component, VLMConfig
 from embagents.events import Event, call, on
-from embagents.launch import SYSTEM_STOP
 from embagents.models import LocalModelClient, VLMModel
 from embagents.msgs import Detections, Image, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 QUESTION = os.environ.get("EMBAGENTS_QUESTION", "What is on the table?")

@@ -48,10 +48,9 @@ from embagents.components import (
     WavFileSourceConfig,
 )
 from embagents.components.audio_devices import input_device_present
-from embagents.launch import SYSTEM_STOP
 from embagents.models import LlamaModel, LocalModelClient, SpeechToTextModel, TextToSpeechModel
 from embagents.msgs import Audio, BargeIn, StreamingString, String
-from embagents.system import System
+from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
 QUESTION = "What is the capital of France?"

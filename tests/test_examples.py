@@ -139,8 +139,8 @@ def test_voice_example_hears_the_question_and_speaks_an_answer_a_recognizer_hear
     from embagents.components import read_wav
     from embagents.components.audio_format import to_mono_16k
     from embagents.models.backends.sherpa_stt import SherpaRecognizer
+    from embagents.models.files.speech import whisper_tiny_en_dir
     from embagents.msgs import Audio
-    from embagents.speechfiles import whisper_tiny_en_dir
 
     samples, rate, channels = read_wav(str(wav))
     heard = SherpaRecognizer(whisper_tiny_en_dir(progress=False)).transcribe(
@@ -298,8 +298,8 @@ def test_arm_example_records_its_reach_as_a_lerobot_dataset_that_reads_back_fram
 def test_arm_example_describes_its_camera_with_a_vlm_when_one_is_present(tmp_path: Path) -> None:
     for module in ("pybullet", "onnxruntime", "onnx", "urdf_parser_py", "llama_cpp", "gguf"):
         pytest.importorskip(module, reason="the example needs the sim and llm extras")
-    from tests.embagents.tiny_llama import make_tiny_llama_gguf
-    from tests.embagents.tiny_vlm import make_tiny_mmproj_gguf
+    from tests.embagents.fixtures.tiny_llama import make_tiny_llama_gguf
+    from tests.embagents.fixtures.tiny_vlm import make_tiny_mmproj_gguf
 
     tiny_vlm = make_tiny_llama_gguf(str(tmp_path / "vlm" / "tiny-llava-text.gguf"))
     make_tiny_mmproj_gguf(str(tmp_path / "vlm" / "tiny-llava-mmproj.gguf"))  # found beside the language model

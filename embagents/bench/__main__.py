@@ -11,7 +11,7 @@ import argparse
 import sys
 
 from embagents.bench import run
-from embagents.cli import COMMANDS
+from embagents.cli.bench import arguments
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -20,7 +20,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m embagents.bench",
         description="Measure embagents' actors side by side with raw pyzmq, multiprocessing queues and rclpy.",
     )
-    COMMANDS["bench"].add_arguments(parser)  # the options of `embagents bench`, defined once
+    arguments(parser)  # the options of `embagents bench`, defined once
     return run(parser.parse_args(argv))
 
 

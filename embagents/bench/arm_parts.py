@@ -24,8 +24,7 @@ from typing import Any
 from embagents.components import VLA, Component, Sim, SimConfig, VLAConfig
 from embagents.components.sim import PANDA_READY
 from embagents.msgs import JointState
-from embagents.priority import raise_priority
-from embagents.rate import next_deadline
+from embagents.realtime import next_deadline, raise_priority
 from embagents.topic import Topic
 
 __all__ = [
@@ -99,7 +98,7 @@ class Ticker(Component):
     """A 100 Hz control loop that notes when each tick runs and how late it was (``ticks()`` hands them over).
 
     Lateness is measured against the loop's own deadlines, kept by the rule the component actor
-    follows (:func:`embagents.rate.next_deadline`, from the deadline it sets on activation): a delay
+    follows (:func:`embagents.realtime.next_deadline`, from the deadline it sets on activation): a delay
     the same on every tick (a thread that always waits its turn for the GIL) counts, where the
     period between two ticks would not show it.
     """
@@ -171,10 +170,10 @@ from embagents.components.joint_limits import limits_from_urdf
 from embagents.components.sim import PANDA_READY
 from embagents.models.policy import PolicyServing
 from embagents.msgs import JointState
-from embagents.priority import raise_priority
+from embagents.realtime import raise_priority
 from embagents.topic import Topic
 policy, seconds = sys.argv[1], float(sys.argv[2])
-from embagents.priority import raise_priority
+from embagents.realtime import raise_priority
 raise_priority(whole_process=True)  # as the Sim and the VLA of the runtime's loop get (realtime=True)
 joints = list(PANDA_READY)
 sim = Sim(name="sim", inputs=[Topic("c", JointState)], outputs=[Topic("s", JointState)])
@@ -204,7 +203,7 @@ GIL_SCRIPT = """
 import sys, time
 import pykka
 from embagents.bench.arm_parts import spin
-from embagents.priority import raise_priority
+from embagents.realtime import raise_priority
 seconds = float(sys.argv[1])
 
 class Ticker(pykka.ThreadingActor):

@@ -14,7 +14,7 @@
   (``p99_jitter_ms``) against the same two as pykka threads of one process
   (``threads_p99_jitter_ms``). ``ratio`` = ours / threads'. Bar: <= 0.2. In both, the control
   loop's thread gets a control loop's priority where the machine allows it (real-time FIFO, else
-  nice -10; :func:`~embagents.priority.raise_priority`), its neighbour keeps the normal
+  nice -10; :func:`~embagents.realtime.raise_priority`), its neighbour keeps the normal
   one: what remains between them is the GIL.
 """
 
@@ -69,9 +69,9 @@ def arm_loop(path: str, seconds: float, model: tuple[Any, ...]) -> tuple[list[fl
     """The policy's model actor (``model``: its args; ``bench_reach``, as the systems name it) and the system at
     ``path``; a task run for ``seconds``: the command arrival times at the Sim, and the VLA's status over them."""
     from actors import ActorSystem
+    from embagents.models.actor import ModelActor
+    from embagents.requests import Call
     from embagents.runtime.component_actor import ComponentActor
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.runtime.requests import Call
 
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "bench_reach", *model, wait=60, heartbeat=None)
@@ -124,8 +124,8 @@ def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
 def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
     from actors import ActorSystem
     from embagents.bench.arm_parts import GIL_SCRIPT, jitter_ms
+    from embagents.requests import Call
     from embagents.runtime.component_actor import ComponentActor
-    from embagents.runtime.requests import Call
 
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:

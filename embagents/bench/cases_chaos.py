@@ -93,8 +93,8 @@ def chat_system() -> Any:
 
 def _spec(workdir: str) -> Any:
     from embagents.models import models_of
-    from embagents.runtime.component_actor import remember_system
     from embagents.supervision import build_spec
+    from embagents.system import remember_system
     from supervisor import ChildSpec
 
     system = chat_system()
@@ -155,7 +155,7 @@ class _Asker(threading.Thread):
         self.results: list[tuple[float, bool, str]] = []  # (time asked, ok, error)
 
     def run(self) -> None:
-        from embagents.runtime.requests import Call
+        from embagents.requests import Call
 
         while not self.stopping.is_set():
             t0 = time.monotonic()

@@ -96,8 +96,8 @@ def _inprocess(path: str, max_tokens: int) -> tuple[int, float]:
 
 @case("llm_stream_overhead", transport="embagents", kind="llm", needs="llama_cpp")
 def llm_stream_overhead(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.modelfiles import default_llm_path
-    from embagents.runtime.model_actor import LlamaModelActor
+    from embagents.models.actor import LlamaModelActor
+    from embagents.models.files.hub import default_llm_path
 
     path = default_llm_path()
     max_tokens = 24 if opts.quick else 64

@@ -52,8 +52,8 @@ class BusyAgent:
 def _supervised(system: Any, key: str) -> Any:
     """A started ActorSystem and root supervisor running ``system`` (remembered under ``key``)."""
     from actors import ActorSystem
-    from embagents.runtime.component_actor import remember_system
     from embagents.supervision import build_spec
+    from embagents.system import remember_system
     from supervisor import start_supervisor
 
     remember_system(key, system)  # before the fork server starts: its children find the system in memory

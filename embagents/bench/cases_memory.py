@@ -152,9 +152,9 @@ finally:
 @case("router_latency", transport="embagents", kind="router", needs="onnxruntime")
 def router_latency(opts: BenchOptions) -> dict[str, Any]:
     from actors.topics import Publisher, Subscription
+    from embagents.models.actor import ModelActor
     from embagents.models.backends.embeddings import prepared_minilm
     from embagents.msgs import String
-    from embagents.runtime.model_actor import ModelActor
 
     folder = prepared_minilm()
     n = 6 if opts.quick else 120
@@ -285,11 +285,11 @@ system = System([memory], models=[minilm])
 
 @case("memory_crash", transport="embagents", kind="memory", needs="apsw")
 def memory_crash(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.models.actor import ModelActor
     from embagents.models.backends.embeddings import prepared_minilm
-    from embagents.runtime.component_actor import ComponentActor, remember_system
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.runtime.requests import Call
-    from embagents.system import load_system
+    from embagents.requests import Call
+    from embagents.runtime.component_actor import ComponentActor
+    from embagents.system import load_system, remember_system
     from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 
     total, kill_at = (60, 20) if opts.quick else (600, 200)

@@ -1,6 +1,6 @@
 """Baseline: rclpy pub/sub ping-pong between two processes (when rclpy is installed).
 
-Both sides run :mod:`embagents.ros.bench_peer` as subprocesses, so the
+Both sides run :mod:`embagents.ros.bench.peer` as subprocesses, so the
 bench process never imports rclpy. Messages are ``sensor_msgs/Image``
 (64 B as a 1x64 mono8 image, 1 MiB as 1x1048576 mono8, 6.2 MB as a 1080p
 rgb8 frame), QoS reliable, keep last, depth 2, with the default Fast DDS
@@ -59,7 +59,7 @@ def _peer(role: str, prefix: str, *extra: str) -> tuple[subprocess.Popen, Any]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     err = tempfile.TemporaryFile(dir=private_dir())
     proc = subprocess.Popen(
-        [sys.executable, "-m", "embagents.ros.bench_peer", role, "--prefix", prefix, *extra],
+        [sys.executable, "-m", "embagents.ros.bench.peer", role, "--prefix", prefix, *extra],
         stdout=subprocess.PIPE, stderr=err, env=env, text=True,
     )
     return proc, err

@@ -60,8 +60,8 @@ def _free_port() -> int:
 @case("remote_model", transport="embagents", kind="model", needs="llama_cpp")
 def remote_model(opts: BenchOptions) -> dict[str, Any]:
     from embagents.bench.cases_vision import _frame
-    from embagents.modelfiles import default_llm_path, mtcnn_dir
     from embagents.models import LocalModelClient, RemoteModelClient
+    from embagents.models.files.hub import default_llm_path, mtcnn_dir
     from embagents.models.remote import RemoteModelActor
 
     max_tokens, rounds, detections = (24, 2, 10) if opts.quick else (64, 5, 60)

@@ -41,7 +41,7 @@ system = System([], ros=[RosInput("/ping", "std_msgs/String", topic="ping"),
                 supervision={"intensity": 100, "period": 60.0})
 """
 
-PEER = [sys.executable, "-m", "embagents.ros.recovery_peer"]  # streamer / echo: plain rclpy processes
+PEER = [sys.executable, "-m", "embagents.ros.bench.recovery_peer"]  # streamer / echo: plain rclpy processes
 
 _SETTLE = 1.0  # s of steady flow before each kill
 _IN_FLIGHT = 0.15  # s: a /pong this soon after a kill was sent before it

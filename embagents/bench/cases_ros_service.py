@@ -18,7 +18,7 @@ import subprocess
 import sys
 from typing import Any
 
-import embagents.runtime.requests  # noqa: F401 - registers Call, which the bridge sends the target
+import embagents.requests  # noqa: F401 - registers Call, which the bridge sends the target
 from actors import Actor, ActorSystem
 from embagents.bench.registry import BenchOptions, case, percentiles, scoped_environ
 

@@ -40,7 +40,7 @@ THREADS = 1
 
 def clip() -> np.ndarray:
     """beckett.wav's int16 samples (16 kHz mono)."""
-    from embagents.speechfiles import speech_clip_path
+    from embagents.models.files.speech import speech_clip_path
 
     with wave.open(speech_clip_path()) as w:
         return np.frombuffer(w.readframes(w.getnframes()), np.int16).copy()
@@ -71,8 +71,8 @@ _BASELINE = """
 import sys, time, numpy as np
 from embagents.bench.cases_speech import CHUNK, MIN_SILENCE_MS, THREADS, clip
 from embagents.models.backends.sherpa_stt import SherpaRecognizer
-from embagents.models.backends.sherpa_vad import SpeechSegmenter
-from embagents.speechfiles import silero_vad_path, whisper_tiny_en_dir
+from embagents.components.vad import SpeechSegmenter
+from embagents.models.files.speech import silero_vad_path, whisper_tiny_en_dir
 stt = SherpaRecognizer(whisper_tiny_en_dir(), threads=THREADS)
 samples = clip().astype(np.float32) / 32768
 stt.transcribe(np.zeros(8000, np.float32))
@@ -88,9 +88,9 @@ for _ in sys.stdin:
 
 @case("stt_overhead", transport="embagents", kind="speech", needs="sherpa_onnx")
 def stt_overhead(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.models.actor import ModelActor
+    from embagents.models.files.speech import silero_vad_path, whisper_tiny_en_dir
     from embagents.msgs import Audio
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.speechfiles import silero_vad_path, whisper_tiny_en_dir
 
     rounds = 1 if opts.quick else 5
     samples = clip()

@@ -114,7 +114,7 @@ def _p50_us(ns: list[int]) -> float:
 
 
 def _recorded_numbers(base: str) -> set[int]:
-    from embagents.tools.play import read_messages
+    from embagents.cli.play import read_messages
     from embagents.tools.recorder import rotation_files
 
     got: set[int] = set()

@@ -97,7 +97,7 @@ _BASELINE = """
 import sys, time
 from embagents.models.backends.detectors import make_detector
 from embagents.bench.cases_vision import OPTIONS, _frame
-from embagents.modelfiles import mtcnn_dir
+from embagents.models.files.hub import mtcnn_dir
 det, frame = make_detector(mtcnn_dir(), **OPTIONS), _frame(1920, 1080)
 for _ in sys.stdin:
     t0 = time.monotonic(); det.detect_batch([frame]); print(time.monotonic() - t0, flush=True)
@@ -105,8 +105,8 @@ for _ in sys.stdin:
 
 
 def _serve(asys: ActorSystem, path: str | None = None, options: dict[str, Any] | None = None) -> None:
-    from embagents.modelfiles import mtcnn_dir
-    from embagents.runtime.model_actor import ModelActor
+    from embagents.models.actor import ModelActor
+    from embagents.models.files.hub import mtcnn_dir
 
     asys.spawn(ModelActor, MODEL, "detector", path or mtcnn_dir(), options or OPTIONS, True, wait=120, heartbeat=None)
 

@@ -107,16 +107,16 @@ import json, sys, time, numpy as np
 from scipy.signal import resample_poly
 from embagents.bench.cases_voice import CHUNK, MAX_TOKENS, SENTENCE, SYSTEM_PROMPT, THREADS, question
 from embagents.models.backends.sherpa_tts import SherpaSpeaker
-from embagents.speechfiles import piper_joe_dir
+from embagents.models.files.speech import piper_joe_dir
 speaker = SherpaSpeaker(piper_joe_dir(), threads=THREADS)
 list(speaker.speak("Ready."))
 mode = sys.argv[1]
 if mode == "voice":
     from embagents.models.backends.llama import LlamaBackend
     from embagents.models.backends.sherpa_stt import SherpaRecognizer
-    from embagents.models.backends.sherpa_vad import SpeechSegmenter
-    from embagents.modelfiles import default_llm_path
-    from embagents.speechfiles import silero_vad_path, whisper_tiny_en_dir
+    from embagents.components.vad import SpeechSegmenter
+    from embagents.models.files.hub import default_llm_path
+    from embagents.models.files.speech import silero_vad_path, whisper_tiny_en_dir
     stt = SherpaRecognizer(whisper_tiny_en_dir(), threads=THREADS)
     llm = LlamaBackend(default_llm_path()); llm.load(); llm.warmup()
     samples = question().astype(np.float32) / 32768
@@ -183,9 +183,9 @@ def _drain(q: queue.Queue[float], quiet_s: float) -> None:
 
 @case("tts_first_audio", transport="embagents", kind="speech", needs="sherpa_onnx")
 def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.models.actor import ModelActor
+    from embagents.models.files.speech import piper_joe_dir
     from embagents.msgs import StreamingString
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.speechfiles import piper_joe_dir
 
     rounds = 2 if opts.quick else 15
     path = piper_joe_dir()
@@ -224,9 +224,9 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
 @case("voice_loop", transport="embagents", kind="speech", needs="sherpa_onnx")
 def voice_loop(opts: BenchOptions) -> dict[str, Any]:
     from embagents.models import LlamaModel
+    from embagents.models.actor import ModelActor
+    from embagents.models.files.speech import piper_joe_dir, silero_vad_path, whisper_tiny_en_dir
     from embagents.msgs import Audio
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.speechfiles import piper_joe_dir, silero_vad_path, whisper_tiny_en_dir
 
     rounds = 1 if opts.quick else 5
     samples = question()

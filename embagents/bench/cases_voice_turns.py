@@ -79,8 +79,8 @@ def _cancel(played: list[np.ndarray], mic: list[np.ndarray],
 
 
 def _vad_triggers(segments: list[np.ndarray]) -> int:
-    from embagents.models.backends.sherpa_vad import SpeechSegmenter
-    from embagents.speechfiles import silero_vad_path
+    from embagents.components.vad import SpeechSegmenter
+    from embagents.models.files.speech import silero_vad_path
 
     vad = SpeechSegmenter(silero_vad_path(), min_silence_ms=500, min_speech_ms=250)
     triggered = 0
@@ -269,8 +269,8 @@ def barge_trials(n: int) -> tuple[list[BargeTrial], list[BargeTrial]]:
 @case("barge_in", transport="embagents", kind="speech", needs="sherpa_onnx")
 def barge_in(opts: BenchOptions) -> dict[str, Any]:
     from actors import ActorSystem
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.speechfiles import whisper_tiny_en_dir
+    from embagents.models.actor import ModelActor
+    from embagents.models.files.speech import whisper_tiny_en_dir
 
     n = 2 if opts.quick else 20
     interrupts, backchannels = barge_trials(n)
@@ -377,9 +377,9 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
     from actors import ActorSystem
     from embagents.components import SpeechToText, SpeechToTextConfig
     from embagents.models import LocalModelClient, TurnDetectorModel
+    from embagents.models.actor import ModelActor
+    from embagents.models.files.speech import whisper_tiny_en_dir
     from embagents.msgs import Audio, String
-    from embagents.runtime.model_actor import ModelActor
-    from embagents.speechfiles import whisper_tiny_en_dir
     from embagents.topic import Topic
 
     n = 1 if opts.quick else 20

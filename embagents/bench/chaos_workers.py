@@ -39,7 +39,7 @@ import numpy as np
 
 from actors import Actor
 from actors.codec import message
-from embagents.rate import next_deadline
+from embagents.realtime import next_deadline
 
 __all__ = [
     "FRAME_HZ",
@@ -86,7 +86,7 @@ class FaultTarget(Actor):
         self._ballast: np.ndarray | None = None
 
     def every(self, period: float, fn: Callable[[], bool]) -> None:
-        """Call ``fn`` every ``period`` s on absolute deadlines (:mod:`embagents.rate`) while it returns True."""
+        """Call ``fn`` every ``period`` s on absolute deadlines (:mod:`embagents.realtime`) while it returns True."""
         due = time.monotonic()
 
         def tick() -> None:

@@ -174,10 +174,9 @@ def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float
     from actors.topics import Publisher
     from embagents.bench.standby_system import NUMBERS
     from embagents.msgs import String
-    from embagents.runtime.component_actor import remember_system
-    from embagents.runtime.requests import Call
+    from embagents.requests import Call
     from embagents.supervision import build_spec
-    from embagents.system import load_system
+    from embagents.system import load_system, remember_system
 
     path = os.path.join(os.path.dirname(__file__), "standby_system.py")
     system_decl = load_system(path)
@@ -233,7 +232,7 @@ def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float
 
 def _other_pid(ref: Any, old: int, deadline: float) -> int:
     """Ask ``Call("pid")`` until a process other than ``old`` answers."""
-    from embagents.runtime.requests import Call
+    from embagents.requests import Call
 
     while time.perf_counter() < deadline:
         try:

@@ -10,7 +10,7 @@ EmbodiedAgents' spellings and build embagents objects::
 ``Launcher().bringup()`` registers the System when ``embagents check`` or
 ``embagents supervise`` loads the file, and supervises it when the file is run
 as ``python recipe.py``. Model servers (Ollama, any OpenAI-compatible one) are
-reached through :class:`~embagents.clients.OpenAIHTTPClient`; RoboML-served
+reached through :class:`~embagents.models.clients.OpenAIHTTPClient`; RoboML-served
 models run here as local model actors. ``--offline`` (or ``EMBAGENTS_OFFLINE=1``,
 or a config's ``enable_local_model=True`` with no server listening) replaces a
 server's model by the offline default, with a warning naming what was replaced.

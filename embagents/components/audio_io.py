@@ -75,16 +75,16 @@ def spoken_clip_path(text: str, *, progress: bool = True) -> str:
     """A 16 kHz mono WAV of the voice joe saying ``text``: made once with the real TTS, then cached.
 
     For examples and benches that need a spoken question of their choosing (the
-    clip in :func:`embagents.speechfiles.speech_clip_path` says only Beckett's lines), to
+    clip in :func:`embagents.models.files.speech.speech_clip_path` says only Beckett's lines), to
     play with a :class:`WavFileSource`. Loads espeak-ng (GPL-3.0) in the calling process, once per text.
     """
     import hashlib
 
-    from embagents.clients.openai_audio import wav_bytes
     from embagents.components.audio_format import TARGET_RATE, to_mono_16k
     from embagents.models.backends.sherpa_tts import SherpaSpeaker
-    from embagents.speechfiles import piper_joe_dir
-    from embagents.wheelfiles import cache_dir
+    from embagents.models.clients.openai_audio import wav_bytes
+    from embagents.models.files.speech import piper_joe_dir
+    from embagents.models.files.wheels import cache_dir
 
     dest = cache_dir() / "prepared" / "spoken" / f"{hashlib.sha256(text.encode()).hexdigest()[:16]}.wav"
     if dest.is_file():

@@ -7,12 +7,12 @@ Inputs: an ``Odometry`` topic (where the robot is), optionally an
 ROS message such as a battery state: its fields as text) topics. Each item is stored
 with the robot's position, the time, its layer and its embedding (an
 embedding client: ``LocalModelClient(EmbeddingModel(...))`` or
-:class:`~embagents.clients.OpenAIEmbeddingClient`) in a SQLite file
+:class:`~embagents.models.clients.OpenAIEmbeddingClient`) in a SQLite file
 (:mod:`embagents.components.memory_store`). A stored item is committed
 before the step returns, so it survives a SIGKILL.
 
 Queries (actions: callable from events, other components and, through
-:func:`~embagents.llm_tools.register_tools_on`, an LLM): :meth:`Memory.query`
+:func:`~embagents.components.llm_tools.register_tools_on`, an LLM): :meth:`Memory.query`
 (top k by meaning), :meth:`Memory.near` (within a radius of a point),
 :meth:`Memory.between` (a time window), :meth:`Memory.locate` (where
 something was last seen), :meth:`Memory.remember` (store a note now).
@@ -122,7 +122,7 @@ def _client_name(client: Any) -> str:
 class Memory(Component):
     """Stores layers of what the robot perceives with position, time and meaning (module docstring)."""
 
-    #: The actions :func:`~embagents.llm_tools.register_tools_on` offers an LLM.
+    #: The actions :func:`~embagents.components.llm_tools.register_tools_on` offers an LLM.
     llm_tools: tuple[str, ...] = ("locate", "query", "near", "between")
 
     # Odometry is checked in validate(), not Required: a layer's message before the first
@@ -175,7 +175,7 @@ class Memory(Component):
     def db_path(self) -> str:
         if self.config.db_path:
             return os.path.abspath(os.path.expanduser(self.config.db_path))
-        from embagents.wheelfiles import cache_dir
+        from embagents.models.files.wheels import cache_dir
 
         return str(cache_dir() / "memory" / f"{self.config.map_name}.db")
 

@@ -219,6 +219,6 @@ class SemanticRouter(Component):
 
     def _fire(self, topic: str, text: str) -> None:
         from actors import ActorRef
-        from embagents.toolcalls import EVENTS_ACTOR, RouteFired
+        from embagents.requests import EVENTS_ACTOR, RouteFired
 
         ActorRef(EVENTS_ACTOR).tell(RouteFired(str(self.name), topic, text))

@@ -36,7 +36,7 @@ from attrs import define, field
 from embagents.components.component import Component, ComponentProblem
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
 from embagents.msgs import Image, JointState, Odometry, Twist
-from embagents.rate import next_deadline
+from embagents.realtime import next_deadline
 
 __all__ = ["Sim", "SimConfig", "robot_path"]
 
@@ -91,7 +91,7 @@ class SimConfig(BaseComponentConfig):
     - ``joint_state_hz``, ``camera_hz``: publishing rates; the physics rate is the trigger (default 240 Hz).
     - ``camera_width`` / ``camera_height`` / ``camera_eye`` / ``camera_target`` / ``camera_fov``: the camera.
     - ``command_timeout_s``: a velocity command older than this is replaced by zero (a watchdog).
-    - ``realtime``: its process at a control loop's priority (:func:`~embagents.priority.raise_priority`).
+    - ``realtime``: its process at a control loop's priority (:func:`~embagents.realtime.raise_priority`).
 
     >>> SimConfig(camera_eye=[1, 1, 1]).camera_eye
     (1.0, 1.0, 1.0)
@@ -191,7 +191,7 @@ class Sim(Component):
 
     def on_activate(self) -> None:
         if self.config.realtime:
-            from embagents.priority import raise_priority
+            from embagents.realtime import raise_priority
 
             self.logger.info("%s: stepping at %s", self._label(), raise_priority(whole_process=True))
         now = time.monotonic()

@@ -2,12 +2,12 @@
 
 Audio chunks (16 kHz mono; other rates and stereo are resampled, with a log
 line) go through voice activity detection (Silero VAD on sherpa-onnx, in
-this component's process: :class:`~embagents.models.backends.sherpa_vad.SpeechSegmenter`),
+this component's process: :class:`~embagents.components.vad.SpeechSegmenter`),
 so the recognizer runs on utterances, not on silence. Each utterance goes to
 the speech model's actor (:class:`~embagents.models.SpeechToTextModel` behind
 a :class:`~embagents.models.LocalModelClient`: the samples cross through
 shared memory), or to an OpenAI-compatible server
-(:class:`~embagents.clients.openai_audio.OpenAITranscriptionClient`). The
+(:class:`~embagents.models.clients.openai_audio.OpenAITranscriptionClient`). The
 transcript is published on the ``String`` output. When a ``StreamingString``
 output is wired, the utterance in progress is transcribed every
 ``partial_interval_ms`` and each hypothesis is published on it (``data`` is
@@ -268,8 +268,8 @@ class SpeechToText(ModelComponent):
     def on_configure(self) -> None:
         cfg = self.config
         if cfg.enable_vad:
-            from embagents.models.backends.sherpa_vad import SpeechSegmenter
-            from embagents.speechfiles import silero_vad_path
+            from embagents.components.vad import SpeechSegmenter
+            from embagents.models.files.speech import silero_vad_path
 
             self._vad = SpeechSegmenter(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold,
                                         min_silence_ms=cfg.min_silence_ms, min_speech_ms=cfg.min_speech_ms,
@@ -281,13 +281,13 @@ class SpeechToText(ModelComponent):
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
         if self.turn_client is not None and self._vad is not None:
-            from embagents.models.backends.sherpa_vad import SpeechOnset
-            from embagents.speechfiles import silero_vad_path
+            from embagents.components.vad import SpeechOnset
+            from embagents.models.files.speech import silero_vad_path
 
             self._turn_vad = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
         if cfg.playback_input and self._barge_outputs and self._vad is not None:
-            from embagents.models.backends.sherpa_vad import SpeechOnset
-            from embagents.speechfiles import silero_vad_path
+            from embagents.components.vad import SpeechOnset
+            from embagents.models.files.speech import silero_vad_path
 
             self._onset = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.interrupt_vad_threshold,
                                       level_db=cfg.interrupt_level_db)

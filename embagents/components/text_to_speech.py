@@ -4,7 +4,7 @@ Text goes to a voice's model actor (:class:`~embagents.models.TextToSpeechModel`
 behind a :class:`~embagents.models.LocalModelClient`: sherpa-onnx on a Piper
 voice, phonemized by espeak-ng in that actor's process, not this one) or to an
 OpenAI-compatible ``/audio/speech`` server
-(:class:`~embagents.clients.openai_audio.OpenAISpeechClient`), one sentence
+(:class:`~embagents.models.clients.openai_audio.OpenAISpeechClient`), one sentence
 at a time. Each sentence's audio is published as soon as it is made
 (float32 mono at the voice's rate), and an empty ``Audio`` follows the last
 sentence of each utterance: the end of the utterance (a WAV sink closes its
@@ -176,7 +176,7 @@ class TextToSpeech(ModelComponent):
         self._enqueue(sentences + ([rest.strip()] if rest.strip() else []), ends=True)
 
     def _enqueue(self, sentences: list[str], *, ends: bool) -> None:
-        from embagents.models.backends.sherpa_tts import speakable
+        from embagents.models.sentences import speakable
 
         said = [s for s in sentences if speakable(s)]
         for s in sentences:

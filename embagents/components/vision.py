@@ -97,7 +97,7 @@ class Vision(ModelComponent):
     allowed_inputs = {"Required": [[Image, CompressedImage]]}
     allowed_outputs = {"Required": [Detections], "Optional": [Trackings, Image]}
     config_class = VisionConfig
-    #: The actions :func:`~embagents.llm_tools.register_tools_on` offers an LLM.
+    #: The actions :func:`~embagents.components.llm_tools.register_tools_on` offers an LLM.
     llm_tools = ("take_picture",)
 
     def __init__(self, *, name: str, **kw: Any) -> None:

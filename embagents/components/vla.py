@@ -105,7 +105,7 @@ class VLAConfig(BaseComponentConfig):
     - ``input_timeout_s``: an input older than this stops motion; ``policy_timeout_s``: the longest wait for a chunk.
     - ``urdf`` / ``joint_limits``: where limits come from (a dict per joint wins over the URDF).
     - ``max_steps``: a task's default length.
-    - ``realtime``: its process at a control loop's priority (:func:`~embagents.priority.raise_priority`).
+    - ``realtime``: its process at a control loop's priority (:func:`~embagents.realtime.raise_priority`).
     - ``async_inference``: ask the policy on a worker thread; ticks never wait for it.
 
     >>> VLAConfig(joint_names_map={"a": "b"}, chunk_merge="average").merge_weight
@@ -212,7 +212,7 @@ class VLA(Component):
 
     def on_activate(self) -> None:
         if self.config.realtime:
-            from embagents.priority import raise_priority
+            from embagents.realtime import raise_priority
 
             self.logger.info("%s: action loop at %s", self._label(), raise_priority(whole_process=True))
 

@@ -4,7 +4,7 @@ A question on a ``String`` input is answered about the latest frame of every
 ``Image`` / ``CompressedImage`` input, through a vision-language model client:
 a :class:`~embagents.models.VLMModel` behind a
 :class:`~embagents.models.LocalModelClient` (frames cross through shared
-memory) or :class:`~embagents.clients.openai_http.OpenAIHTTPClient` on a server
+memory) or :class:`~embagents.models.clients.openai_http.OpenAIHTTPClient` on a server
 that takes images. Everything the :class:`~embagents.components.llm.LLM` does
 carries over: chat history (text only: past frames are not sent again),
 system prompt and prompt templates, streaming to a ``StreamingString`` output,

@@ -5,7 +5,7 @@ its handshake rules, then ticks at ``rate_hz``, running every handler in
 registration order on each tick. Deadlines are absolute (tick *n* is due at
 ``start + n / rate_hz``), so the rate does not drift; a tick that overran is
 followed at once by the next, with whole missed periods skipped (the rule of
-:mod:`embagents.rate`, shared with components' rate triggers); between ticks the loop
+:mod:`embagents.realtime`, shared with components' rate triggers); between ticks the loop
 sleeps on an event, so it costs no CPU and :meth:`Manager.stop` wakes it at
 once from any thread or a signal handler.
 
@@ -39,7 +39,7 @@ from embagents.manager.handler import Handler, as_handler
 from embagents.manager.handshake import HandshakeRule, wait_for_handshake
 from embagents.manager.nodes import Node
 from embagents.manager.state import State
-from embagents.rate import next_deadline
+from embagents.realtime import next_deadline
 
 __all__ = ["ErrorPolicy", "Manager", "RestartPolicy"]
 
@@ -415,7 +415,7 @@ class Manager:
             if not self.tick_once(handlers):
                 break
             now = time.monotonic()
-            deadline, overran = next_deadline(deadline, self.period, now)  # the rate rule: embagents.rate
+            deadline, overran = next_deadline(deadline, self.period, now)  # the rate rule: embagents.realtime
             if overran:
                 self.overruns += 1
                 window_overruns += 1

@@ -7,10 +7,10 @@ of components (:mod:`embagents.models.protocol`: arrays through shared
 memory, one answer or a stream of chunks, errors at once, cancellation,
 batching). A :class:`LocalModelClient` is what a component holds to talk to
 it; a :class:`RemoteModelClient` reaches one on another machine over
-CURVE (:mod:`embagents.models.remote`); :mod:`embagents.clients` reach servers elsewhere with the same chat
+CURVE (:mod:`embagents.models.remote`); :mod:`embagents.models.clients` reach servers elsewhere with the same chat
 interface (:mod:`embagents.models.chat`). Backends live in
 :mod:`embagents.models.backends` (llama.cpp, onnxruntime), model files in
-:mod:`embagents.modelfiles`. A :class:`LeRobotPolicyClient` reaches a LeRobot
+:mod:`embagents.models.files.hub`. A :class:`LeRobotPolicyClient` reaches a LeRobot
 policy server over its async-inference gRPC protocol (:mod:`embagents.models.lerobot`);
 :class:`OpenPIPolicyClient` an openpi (pi0, pi0.5) server over its WebSocket protocol
 (:mod:`embagents.models.openpi`; ``embagents serve-policy`` serves ours with it) and

@@ -39,7 +39,7 @@ from embagents.models.protocol import (
     inference_endpoint,
 )
 
-__all__ = ["ModelActor"]
+__all__ = ["LlamaModelActor", "ModelActor"]
 
 log = logging.getLogger("embagents.model")
 
@@ -284,3 +284,11 @@ class ModelActor(Actor):
     def on_stop(self) -> None:
         self.sock.close(0)
         self.serving.close()
+
+
+class LlamaModelActor(ModelActor):
+    """A model actor serving a GGUF file with llama.cpp (the ``chat`` task): the form that
+    callers starting one by hand use (tests, ``embagents bench``)."""
+
+    def __init__(self, model_path: str, options: dict[str, Any] | None = None, warmup: bool = True) -> None:
+        super().__init__("llama", model_path, options, warmup)

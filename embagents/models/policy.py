@@ -72,7 +72,7 @@ class PolicyModel(Model):
     ``local_model_path``: the .onnx file (a path, or a Hugging Face ``owner/name:file.onnx``);
     ``threads``: intra-op threads (policies are small: 1 keeps latency steady);
     ``providers``: execution providers (None: TensorRT or CUDA when present, else CPU);
-    ``realtime``: its actor's process at a control loop's priority (:func:`~embagents.priority.raise_priority`),
+    ``realtime``: its actor's process at a control loop's priority (:func:`~embagents.realtime.raise_priority`),
     as a VLA with ``realtime=True`` waits on it;
     ``openpi_bind``: its model actor also serves it over openpi's WebSocket protocol there
     (``ws://127.0.0.1:PORT``; beyond loopback with ``openpi_api_key_file``), for
@@ -94,14 +94,14 @@ class PolicyModel(Model):
                              "wss:// serve it with embagents serve-policy --tls-cert/--tls-key")
 
     def resolve(self) -> str:
-        from embagents.modelfiles import resolve_model_path
+        from embagents.models.files.hub import resolve_model_path
 
         if not self.local_model_path:
             raise ValueError(f"policy {self.name!r}: needs local_model_path (an .onnx policy file)")
         return resolve_model_path(self.local_model_path, filename_glob="*.onnx")
 
     def file_problem(self) -> str | None:
-        from embagents.modelfiles import local_file_problem
+        from embagents.models.files.hub import local_file_problem
 
         if not self.local_model_path:
             return f"policy {self.name!r}: needs local_model_path (an .onnx policy file)"
@@ -135,7 +135,7 @@ class PolicyServing:
         if self.realtime:  # the session (and its threads) exist: the whole process
             import logging
 
-            from embagents.priority import raise_priority
+            from embagents.realtime import raise_priority
 
             logging.getLogger("embagents.model").info("serving at %s", raise_priority(whole_process=True))
 

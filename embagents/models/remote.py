@@ -30,6 +30,7 @@ from typing import Any
 
 import zmq
 
+from actors import check_folder
 from actors.codec import MAX_FRAME_BYTES, Codec
 from actors.curve import (
     CurveAllowList,
@@ -44,7 +45,7 @@ from embagents.models.actor import ModelActor
 from embagents.models.client import LocalModelClient, _Conn
 from embagents.models.protocol import ModelUnavailable
 
-__all__ = ["RemoteModelActor", "RemoteModelClient", "RemoteRefused", "check_binds", "default_secret_key"]
+__all__ = ["RemoteModelActor", "RemoteModelClient", "RemoteRefused", "check_binds", "default_secret_key", "keys_dir"]
 
 log = logging.getLogger("embagents.model")
 
@@ -60,10 +61,16 @@ class RemoteRefused(ModelUnavailable):
     """The CURVE handshake with a remote model actor failed: a key is not the one the other end expects."""
 
 
+def keys_dir() -> str:
+    """``$XDG_CONFIG_HOME/embagents/keys`` (default ``~/.config``): this user's, mode 0700, checked."""
+    config = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    parent = os.path.join(config, "embagents")
+    os.makedirs(parent, exist_ok=True)
+    return check_folder(os.path.join(parent, "keys"))
+
+
 def default_secret_key() -> str:
     """The secret key file ``embagents keys`` writes when no folder is named."""
-    from embagents.keys import keys_dir
-
     return os.path.join(keys_dir(), "embagents.key_secret")
 
 

@@ -102,7 +102,7 @@ class TextToSpeechServing:
             pass
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-        from embagents.models.backends.sherpa_tts import speakable
+        from embagents.models.sentences import speakable
 
         if task != "speak":
             raise BadRequest(f"a text-to-speech model serves task 'speak', not {task!r}")

@@ -115,7 +115,7 @@ class RosBridgeActor(Actor):
         )
 
         if self.system_path is not None:
-            from embagents.runtime.component_actor import loaded_system
+            from embagents.system import loaded_system
 
             system = loaded_system(self.system_path)
             ins = [d for d in system.ros if isinstance(d, RosInput)]
@@ -241,8 +241,8 @@ class RosBridgeActor(Actor):
         if decl.method in _LIFECYCLE_METHODS:
             return self._lifecycle(decl, request, response)
         from embagents.msgs import RosMessage
+        from embagents.requests import Call
         from embagents.ros.generic import generic_from_ros, generic_to_ros
-        from embagents.runtime.requests import Call
 
         names = response.get_fields_and_field_types()
         status = "success" in names and "message" in names  # std_srvs/Trigger, SetBool and the like

@@ -18,7 +18,7 @@ from typing import Any
 
 from actors import Actor
 from embagents.manager.agents import AgentCall, invoke
-from embagents.runtime.component_actor import loaded_system
+from embagents.system import loaded_system
 
 __all__ = ["AgentActor"]
 

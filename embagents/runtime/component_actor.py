@@ -4,7 +4,7 @@ The System was loaded in the root before the fork server started, so the
 component object is already in this process's memory: the actor finds it
 by name, wires its input topics to subscriptions, its outputs to
 publishers, and drives its trigger (topics, an event, or a rate in Hz on
-absolute deadlines, by the rule of :mod:`embagents.rate`: a late tick runs at
+absolute deadlines, by the rule of :mod:`embagents.realtime`: a late tick runs at
 once, whole missed periods are skipped; a tick starts within a fraction of a ms of its deadline).
 """
 
@@ -12,39 +12,20 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from actors import Actor
 from actors.errors import UnknownMessage
-from embagents.rate import next_deadline
-from embagents.runtime.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
+from embagents.realtime import next_deadline
+from embagents.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
+from embagents.system import loaded_system
 
-if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
-    from embagents.system import System
-
-__all__ = ["ComponentActor", "loaded_system", "remember_system"]
+__all__ = ["ComponentActor"]
 
 log = logging.getLogger("embagents.runtime")
 #: A rate tick's timer fires this much before its deadline, and the tick sleeps the rest: the actor
 #: loop's timers wait in whole milliseconds (rounded up), which alone would make ticks up to 1 ms late.
 _EARLY_S = 0.001
-_SYSTEMS: dict[str, Any] = {}
-
-
-def remember_system(path: str, system: System) -> None:
-    """Keep the loaded System so forked actor processes find it without re-importing."""
-    _SYSTEMS[path] = system
-
-
-def loaded_system(path: str) -> Any:
-    system = _SYSTEMS.get(path)
-    if system is None:
-        from embagents.system import load_system
-
-        system = _SYSTEMS[path] = load_system(path)
-    return system
-
-
 class ComponentActor(Actor):
     """Hosts component ``name`` of the system loaded from ``system_path``."""
 
@@ -158,7 +139,7 @@ class ComponentActor(Actor):
             return None
         if isinstance(message, ChangeModelClient):
             return comp.change_model_client(message.client)
-        raise UnknownMessage(f"component {self.component_name!r}", message, "send one of embagents.runtime.requests: "
+        raise UnknownMessage(f"component {self.component_name!r}", message, "send one of embagents.requests: "
                              "Call, HealthQuery, Reconfigure, ChangeModelClient")
 
     def snapshot(self) -> Any:

@@ -9,7 +9,7 @@ action runs:
 - ``call`` / ``reconfigure`` / ``switch_model_client``: a tell to the
   component's actor (its next incarnation gets it if it is restarting);
 - ``start`` / ``stop`` / ``restart`` / ``give_up``: a
-  :class:`~embagents.runtime.requests.SupervisorRequest` on the
+  :class:`~embagents.requests.SupervisorRequest` on the
   ``_supervisor_requests`` topic, carried out by the root's supervisor.
 
 A fallback acts once per failing incarnation: a health report carries its
@@ -18,10 +18,10 @@ already acted on (its restart or switch pending) or from an older one are
 ignored, so a component failing at 30 Hz while its replacement loads is
 restarted once.
 
-It also runs an LLM's tool calls (:class:`~embagents.runtime.requests.ToolCall`,
-see :mod:`embagents.llm_tools`): the arguments are checked against the method's
+It also runs an LLM's tool calls (:class:`~embagents.requests.ToolCall`,
+see :mod:`embagents.components.llm_tools`): the arguments are checked against the method's
 signature here, then the component's actor is asked and its result answered;
-and a router's route actions (:class:`~embagents.runtime.requests.RouteFired`).
+and a router's route actions (:class:`~embagents.requests.RouteFired`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,7 @@ from typing import Any
 
 from actors import Actor, ActorNotFound
 from actors.errors import UnknownMessage
-from embagents.runtime.component_actor import loaded_system
-from embagents.runtime.requests import (
+from embagents.requests import (
     SUPERVISOR_REQUESTS,
     Call,
     ChangeModelClient,
@@ -43,6 +42,7 @@ from embagents.runtime.requests import (
     SupervisorRequest,
     ToolCall,
 )
+from embagents.system import loaded_system
 
 __all__ = ["EventsActor"]
 

@@ -1,7 +1,7 @@
 """Runs a :class:`~embagents.manager.Manager` of a System as a supervised actor.
 
 The loop runs in this actor's process, on its IO thread, as timers on
-absolute deadlines (the rule of :mod:`embagents.rate`): the handshake is
+absolute deadlines (the rule of :mod:`embagents.realtime`): the handshake is
 checked at the loop rate, then every tick runs the handlers. Between ticks
 the thread polls its sockets, so node subscriptions and isolated agents'
 answers arrive between ticks, never during one, and the heartbeat is beaten
@@ -36,9 +36,9 @@ from actors.errors import UnknownMessage
 from embagents.manager.handshake import HandshakeProgress
 from embagents.manager.nodes import Node
 from embagents.msgs import Health, HealthStatus
-from embagents.rate import next_deadline
-from embagents.runtime.component_actor import loaded_system
-from embagents.runtime.requests import Call, HealthQuery
+from embagents.realtime import next_deadline
+from embagents.requests import Call, HealthQuery
+from embagents.system import loaded_system
 
 __all__ = ["SNAPSHOT_EVERY_S", "ManagerActor"]
 

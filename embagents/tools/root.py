@@ -17,7 +17,7 @@
 
 Example::
 
-    install(sup, control, system)      # in embagents.launch's on_ready
+    install(sup, control, system)      # in embagents.cli.supervise's on_ready
 """
 
 from __future__ import annotations

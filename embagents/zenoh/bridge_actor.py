@@ -258,7 +258,7 @@ class ZenohBridgeActor(Actor):
 
     def _spec(self) -> ZenohBridge:
         if self.system_path is not None:
-            from embagents.runtime.component_actor import loaded_system
+            from embagents.system import loaded_system
 
             spec = loaded_system(self.system_path).zenoh
             if spec is None:
@@ -490,7 +490,7 @@ class ZenohBridgeActor(Actor):
                 "health_text": self.health[1], "lines": lines}
 
     def on_receive(self, message: Any) -> Any:
-        from embagents.runtime.requests import HealthQuery
+        from embagents.requests import HealthQuery
 
         if message == "stats":
             return self.status_detail()

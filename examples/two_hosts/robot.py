@@ -26,9 +26,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from link import CONNECT, tls  # noqa: E402
 
 from embagents.components import Component  # noqa: E402
-from embagents.launch import SYSTEM_STOP  # noqa: E402
 from embagents.msgs import Detections, Image, String  # noqa: E402
-from embagents.system import System  # noqa: E402
+from embagents.system import (
+    SYSTEM_STOP,  # noqa: E402
+    System,  # noqa: E402
+)
 from embagents.topic import Topic  # noqa: E402
 from embagents.zenoh import Export, Import, ZenohBridge  # noqa: E402
 

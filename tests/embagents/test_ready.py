@@ -18,7 +18,7 @@ from embagents.system import load_system
 SYSTEM = '''
 import json, os, time
 from embagents.components import Component
-from embagents.launch import SYSTEM_STOP
+from embagents.system import SYSTEM_STOP
 from embagents.msgs import String
 from embagents.system import System
 from embagents.topic import Topic

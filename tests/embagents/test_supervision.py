@@ -6,9 +6,8 @@ import textwrap
 from pathlib import Path
 
 from actors import ActorSystem
-from embagents.runtime.component_actor import remember_system
 from embagents.supervision import HEARTBEAT_S, build_spec
-from embagents.system import load_system
+from embagents.system import load_system, remember_system
 from supervisor import start_supervisor
 from tests.helpers import wait_until
 

@@ -103,7 +103,7 @@ class _OpenAICompatible(_Client):
         if enable_local_model and not reachable(self.host, self.port):
             return local_default(role, self.name, self._what(),
                                  f"enable_local_model=True and no server listens on {self.host}:{self.port}")
-        from embagents.clients import (
+        from embagents.models.clients import (
             OpenAIEmbeddingClient,
             OpenAIHTTPClient,
             OpenAISpeechClient,

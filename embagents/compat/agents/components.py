@@ -198,7 +198,7 @@ class _Rag:
 
     @property
     def path(self) -> str:
-        from embagents.wheelfiles import cache_dir
+        from embagents.models.files.wheels import cache_dir
 
         return str(cache_dir() / "memory" / f"{self.collection}.db")  # where a Memory of that map_name keeps it
 
@@ -550,7 +550,7 @@ class Memory(_Fallbacks, native.Memory, _Lifecycle):
                           send_tool_response_to_model: bool = True) -> None:
         """Offer this memory's tools (all, or ``tools``) to ``llm``; ``send_tool_response_to_model=False``:
         the tool's text is the answer (a publisher preprocessor turns it into the output)."""
-        from embagents.llm_tools import register_tools_on
+        from embagents.components.llm_tools import register_tools_on
 
         for t in tools or ():
             if t not in self.llm_tools:
@@ -603,7 +603,7 @@ class Cortex(LLM):
 
     def discover_tools(self, components: Sequence[native.Component]) -> list[str]:
         """Offer ``components``' tools (their ``llm_tools``) to this Cortex; returns the tool names added."""
-        from embagents.llm_tools import register_tools_on, tool_methods
+        from embagents.components.llm_tools import register_tools_on, tool_methods
 
         offering = [c for c in components if tool_methods(c) and not isinstance(c, Cortex)]
         return register_tools_on(self, *offering) if offering else []

@@ -1,7 +1,7 @@
 """EmbodiedAgents' model declarations: plain data (a name, a checkpoint, options) that a client maps.
 
 Which embagents model serves one depends on the client (a server's through
-:class:`~embagents.clients.OpenAIHTTPClient`, a RoboML one as a local model
+:class:`~embagents.models.clients.OpenAIHTTPClient`, a RoboML one as a local model
 actor) and on the component using it (an ``OllamaModel`` is a chat model for
 an LLM and a vision-language model for a VLM): see :mod:`.clients`.
 

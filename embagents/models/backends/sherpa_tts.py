@@ -2,13 +2,13 @@
 
 A Piper voice folder holds ``model.onnx`` (with sherpa-onnx's metadata),
 ``tokens.txt`` and the Piper config ``voice.json``
-(:func:`embagents.piper_voice.prepare_piper_voice` makes one from a Piper
-release; :func:`embagents.speechfiles.piper_joe_dir` is the offline default).
+(:func:`embagents.models.convert.piper.prepare_piper_voice` makes one from a Piper
+release; :func:`embagents.models.files.speech.piper_joe_dir` is the offline default).
 A Kokoro folder (sherpa-onnx's ``kokoro-en-v0_19`` or
 ``kokoro-multi-lang-v1_0`` releases, EmbodiedAgents' default voice) holds
 ``model.onnx``, ``voices.bin`` and ``tokens.txt``; its espeak-ng data and
 lexicons are not needed. Which one a folder is: ``voices.bin`` says Kokoro.
-Text is phonemized by espeak-ng (:mod:`embagents.phonemes`, in this process:
+Text is phonemized by espeak-ng (:mod:`embagents.models.backends.phonemes`, in this process:
 the model actor's) and synthesized sentence by sentence, so a caller can
 play the first sentence while the next is being made.
 
@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from embagents.models.sentences import speakable
+
 __all__ = ["KOKORO_FILES", "SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable", "voice_family"]
 
 _PIPER = ("model.onnx", "tokens.txt", "voice.json")
@@ -45,7 +47,7 @@ class TTSModelError(FileNotFoundError):
 
 def check_voice_dir(path: str) -> str:
     """``path`` (expanded) if it is a complete Piper voice folder; else :class:`TTSModelError` naming what is missing."""
-    from embagents.speechfiles import PIPER_PREPARE_HINT
+    from embagents.models.files.speech import PIPER_PREPARE_HINT
 
     folder = os.path.abspath(os.path.expanduser(path))
     if not os.path.isdir(folder):
@@ -61,18 +63,9 @@ def check_voice_dir(path: str) -> str:
     if missing:
         raise TTSModelError(f"voice folder {path!r} lacks {', '.join(missing)} (a Piper voice folder holds "
                             f"{', '.join(_PIPER)}: make one from a Piper .onnx + .onnx.json with "
-                            f"embagents.piper_voice.prepare_piper_voice; a Kokoro one holds {', '.join(_KOKORO)}; "
+                            f"embagents.models.convert.piper.prepare_piper_voice; a Kokoro one holds {', '.join(_KOKORO)}; "
                             f"or {PIPER_PREPARE_HINT})")
     return folder
-
-
-def speakable(text: object) -> bool:
-    """Whether ``text`` has anything to say (a letter or a digit).
-
-    >>> speakable("Hello!"), speakable(" ... ?! "), speakable("")
-    (True, False, False)
-    """
-    return isinstance(text, str) and any(ch.isalnum() for ch in text)
 
 
 class SherpaSpeaker:
@@ -111,7 +104,7 @@ class SherpaSpeaker:
         """``(samples, sample_rate, phonemes)`` per sentence of ``text``: float32 mono in [-1, 1]."""
         import sherpa_onnx
 
-        from embagents.phonemes import phonemize
+        from embagents.models.backends.phonemes import phonemize
 
         for sentence in phonemize(text, self.espeak_voice):
             gen = sherpa_onnx.GenerationConfig()

@@ -5,7 +5,7 @@ zero-padded in front) as Whisper-style log-mel features (80 x 800) and says
 how likely it is that the user has finished their turn: a falling "...please."
 is finished, a "the cup that is on the..." trailing off mid-sentence is not,
 however long the pause. The file is ``smart-turn-v3.2-cpu.onnx`` (8.7 MB) from
-the ``pipecat-ai`` wheel (:func:`embagents.speechfiles.smart_turn_path`: the
+the ``pipecat-ai`` wheel (:func:`embagents.models.files.speech.smart_turn_path`: the
 file only, not the package). The features follow the Whisper feature
 extractor's recipe as Pipecat's ``_whisper_features.py`` computes it (its
 input format): waveform normalised to zero mean and unit variance, a 400-point
@@ -78,7 +78,7 @@ class SmartTurn:
 
         if not os.path.isfile(path):
             raise FileNotFoundError(f"Smart Turn model not found: {path!r}; use "
-                                    "embagents.speechfiles.smart_turn_path() (the file from PyPI's pipecat-ai wheel)")
+                                    "embagents.models.files.speech.smart_turn_path() (the file from PyPI's pipecat-ai wheel)")
         so = ort.SessionOptions()
         so.intra_op_num_threads = int(threads)
         so.inter_op_num_threads = 1

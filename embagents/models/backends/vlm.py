@@ -99,7 +99,7 @@ def _quiet_mtmd() -> None:
 class VLMBackend:
     """A llama.cpp VLM in this process: ``chat_stream(messages, images=[...])`` (see the module docstring).
 
-    ``projector``: the mmproj GGUF (a path, or a spec :func:`embagents.modelfiles.resolve_model_path`
+    ``projector``: the mmproj GGUF (a path, or a spec :func:`embagents.models.files.hub.resolve_model_path`
     takes); ``chat_handler``: a key of VLM_HANDLERS. Other arguments are :class:`LlamaBackend`'s.
     """
 
@@ -114,7 +114,7 @@ class VLMBackend:
         """Load both files (idempotent)."""
         if self.llm is not None:
             return
-        from embagents.modelfiles import resolve_model_path
+        from embagents.models.files.hub import resolve_model_path
 
         try:
             cls = handler_class(self.handler_name)

@@ -32,12 +32,12 @@ skip_unless_portaudio()
 from actors import ActorSystem  # noqa: E402
 from actors.topics import Publisher, Subscription  # noqa: E402
 from embagents.components import HealthStatus  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
+from embagents.models.files.speech import SPEECH_CLIP_WORDS  # noqa: E402
 from embagents.msgs import Audio  # noqa: E402
-from embagents.runtime.component_actor import ComponentActor, remember_system  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
-from embagents.runtime.requests import Call, HealthQuery, Reconfigure  # noqa: E402
-from embagents.speechfiles import SPEECH_CLIP_WORDS  # noqa: E402
-from embagents.system import load_system  # noqa: E402
+from embagents.requests import Call, HealthQuery, Reconfigure  # noqa: E402
+from embagents.runtime.component_actor import ComponentActor  # noqa: E402
+from embagents.system import load_system, remember_system  # noqa: E402
 
 SYSTEM = '''
 from embagents.components import Microphone, MicrophoneConfig, Speaker, SpeakerConfig, SpeechToText, SpeechToTextConfig

@@ -25,8 +25,8 @@ from embagents.bench.cases_voice_turns import BargeTrial, barge_ears, cough  # n
 from embagents.bench.echo_room import ROBOT_LINES, robot_says, room_impulse_response  # noqa: E402
 from embagents.components import LLM, LLMConfig  # noqa: E402
 from embagents.components.speech_to_text import is_backchannel  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import BargeIn, StreamingString, String  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 RATE = 16000

@@ -147,9 +147,9 @@ system = System([cam, shapes])
 
 def test_photos_play_as_a_camera_in_a_real_run(photos: Path, tmp_path: Path) -> None:
     from actors import ActorSystem
-    from embagents.runtime.component_actor import ComponentActor, remember_system
-    from embagents.runtime.requests import Call
-    from embagents.system import load_system
+    from embagents.requests import Call
+    from embagents.runtime.component_actor import ComponentActor
+    from embagents.system import load_system, remember_system
     from tests.helpers import wait_until
 
     path = tmp_path / "system.py"

@@ -70,9 +70,9 @@ def run_source(path: str, played: np.ndarray | None) -> np.ndarray:
 
 def utterances(samples: np.ndarray, whisper_dir: str) -> list[str]:
     """What Silero VAD cuts out of ``samples`` (as SpeechToText does), each transcribed by Whisper."""
+    from embagents.components.vad import SpeechSegmenter
     from embagents.models.backends.sherpa_stt import SherpaRecognizer
-    from embagents.models.backends.sherpa_vad import SpeechSegmenter
-    from embagents.speechfiles import silero_vad_path
+    from embagents.models.files.speech import silero_vad_path
 
     vad = SpeechSegmenter(silero_vad_path(progress=False), min_silence_ms=500)
     x = samples.astype(np.float32) / 32768.0

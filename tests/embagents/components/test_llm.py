@@ -324,8 +324,8 @@ def set_heating(room: str, celsius: float) -> str:
 @pytest.mark.skipif(not _HAVE_LLAMA, reason="needs embagents.models.backends.llama, llama-cpp-python and gguf")
 @pytest.mark.llama_in_process  # see tests/conftest.py
 def test_smollm2_fills_a_held_out_request_and_answers_the_tool_result_in_a_sentence():
-    from embagents.modelfiles import default_llm_path
     from embagents.models.backends.llama import LlamaBackend
+    from embagents.models.files.hub import default_llm_path
 
     backend = LlamaBackend(default_llm_path(progress=False))
     calls: list[str] = []

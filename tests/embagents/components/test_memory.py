@@ -28,11 +28,14 @@ from embagents.components import (  # noqa: E402
     MemoryStore,
 )
 from embagents.models import LocalModelClient  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import Detections, Odometry, StreamingString, String  # noqa: E402
-from embagents.runtime.component_actor import ComponentActor, remember_system  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
-from embagents.runtime.requests import Call  # noqa: E402
-from embagents.system import load_system  # noqa: E402
+from embagents.requests import Call  # noqa: E402
+from embagents.runtime.component_actor import ComponentActor  # noqa: E402
+from embagents.system import (
+    load_system,  # noqa: E402
+    remember_system,  # noqa: E402
+)
 from embagents.topic import Topic  # noqa: E402
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor  # noqa: E402
 from tests.helpers import wait_until  # noqa: E402

@@ -17,11 +17,14 @@ from actors.topics import Publisher, Subscription  # noqa: E402
 from embagents.components import ComponentError, Route, SemanticRouter, SemanticRouterConfig  # noqa: E402
 from embagents.events import publish  # noqa: E402
 from embagents.models import LocalModelClient  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import String  # noqa: E402
-from embagents.runtime.component_actor import ComponentActor, remember_system  # noqa: E402
+from embagents.runtime.component_actor import ComponentActor  # noqa: E402
 from embagents.runtime.events_actor import EventsActor  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
-from embagents.system import load_system  # noqa: E402
+from embagents.system import (
+    load_system,  # noqa: E402
+    remember_system,  # noqa: E402
+)
 from embagents.topic import Topic  # noqa: E402
 
 heard, goto, chat, vision = Topic("heard", String), Topic("goto", String), Topic("chat", String), Topic("vision", String)
@@ -94,7 +97,7 @@ def test_route_actions_are_kept_for_the_events_actor() -> None:
     alarm = Topic("alarm", String)
     r = SemanticRouter(name="router", inputs=[heard], embedding_client=LocalModelClient("minilm"),
                        routes=[Route(routes_to=goto, samples=["go"], actions=[publish(alarm, String(data="moving"))])])
-    from embagents.llm_tools import uses_events_actor
+    from embagents.components.llm_tools import uses_events_actor
 
     assert [a.kind for a in r.route_actions["goto"]] == ["publish"] and uses_events_actor(r)
 
@@ -102,7 +105,7 @@ def test_route_actions_are_kept_for_the_events_actor() -> None:
 @pytest.fixture(scope="module")
 def smollm2(served: ActorSystem) -> str:
     pytest.importorskip("llama_cpp")
-    from embagents.modelfiles import default_llm_path
+    from embagents.models.files.hub import default_llm_path
 
     served.spawn(ModelActor, "smollm2", "llama", default_llm_path(), {}, True, wait=120)
     return "smollm2"

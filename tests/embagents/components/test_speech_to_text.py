@@ -15,9 +15,9 @@ pytest.importorskip("sherpa_onnx")
 from actors import ActorSystem  # noqa: E402
 from embagents.components import ComponentError, HealthStatus, SpeechToText, SpeechToTextConfig  # noqa: E402
 from embagents.models import LocalModelClient, SpeechToTextModel  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
+from embagents.models.files.speech import SPEECH_CLIP_WORDS  # noqa: E402
 from embagents.msgs import Audio, StreamingString, String  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
-from embagents.speechfiles import SPEECH_CLIP_WORDS  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 mic = Topic("mic", Audio, keep="all")

@@ -16,9 +16,9 @@ from actors import ActorSystem  # noqa: E402
 from embagents.components import HealthStatus, TextToSpeech, TextToSpeechConfig  # noqa: E402
 from embagents.components.audio_format import to_mono_16k  # noqa: E402
 from embagents.models import LocalModelClient, TextToSpeechModel  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.models.protocol import BadRequest  # noqa: E402
 from embagents.msgs import Audio, StreamingString, String  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 

@@ -16,8 +16,8 @@ from embagents.bench.cases_voice_turns import turn_run  # noqa: E402
 from embagents.bench.echo_room import robot_says  # noqa: E402
 from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, TurnDetectorModel  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import Audio, String  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 RATE = 16000

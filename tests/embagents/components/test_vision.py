@@ -16,8 +16,8 @@ pytest.importorskip("supervision")
 from actors import ActorSystem  # noqa: E402
 from embagents.components import HealthStatus, Vision, VisionConfig  # noqa: E402
 from embagents.models import LocalModelClient  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import CompressedImage, Detections, Image, Trackings  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 camera = Topic("camera", Image)

@@ -21,8 +21,8 @@ from embagents.components import VLA, ComponentError, HealthStatus, Sim, SimConf
 from embagents.components.sim import PANDA_READY  # noqa: E402
 from embagents.events import Event, on  # noqa: E402
 from embagents.models import LocalPolicyClient  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import Image, JointState, JointTrajectory, String, TaskFeedback  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 from tests.embagents.conftest import PANDA_TARGET  # noqa: E402
 from tests.helpers import wait_until  # noqa: E402

@@ -15,8 +15,8 @@ from actors import ActorSystem  # noqa: E402
 from embagents.components import MLLM, VLM, HealthStatus, VLMConfig  # noqa: E402
 from embagents.components.grounding import parse_boxes  # noqa: E402
 from embagents.models import LocalModelClient, VLMModel  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.msgs import CompressedImage, Detections, Image, StreamingString, String  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from embagents.topic import Topic  # noqa: E402
 
 question, camera, answer = Topic("question", String), Topic("camera", Image), Topic("answer", String)

@@ -26,8 +26,8 @@ from embagents.models import (  # noqa: E402
     ModelUnavailable,
     StaleInput,
 )
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.models.protocol import InferError, inference_endpoint  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from tests.helpers import wait_until  # noqa: E402
 
 OPTIONS = {"family": "yolo", "threshold": 0.25}

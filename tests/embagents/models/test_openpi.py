@@ -3,7 +3,7 @@
 openpi's client (``openpi-client`` 0.1.2 on PyPI) pins numpy<2 and needs
 dm-tree; its protocol modules need only msgpack, numpy and websockets, so they
 are loaded from the wheel's files (fetched and cached by the project's own
-:mod:`embagents.wheelfiles`) instead of installing the package: a real peer.
+:mod:`embagents.models.files.wheels`) instead of installing the package: a real peer.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def expected_chunk(state: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def openpi_client() -> types.ModuleType:
     """openpi_client's modules, loaded from the files of its PyPI wheel (not installed: its pins clash)."""
-    from embagents.wheelfiles import WheelFileError, wheel_file
+    from embagents.models.files.wheels import WheelFileError, wheel_file
 
     pkg = types.ModuleType("openpi_client")
     pkg.__path__ = []
@@ -402,7 +402,7 @@ def test_over_wss_the_client_checks_the_servers_certificate(policy: str, tls_fil
 
 
 def test_serve_policy_serves_a_policy_model_that_a_system_declares(policy: str, tmp_path: Path) -> None:
-    from embagents.tools.serve_policy_cli import policy_of
+    from embagents.cli.serve_policy import policy_of
 
     system = tmp_path / "robot.py"
     system.write_text("from embagents.models import LlamaModel, PolicyModel\nfrom embagents.system import System\n"

@@ -12,8 +12,8 @@ pytest.importorskip("onnx")
 
 from actors import ActorSystem  # noqa: E402
 from embagents.models import BadRequest, LocalPolicyClient, PolicyClient, PolicyLate, PolicyModel  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.models.backends.reach_policy import write_reach_policy  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 from tests.embagents.conftest import PANDA_TARGET  # noqa: E402
 
 

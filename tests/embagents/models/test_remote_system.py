@@ -17,9 +17,9 @@ from actors.curve import write_keypair
 from actors.topics import Publisher
 from embagents.models.remote import RemoteModelActor
 from embagents.msgs import String
-from embagents.runtime.component_actor import ComponentActor, remember_system
-from embagents.runtime.requests import Call
-from embagents.system import load_system
+from embagents.requests import Call
+from embagents.runtime.component_actor import ComponentActor
+from embagents.system import load_system, remember_system
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 from tests.helpers import free_port, wait_until
 

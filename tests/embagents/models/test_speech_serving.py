@@ -12,7 +12,7 @@ pytest.importorskip("sherpa_onnx")
 
 from actors import ActorSystem  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 
 
 def words(text: str) -> str:

@@ -26,7 +26,7 @@ def scenario(model: str) -> None:
     import embagents.msgs  # noqa: F401 - registers the message types
     from actors import ActorSystem
     from embagents.models import LocalModelClient
-    from embagents.runtime.model_actor import LlamaModelActor
+    from embagents.models.actor import LlamaModelActor
     from tests.helpers import wait_until
 
     hello = [{"role": "user", "content": "Tell me a long story."}]

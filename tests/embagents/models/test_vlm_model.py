@@ -18,7 +18,7 @@ pytest.importorskip("llama_cpp")
 import embagents.msgs  # noqa: E402,F401 - registers the message types
 from actors import ActorSystem  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, VLMModel  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 
 ASK = [{"role": "user", "content": "What do you see?"}]
 

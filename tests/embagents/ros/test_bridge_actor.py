@@ -135,7 +135,7 @@ def test_a_system_without_ros_runs_without_importing_rclpy(tmp_path: Path) -> No
     code = (
         "import sys\n"
         "from embagents.check import check_system\nfrom embagents.system import load_system\n"
-        "import embagents.launch, embagents.runtime\n"
+        "import embagents.cli.supervise, embagents.runtime\n"
         f"check_system(load_system({str(Path(__file__).parents[3] / 'examples' / 'chat.py')!r}))\n"
         "assert 'rclpy' not in sys.modules, 'rclpy was imported'\nprint('OK')\n"
     )

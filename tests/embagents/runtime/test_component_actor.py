@@ -12,9 +12,9 @@ import msgpack
 import pytest
 
 from actors import ActorSystem
-from embagents.runtime.component_actor import ComponentActor, remember_system
-from embagents.runtime.requests import Call, HealthQuery
-from embagents.system import load_system
+from embagents.requests import Call, HealthQuery
+from embagents.runtime.component_actor import ComponentActor
+from embagents.system import load_system, remember_system
 from tests.helpers import wait_until
 
 SYSTEM = '''
@@ -149,8 +149,9 @@ RUN_EYES = '''
 import json, sys, time
 from actors import ActorSystem
 from embagents.msgs import HealthStatus
-from embagents.runtime.component_actor import ComponentActor, remember_system
-from embagents.runtime.requests import Call, HealthQuery
+from embagents.runtime.component_actor import ComponentActor
+from embagents.system import remember_system
+from embagents.requests import Call, HealthQuery
 from embagents.system import load_system
 from tests.helpers import wait_until
 

@@ -8,10 +8,10 @@ from pathlib import Path
 from actors import ActorSystem
 from actors.topics import Publisher
 from embagents.msgs import String
-from embagents.runtime.component_actor import ComponentActor, remember_system
+from embagents.requests import Call
+from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
-from embagents.runtime.requests import Call
-from embagents.system import load_system
+from embagents.system import load_system, remember_system
 from tests.helpers import wait_until
 
 SYSTEM = '''

@@ -18,11 +18,11 @@ from pathlib import Path
 
 from actors import ActorSystem
 from actors.topics import Publisher
+from embagents.models.actor import LlamaModelActor
 from embagents.msgs import String
-from embagents.runtime.component_actor import ComponentActor, remember_system
-from embagents.runtime.model_actor import LlamaModelActor
-from embagents.runtime.requests import Call
-from embagents.system import load_system
+from embagents.requests import Call
+from embagents.runtime.component_actor import ComponentActor
+from embagents.system import load_system, remember_system
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 from tests.helpers import wait_until
 

@@ -19,10 +19,9 @@ from actors import ActorCrashed, ActorNotFound, ActorSystem
 from actors.errors import Timeout
 from actors.topics import Publisher, Subscription
 from embagents.msgs import HealthStatus, String
-from embagents.runtime.component_actor import remember_system
-from embagents.runtime.requests import Call, HealthQuery
+from embagents.requests import Call, HealthQuery
 from embagents.supervision import build_spec
-from embagents.system import load_system
+from embagents.system import load_system, remember_system
 from supervisor import lifecycle, start_supervisor
 from tests.helpers import wait_until
 

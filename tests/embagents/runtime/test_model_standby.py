@@ -9,7 +9,7 @@ from typing import Any
 
 from actors import ActorSystem
 from embagents.models import LocalModelClient
-from embagents.runtime.model_actor import LlamaModelActor
+from embagents.models.actor import LlamaModelActor
 from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 from supervisor.rootio import on_root
 from supervisor.tree import Tree

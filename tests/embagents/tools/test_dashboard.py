@@ -29,7 +29,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from tests.embagents.tools.conftest import Run, dashboard_url
+from tests.embagents.fixtures.live_run import Run, dashboard_url
 from tests.helpers import free_port, wait_until
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

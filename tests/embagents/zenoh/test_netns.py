@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from embagents.keys import make_ca, make_host
+from embagents.cli.keys import make_ca, make_host
 from tests.embagents.zenoh.runs import RECEIVER, SENDER, Run, wait_for, write
 
 pytest.importorskip("zenoh")

@@ -12,7 +12,7 @@ pytest.importorskip("cv2")
 
 from embagents.models.backends.detectors import DetectorLayoutError, make_detector  # noqa: E402
 from embagents.models.backends.onnx import OnnxSession  # noqa: E402
-from tests.embagents.tiny_yolo import make_tiny_yolo  # noqa: E402
+from tests.embagents.fixtures.tiny_yolo import make_tiny_yolo  # noqa: E402
 
 
 def test_yolo_v8_boxes_map_back_through_the_letterbox_and_nms_drops_the_duplicate(tiny_yolo: str) -> None:
@@ -48,7 +48,7 @@ def test_a_missing_model_file_names_the_path_and_how_to_get_one(tmp_path: Path) 
 
 def test_mtcnn_finds_the_astronauts_face() -> None:
     skimage_data = pytest.importorskip("skimage.data")
-    from embagents.modelfiles import mtcnn_dir
+    from embagents.models.files.hub import mtcnn_dir
 
     out = make_detector(mtcnn_dir(), family="mtcnn", threshold=0.9).detect_batch([skimage_data.astronaut()])[0]
     assert out["labels"] == ["face"] and out["scores"][0] > 0.99

@@ -15,8 +15,8 @@ pytest.importorskip("tokenizers")
 
 from actors import ActorSystem  # noqa: E402
 from embagents.models import BadRequest, EmbeddingModel, LocalModelClient  # noqa: E402
+from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.models.backends.embeddings import SentenceEncoder  # noqa: E402
-from embagents.runtime.model_actor import ModelActor  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -15,12 +15,12 @@ pytest.importorskip(
     "llama_cpp", reason="llama-cpp-python not installed (pip install 'embagents[llm]')"
 )
 
-from embagents.modelfiles import default_llm_path  # noqa: E402
 from embagents.models.backends.llama import (  # noqa: E402
     LlamaBackend,
     default_use_extra_bufts,
 )
 from embagents.models.chat import ToolCallAccumulator, tool_calls_from_text  # noqa: E402
+from embagents.models.files.hub import default_llm_path  # noqa: E402
 
 pytestmark = pytest.mark.llama_in_process  # see tests/conftest.py
 

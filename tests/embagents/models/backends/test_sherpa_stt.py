@@ -12,13 +12,13 @@ import pytest
 
 pytest.importorskip("sherpa_onnx")
 
+from embagents.components.vad import SpeechSegmenter  # noqa: E402
 from embagents.models.backends.sherpa_stt import (  # noqa: E402
     SherpaRecognizer,
     SpeechModelError,
     detect_stt_model,
 )
-from embagents.models.backends.sherpa_vad import SpeechSegmenter  # noqa: E402
-from embagents.speechfiles import SPEECH_CLIP_WORDS, silero_vad_path  # noqa: E402
+from embagents.models.files.speech import SPEECH_CLIP_WORDS, silero_vad_path  # noqa: E402
 
 
 def words(text: str) -> str:

@@ -13,7 +13,7 @@ pytest.importorskip("espeakng_loader")
 
 from embagents.models import TextToSpeechModel  # noqa: E402
 from embagents.models.backends.sherpa_tts import SherpaSpeaker, voice_family  # noqa: E402
-from tests.embagents.tiny_kokoro import SAMPLES_PER_TOKEN  # noqa: E402
+from tests.embagents.fixtures.tiny_kokoro import SAMPLES_PER_TOKEN  # noqa: E402
 
 
 def test_a_kokoro_folder_speaks_each_sentence_at_its_own_rate(tiny_kokoro: str) -> None:
@@ -43,7 +43,7 @@ def test_a_kokoro_folder_missing_a_file_names_it(tiny_kokoro: str, tmp_path: Any
 
 def test_a_kokoro_repo_on_an_unreachable_hub_says_so_and_what_to_give_instead(monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("huggingface_hub")
-    from embagents.modelfiles import HubUnreachableError
+    from embagents.models.files.hub import HubUnreachableError
 
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     monkeypatch.setenv("HF_HUB_CACHE", "/nonexistent-embagents-cache")
