@@ -40,7 +40,7 @@ import json
 import re
 import string
 import uuid
-from collections.abc import Callable, Generator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping
 from typing import Any
 
 import attrs
@@ -49,7 +49,7 @@ from attrs import define, field
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, to_bool
-from embagents.models.chat import openai_tool_call, tool_calls_from_text
+from embagents.models.chat import chat_chunks, openai_tool_call, tool_calls_from_text
 from embagents.msgs import BargeIn, StreamingString, String
 from embagents.topic import Topic
 
@@ -283,6 +283,17 @@ class LLM(ModelComponent):
             schemas[key] = dict(schema)
         direct = [t for t in cfg.tools_answer_directly if t != key] + ([] if send_tool_response_to_model else [key])
         self.config = attrs.evolve(cfg, tools=tools, tool_schemas=schemas, tools_answer_directly=direct)
+
+    def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
+        """The active client's answer as ``{"delta"}``... then ``{"done": True, ...}`` (:func:`~embagents.models.chat.chat_chunks`)."""
+        if self.model_client is None:
+            raise RuntimeError(f"{self._label()} has no model client")
+        return chat_chunks(self.model_client, messages, **options)
+
+    def run_warmup(self) -> None:
+        """One token of an answer to "Hi" (loads the model)."""
+        for _ in self.chat_stream([{"role": "user", "content": "Hi"}], max_tokens=1):
+            pass
 
     def default_trigger(self) -> Topic | None:
         return self.inputs[0] if self.inputs else None

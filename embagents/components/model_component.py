@@ -1,9 +1,13 @@
 """Components that run inference through a model client, with hot swap and warmup.
 
-A model client is any object with ``chat_stream(messages, **options)``
-(yielding ``{"delta": str}`` chunks then ``{"done": True, "finish_reason":
-str, "tool_calls": list | None}``) or ``chat(messages, **options)``: a local
-model actor's client, an HTTP client, or an in-process backend. Clients are
+A model client is any object with the method the component calls, named by
+the class attribute :attr:`ModelComponent.client_methods` and checked once,
+when the client is added: ``chat_stream``/``chat`` for an :class:`~embagents.components.LLM`,
+``detect`` for :class:`~embagents.components.Vision`, ``transcribe`` for
+:class:`~embagents.components.SpeechToText`, ``speak`` for
+:class:`~embagents.components.TextToSpeech`; a local model actor's client, an
+HTTP client, or an in-process backend. Each subclass warms its client up its
+own way (:meth:`ModelComponent.run_warmup`). Clients are
 named by their ``name`` attribute (else their class name); extra clients are
 standbys that :meth:`ModelComponent.change_model_client` (or a fallback's
 ``switch_model_client``) swaps in without a restart. A step that failed
@@ -30,14 +34,14 @@ Example::
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator, Mapping, Sequence
-from typing import Any
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, ClassVar
 
 from embagents.components.component import Component, ComponentProblem
 from embagents.events import Fallback
-from embagents.models.chat import ChatClient
+from embagents.models.chat import ChatClient, chat_chunks
 
-__all__ = ["ChatClient", "ModelComponent", "client_name"]
+__all__ = ["ChatClient", "ModelComponent", "chat_chunks", "client_name"]
 
 
 def client_name(client: object) -> str:
@@ -50,16 +54,19 @@ def client_name(client: object) -> str:
     return name if isinstance(name, str) and name else type(client).__name__
 
 
-def _is_client(client: object) -> bool:
-    return callable(getattr(client, "chat_stream", None)) or callable(getattr(client, "chat", None))
-
-
 class ModelComponent(Component):
     """A component with a model client, standby clients, hot swap and warmup.
 
     ``warmup=True`` sends one tiny request in :meth:`on_configure`, so the
     first real request does not pay for loading the model.
     """
+
+    #: The client methods this component calls: a client needs at least one (checked when it is added).
+    client_methods: ClassVar[tuple[str, ...]] = ("chat_stream", "chat")
+    #: What the component asks of its client, for the error naming a client that cannot do it.
+    client_task: ClassVar[str] = "chat"
+    #: The fix that error names: which client to give.
+    client_fix: ClassVar[str] = "an object with chat_stream() or chat(), e.g. LocalModelClient(LlamaModel(...))"
 
     def __init__(
         self,
@@ -75,12 +82,12 @@ class ModelComponent(Component):
         self.model_client = model_client
         self.client_name: str | None = None
         if model_client is None:
-            self._client_problems.append(("missing-client", "needs a model_client (an object with chat_stream or chat)"))
+            self._client_problems.append(("missing-client", f"needs a model_client: {self.client_fix}"))
         else:
-            self.client_name = self._add_client(client_name(model_client), model_client)
+            self.client_name = self.add_client(client_name(model_client), model_client)
         extras = extra_clients.items() if isinstance(extra_clients, Mapping) else ((client_name(c), c) for c in extra_clients)
         for key, client in extras:
-            self._add_client(key, client)
+            self.add_client(key, client)
         self.warmup = bool(warmup)
         #: The inputs, fresh topics and time of the last step that failed (retried once on a new client).
         self._failed_step: tuple[dict[str, Any], frozenset[str], float] | None = None
@@ -97,9 +104,21 @@ class ModelComponent(Component):
                              f"as {type(self).__name__}(..., extra_clients={{'name': client}}) and switch with "
                              "a Fallback(on_algorithm_fail=switch_model_client('name'))")
 
-    def _add_client(self, key: str, client: Any) -> str:
-        if not _is_client(client):
-            self._client_problems.append(("bad-client", f"model client {client!r} has neither chat_stream() nor chat()"))
+    @classmethod
+    def can_serve(cls, client: object) -> bool:
+        """Whether ``client`` has one of :attr:`client_methods`."""
+        return any(callable(getattr(client, m, None)) for m in cls.client_methods)
+
+    def _cannot(self, key: str) -> str:
+        methods = [f"{m}()" for m in self.client_methods]
+        has = f"it has no {methods[0]}" if len(methods) == 1 else f"it has neither {' nor '.join(methods)}"
+        return f"model client {key!r} cannot {self.client_task} ({has}); give it {self.client_fix}"
+
+    def add_client(self, key: str, client: Any) -> str:
+        """Add ``client`` as a standby named ``key``; a client that cannot serve this component is a problem
+        :meth:`validate` reports (``bad-client``), as is a second, different client of the same name."""
+        if not self.can_serve(client):
+            self._client_problems.append(("bad-client", self._cannot(key)))
         elif key in self.clients and self.clients[key] is not client:
             self._client_problems.append(("duplicate-client", f"two different model clients are named {key!r}; give them distinct names"))
         else:
@@ -127,8 +146,8 @@ class ModelComponent(Component):
                 raise ValueError(f"{self._label()} has no model client {name_or_client!r}; known clients: {known}")
             key = name_or_client
         else:
-            if not _is_client(name_or_client):
-                raise TypeError(f"{self._label()}: {name_or_client!r} is not a model client (needs chat_stream or chat)")
+            if not self.can_serve(name_or_client):
+                raise TypeError(f"{self._label()}: {self._cannot(client_name(name_or_client))}")
             key = next((k for k, c in self.clients.items() if c is name_or_client), client_name(name_or_client))
             if self.clients.setdefault(key, name_or_client) is not name_or_client:
                 raise ValueError(f"{self._label()} already has a different model client named {key!r}")
@@ -159,38 +178,10 @@ class ModelComponent(Component):
         self.run_step(inputs, fresh)
         self._failed_step = None  # once: a failure now is reported, not retried again
 
-    def chat_stream(self, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
-        """Stream chunks from the active client, normalised to ``{"delta"}``... ``{"done": True, ...}``.
-
-        A client with only ``chat()`` may return a str, a dict with ``content``
-        (or ``text``), or an iterator of chunks. The last chunk always has ``done``.
-        """
-        client = self.model_client
-        if client is None:
-            raise RuntimeError(f"{self._label()} has no model client")
-        if callable(getattr(client, "chat_stream", None)):
-            result: Any = client.chat_stream(messages, **options)
-        else:
-            result = client.chat(messages, **options)
-        if isinstance(result, str):
-            result = [{"delta": result}]
-        elif isinstance(result, Mapping):
-            content = result.get("content") or result.get("text") or ""
-            result = [{"delta": content}, {"done": True, "finish_reason": result.get("finish_reason", "stop"),
-                                           "tool_calls": result.get("tool_calls")}]
-        for chunk in result:
-            if chunk.get("delta"):
-                yield {"delta": chunk["delta"]}
-            if chunk.get("done"):
-                yield {"done": True, "finish_reason": chunk.get("finish_reason", "stop"),
-                       "tool_calls": chunk.get("tool_calls") or None}
-                return
-        yield {"done": True, "finish_reason": "stop", "tool_calls": None}
-
     def run_warmup(self) -> None:
-        """Send one tiny request through the active client (loads the model)."""
-        for _ in self.chat_stream([{"role": "user", "content": "Hi"}], max_tokens=1):
-            pass
+        """Send one tiny request through the active client (loads the model): each modality its own."""
+        raise NotImplementedError(f"{type(self).__name__} has warmup=True but no run_warmup(): define it "
+                                  "(one tiny request through self.model_client)")
 
     def on_configure(self) -> None:
         """Warm the client up when ``warmup`` is set."""

@@ -209,6 +209,9 @@ class SpeechToText(ModelComponent):
     allowed_inputs = {"Required": [Audio], "Optional": [Audio]}  # the microphone; the Speaker's played stream
     allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn]}
     config_class = SpeechToTextConfig
+    client_methods = ("transcribe",)
+    client_task = "transcribe"
+    client_fix = "LocalModelClient(SpeechToTextModel(...)) or OpenAITranscriptionClient(url)"
 
     def __init__(self, *, name: str, turn_model_client: Any = None, **kw: Any) -> None:
         self.turn_client = turn_model_client  # an end-of-turn model (LocalModelClient(TurnDetectorModel(...)))
@@ -233,15 +236,6 @@ class SpeechToText(ModelComponent):
         self._checked_samples = 0  # the utterance's length at its last mid-speech check
         self.barge_ins: dict[str, int] = {"pause": 0, "resume": 0, "interrupt": 0}
         super().__init__(name=name, **kw)
-
-    def _add_client(self, key: str, client: Any) -> str:
-        if not callable(getattr(client, "transcribe", None)):
-            self._client_problems.append(("bad-client", f"model client {client!r} cannot transcribe (it has no "
-                                                        "transcribe()); give it LocalModelClient(SpeechToTextModel(...))"
-                                                        " or OpenAITranscriptionClient(url)"))
-            return key
-        self.clients.setdefault(key, client)
-        return key
 
     def default_trigger(self) -> Topic | None:
         return self.inputs[0] if self.inputs else None

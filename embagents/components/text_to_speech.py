@@ -97,6 +97,9 @@ class TextToSpeech(ModelComponent):
     allowed_inputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString, BargeIn]}
     allowed_outputs = {"Required": [Audio]}
     config_class = TextToSpeechConfig
+    client_methods = ("speak",)
+    client_task = "speak"
+    client_fix = "LocalModelClient(TextToSpeechModel(...)) or OpenAISpeechClient(url)"
 
     def __init__(self, *, name: str, **kw: Any) -> None:
         self._received: list[Any] = []
@@ -107,15 +110,6 @@ class TextToSpeech(ModelComponent):
         self._in_utterance = False
         self.spoken = 0  # sentences spoken (for tests and status)
         super().__init__(name=name, **kw)
-
-    def _add_client(self, key: str, client: Any) -> str:
-        if not callable(getattr(client, "speak", None)):
-            self._client_problems.append(("bad-client", f"model client {client!r} cannot speak (it has no speak()); "
-                                                        "give it LocalModelClient(TextToSpeechModel(...)) or "
-                                                        "OpenAISpeechClient(url)"))
-            return key
-        self.clients.setdefault(key, client)
-        return key
 
     def default_trigger(self) -> list[Any]:
         return list(self.inputs)  # a message on any input is text to speak

@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 from attrs import define, field
 
-from embagents.components.component import ComponentProblem
 from embagents.components.imaging import annotate, image_rgb
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError, to_bool
@@ -97,6 +96,9 @@ class Vision(ModelComponent):
     allowed_inputs = {"Required": [[Image, CompressedImage]]}
     allowed_outputs = {"Required": [Detections], "Optional": [Trackings, Image]}
     config_class = VisionConfig
+    client_methods = ("detect",)
+    client_task = "detect"
+    client_fix = "LocalModelClient(DetectorModel(...))"
     #: The actions :func:`~embagents.components.llm_tools.register_tools_on` offers an LLM.
     llm_tools = ("take_picture",)
 
@@ -111,14 +113,6 @@ class Vision(ModelComponent):
 
     def default_trigger(self) -> Topic | None:
         return self.inputs[0] if self.inputs else None
-
-    def validate(self) -> list[ComponentProblem]:
-        problems = super().validate()
-        for key, client in self.clients.items():
-            if not callable(getattr(client, "detect", None)):
-                problems.append(("bad-client", f"{self._label()}: model client {key!r} cannot detect (it has no "
-                                               "detect()); give it LocalModelClient(DetectorModel(...))"))
-        return problems
 
     def run_warmup(self) -> None:
         self.model_client.detect(np.zeros((64, 64, 3), np.uint8))

@@ -31,6 +31,7 @@ __all__ = [
     "CHAT_OPTIONS",
     "ChatClient",
     "ToolCallAccumulator",
+    "chat_chunks",
     "check_messages",
     "collect_stream",
     "normalize_tool_call",
@@ -239,3 +240,35 @@ def with_images(messages: list[dict[str, Any]], urls: Sequence[str]) -> list[dic
     parts = content if isinstance(content, list) else [{"type": "text", "text": content}]
     out[last]["content"] = [{"type": "image_url", "image_url": {"url": u}} for u in urls] + list(parts)
     return out
+
+
+def chat_chunks(client: Any, messages: list[dict[str, Any]], **options: Any) -> Iterator[dict[str, Any]]:
+    """Stream ``client``'s answer as ``{"delta"}``... then one ``{"done": True, "finish_reason", "tool_calls"}``.
+
+    A client with only ``chat()`` may return a str, a dict with ``content``
+    (or ``text``), or an iterator of chunks. The last chunk always has ``done``.
+
+    >>> class Plain:
+    ...     def chat(self, messages, **options):
+    ...         return "hello"
+    >>> list(chat_chunks(Plain(), [{"role": "user", "content": "hi"}]))
+    [{'delta': 'hello'}, {'done': True, 'finish_reason': 'stop', 'tool_calls': None}]
+    """
+    if callable(getattr(client, "chat_stream", None)):
+        result: Any = client.chat_stream(messages, **options)
+    else:
+        result = client.chat(messages, **options)
+    if isinstance(result, str):
+        result = [{"delta": result}]
+    elif isinstance(result, Mapping):
+        content = result.get("content") or result.get("text") or ""
+        result = [{"delta": content}, {"done": True, "finish_reason": result.get("finish_reason", "stop"),
+                                       "tool_calls": result.get("tool_calls")}]
+    for chunk in result:
+        if chunk.get("delta"):
+            yield {"delta": chunk["delta"]}
+        if chunk.get("done"):
+            yield {"done": True, "finish_reason": chunk.get("finish_reason", "stop"),
+                   "tool_calls": chunk.get("tool_calls") or None}
+            return
+    yield {"done": True, "finish_reason": "stop", "tool_calls": None}

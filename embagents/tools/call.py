@@ -58,7 +58,7 @@ def actions(component: Any) -> list[str]:
     from embagents.components.component import Component
     from embagents.components.model_component import ModelComponent
 
-    base = set(dir(ModelComponent)) | set(dir(Component))
+    base = set(dir(ModelComponent)) | set(dir(Component)) | {"chat_stream"}  # a generator: the LLM's stream, no action
     return sorted(n for n in dir(type(component)) if not n.startswith("_") and (n not in base or n in BASE_ACTIONS)
                   and callable(getattr(component, n, None)))
 

@@ -157,7 +157,7 @@ class _Clients(_Fallbacks):
             raise CompatError(f"additional_model_clients must be a dict of name -> client, got {value!r}")
         for key, client in value.items():
             built = build_client(client, self._role, str(getattr(self, "name", "")))
-            self._add_client(str(key), built)  # type: ignore[attr-defined]
+            self.add_client(str(key), built)  # type: ignore[attr-defined]
             if self._client_problems:  # type: ignore[attr-defined]
                 raise CompatError("; ".join(text for _, text in self._client_problems))  # type: ignore[attr-defined]
 
@@ -172,7 +172,7 @@ class _Clients(_Fallbacks):
         if key not in self.clients:
             client = local_default(self._role, key, f"{type(self).__name__} {getattr(self, 'name', '')!r}'s model "
                                    "after fallback_to_local", "a standby client the fallback switches to")
-            self._add_client(key, client)  # type: ignore[attr-defined]
+            self.add_client(key, client)  # type: ignore[attr-defined]
         return key
 
 

@@ -163,7 +163,7 @@ def test_every_components_problems_are_reported_as_check_reports_them(tmp_path: 
 
 def test_a_directory_gets_a_system_file_to_pass(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", "examples"], capture_output=True,
-                          text=True, timeout=60, cwd=Path(__file__).parents[2])
+                          text=True, timeout=60, cwd=Path(__file__).parents[3])
     assert proc.returncode == 1
     assert "/examples: is a directory, not a system file; pass one of its system files, e.g. `examples/" \
         in proc.stderr and "examples/chat.py" in proc.stderr and "Traceback" not in proc.stderr

@@ -429,24 +429,42 @@ def test_fallback_switching_to_unknown_client_is_a_problem():
     assert Component(name="c", fallback=Fallback(on_algorithm_fail=restart())).problems == []
 
 
-def test_chat_only_client_is_normalised():
-    class ChatOnly:
-        def chat(self, messages, **options):
-            return {"content": "whole", "finish_reason": "length", "tool_calls": None}
+def test_warmup_sends_one_tiny_request_of_the_modality_on_configure():
+    class Warmed(ModelComponent):
+        def run_warmup(self) -> None:
+            for _ in self.model_client.chat_stream([{"role": "user", "content": "Hi"}], max_tokens=1):
+                pass
 
-    mc = ModelComponent(name="m", model_client=ChatOnly())
-    assert list(mc.chat_stream([{"role": "user", "content": "x"}])) == [
-        {"delta": "whole"},
-        {"done": True, "finish_reason": "length", "tool_calls": None},
-    ]
-
-
-def test_warmup_sends_one_tiny_request_on_configure():
     client = Client("main")
-    ModelComponent(name="m", model_client=client).on_configure()
+    Warmed(name="m", model_client=client).on_configure()
     assert client.calls == []
-    ModelComponent(name="m", model_client=client, warmup=True).on_configure()
+    Warmed(name="m", model_client=client, warmup=True).on_configure()
     assert len(client.calls) == 1 and client.calls[0][1] == {"max_tokens": 1}
+
+
+def test_a_model_component_without_its_own_warmup_names_the_fix():
+    with pytest.raises(NotImplementedError, match="no run_warmup"):
+        ModelComponent(name="m", model_client=Client("main"), warmup=True).on_configure()
+
+
+def test_the_client_method_a_component_needs_is_a_class_attribute_checked_once():
+    class Detecting(ModelComponent):
+        client_methods = ("detect",)
+        client_task = "detect"
+        client_fix = "LocalModelClient(DetectorModel(...))"
+
+    class Detector:
+        name = "det"
+
+        def detect(self, image):
+            return []
+
+    assert list(Detecting(name="v", model_client=Detector()).clients) == ["det"]
+    with pytest.raises(ComponentError, match=r"model client 'main' cannot detect \(it has no detect\(\)\); "
+                                             r"give it LocalModelClient\(DetectorModel"):
+        Detecting(name="v", model_client=Client("main"))
+    with pytest.raises(TypeError, match="cannot detect"):
+        Detecting(name="v", model_client=Detector()).change_model_client(Client("chatty"))
 
 
 def test_health_reports_name_their_sender_and_a_fresh_incarnation_reports_its_first_status():

@@ -16,7 +16,7 @@ import pytest
 
 from embagents.tools.call import parse_args
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "vlm.py"
+EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "vlm.py"
 
 
 def _cli(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:

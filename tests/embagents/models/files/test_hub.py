@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -17,7 +18,7 @@ from embagents.models.files.hub import (
 )
 from embagents.models.files.wheels import PyPIUnreachableError
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+REPO_ROOT = str(Path(__file__).resolve().parents[4])
 
 
 def test_default_llm_path_is_a_real_gguf() -> None:
