@@ -194,7 +194,7 @@ class _MovedModule(importlib.abc.Loader):
         warnings.warn(f"{where} ({spec.name} goes in the next release)", FutureWarning, stacklevel=2)
         module = types.ModuleType(spec.name, target.__doc__)
         if hasattr(target, "__all__"):
-            module.__all__ = list(target.__all__)
+            module.__all__ = list(target.__all__)  # type: ignore[attr-defined]
 
         def __getattr__(name: str) -> object:
             moved = _MOVED_NAMES.get((new, name))

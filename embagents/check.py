@@ -50,7 +50,18 @@ from embagents.components.model_component import ModelComponent
 from embagents.config import ConfigError, apply_config
 from embagents.events import Action
 from embagents.models import models_of
+from embagents.msgs import RosMessage
+from embagents.ros.spec import (
+    RosAction,
+    RosInput,
+    RosLifecycle,
+    RosOutput,
+    RosService,
+    check_bridge,
+)
+from embagents.supervision import build_spec
 from embagents.system import System, SystemFileError, load_system
+from embagents.zenoh.spec import ZENOH_EXTRA_HINT, ZenohBridge
 
 __all__ = ["Problem", "check_file", "check_system", "cuda_in_process", "errors"]
 
@@ -101,15 +112,6 @@ def _ros_available_elsewhere() -> tuple[bool, str]:
 
 def _ros_declarations(system: System) -> tuple[list[tuple[str, type]], list[Any], list[Problem]]:
     """(topics the bridge provides, RosOutputs, problems)."""
-    from embagents.msgs import RosMessage
-    from embagents.ros.spec import (
-        RosAction,
-        RosInput,
-        RosLifecycle,
-        RosOutput,
-        RosService,
-        check_bridge,
-    )
 
     provided, outs, problems = [], [], []
     ins = [d for d in system.ros if isinstance(d, RosInput)]
@@ -168,7 +170,6 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
         use(name, msg_type, "RosInput")
     zenoh = getattr(system, "zenoh", None)
     if zenoh is not None:
-        from embagents.zenoh.spec import ZenohBridge
 
         if not isinstance(zenoh, ZenohBridge):
             out.append(Problem(None, "zenoh", f"System zenoh must be one embagents.zenoh.ZenohBridge (one per host), "
@@ -203,7 +204,6 @@ def _topic_problems(system: System, ros_provided: list[tuple[str, type]], ros_ou
         import importlib.util
 
         if importlib.util.find_spec("zenoh") is None:
-            from embagents.zenoh.spec import ZENOH_EXTRA_HINT
 
             out.append(Problem(None, "zenoh-missing", f"Zenoh bridge: zenoh is not installed; {ZENOH_EXTRA_HINT}"))
         for e in zenoh.exports:
@@ -354,7 +354,6 @@ def _model_problems(system: System) -> list[Problem]:
 
 def _supervision_problems(system: System) -> list[Problem]:
     # One truth: build the very tree `embagents supervise` runs (supervisor.spec's rules).
-    from embagents.supervision import build_spec
 
     try:
         build_spec(system, "system.py")

@@ -47,6 +47,8 @@ from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import Any
 
+from actors.runtime import Runtime
+from actors.topics import Subscription
 from supervisor.client import ControlClient, ControlError, pick_run
 
 __all__ = ["LiveRun", "Messages", "Subscribed", "connect", "find_topic", "is_ready"]
@@ -228,8 +230,6 @@ class LiveRun:
     def _runtime(self) -> Any:
         with self._lock:
             if self._rt is None:
-                import embagents  # noqa: F401 - registers the message types, so frames decode
-                from actors.runtime import Runtime
 
                 self._rt = Runtime(self.run_dir, self.run_id)
             return self._rt
@@ -240,7 +240,6 @@ class LiveRun:
         Keep-latest: a callback slower than the topic loses messages (``dropped``), the publisher goes on.
         A topic the run does not have is a ControlError naming the ones it has.
         """
-        from actors.topics import Subscription
 
         name = self.topic(topic)["name"]
         rt = self._runtime()

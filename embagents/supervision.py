@@ -18,11 +18,18 @@ from __future__ import annotations
 from collections.abc import Collection
 from typing import TYPE_CHECKING, Any
 
+from embagents.components.llm_tools import uses_events_actor as needs_it
 from embagents.models import models_of
 from embagents.models.actor import ModelActor
 from embagents.requests import EVENTS_ACTOR
+from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
+from embagents.runtime.agent_actor import AgentActor
 from embagents.runtime.component_actor import ComponentActor
 from embagents.runtime.events_actor import EventsActor
+from embagents.runtime.manager_actor import ManagerActor
+from embagents.zenoh.bridge_actor import BRIDGE_NAME as ZENOH_BRIDGE
+from embagents.zenoh.bridge_actor import ZenohBridgeActor
+from supervisor import ChildSpec, SupervisorSpec
 
 if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
     from embagents.system import System
@@ -38,7 +45,6 @@ MODEL_HEARTBEAT_S = 120.0
 
 def uses_events_actor(system: System) -> bool:
     """Whether the system runs the events actor (events, fallbacks, LLM tools, route actions)."""
-    from embagents.components.llm_tools import uses_events_actor as needs_it
 
     return bool(system.events) or any(getattr(c, "fallback", None) or needs_it(c) for c in system.components)
 
@@ -71,7 +77,6 @@ def wiring(system: System) -> dict[str, dict[str, tuple[str, ...]]]:
                 add(t.name, EVENTS_NAME)
     for d in system.ros:
         if type(d).__name__ == "RosOutput" and isinstance(getattr(d, "topic", None), str):
-            from embagents.ros.bridge_actor import BRIDGE_NAME
 
             add(d.topic, BRIDGE_NAME)
     out: dict[str, dict[str, tuple[str, ...]]] = {}
@@ -96,7 +101,6 @@ def build_spec(system: System, path: str, resolved: dict[str, str] | None = None
     the tree is built, so every rule of ``supervisor.spec`` is applied, and
     nothing is downloaded. Raises ``ValueError`` / ``TypeError`` naming the rule.
     """
-    from supervisor import ChildSpec, SupervisorSpec
 
     children = []
     for m in models_of(system):
@@ -106,12 +110,9 @@ def build_spec(system: System, path: str, resolved: dict[str, str] | None = None
         children.append(ChildSpec(m.name, (ModelActor, args), heartbeat=MODEL_HEARTBEAT_S, start_timeout=600,
                                   standby=m.standby, start_method=m.start_method))
     if system.ros:
-        from embagents.ros.bridge_actor import BRIDGE_NAME, RosBridgeActor
 
         children.append(ChildSpec(BRIDGE_NAME, (RosBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
     if getattr(system, "zenoh", None) is not None:
-        from embagents.zenoh.bridge_actor import BRIDGE_NAME as ZENOH_BRIDGE
-        from embagents.zenoh.bridge_actor import ZenohBridgeActor
 
         children.append(ChildSpec(ZENOH_BRIDGE, (ZenohBridgeActor, (path,)), heartbeat=HEARTBEAT_S, start_timeout=60))
     for c in system.components:
@@ -122,8 +123,6 @@ def build_spec(system: System, path: str, resolved: dict[str, str] | None = None
                                   snapshot_interval=0.5, start_timeout=120,
                                   standby=getattr(c, "standby", False), start_method=getattr(c, "start_method", "fork")))
     for mgr in getattr(system, "managers", ()):
-        from embagents.runtime.agent_actor import AgentActor
-        from embagents.runtime.manager_actor import ManagerActor
 
         for agent in mgr.agents:
             if agent.isolated:  # started first: the manager's first call finds it

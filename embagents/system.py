@@ -153,7 +153,7 @@ class System:
         for t in external:
             if not isinstance(t, Topic):
                 raise TypeError(f"System external must be Topics, got {t!r}")
-        from embagents.manager import Manager
+        from embagents.manager import Manager  # lazy: a cycle
 
         for m in managers:
             if not isinstance(m, Manager):

@@ -23,8 +23,11 @@ from typing import Any
 
 from embagents.components import VLA, Component, Sim, SimConfig, VLAConfig
 from embagents.components.sim import PANDA_READY
+from embagents.models import LocalPolicyClient, PolicyModel
+from embagents.models.openpi import OpenPIPolicyClient
 from embagents.msgs import JointState
 from embagents.realtime import next_deadline, raise_priority
+from embagents.system import System
 from embagents.topic import Topic
 
 __all__ = [
@@ -60,8 +63,6 @@ class TimedSim(Sim):
 
 def vla_system(policy: str) -> Any:
     """The Sim + VLA + policy system of ``vla_control_loop`` (``policy``: the ONNX file)."""
-    from embagents.models import LocalPolicyClient, PolicyModel
-    from embagents.system import System
 
     states, command = Topic("bench_arm/joint_states", JointState), Topic("bench_arm/command", JointState)
     model = PolicyModel(name="bench_reach", local_model_path=policy, threads=1, realtime=True)
@@ -78,8 +79,6 @@ def vla_system(policy: str) -> Any:
 def vla_openpi_system(url: str, chunk: int = 10, observation_rate_hz: float = 10.0, async_inference: bool = False,
                       policy_timeout_s: float = 0.2) -> Any:
     """``vla_system`` with its policy behind ``url`` (openpi's protocol: ``embagents serve-policy``)."""
-    from embagents.models.openpi import OpenPIPolicyClient
-    from embagents.system import System
 
     states, command = Topic("bench_arm/joint_states", JointState), Topic("bench_arm/command", JointState)
     joints = list(PANDA_READY)
@@ -154,7 +153,6 @@ class Busy(Component):
 
 def gil_system() -> Any:
     """The Ticker (100 Hz) and Busy components of ``gil_isolation``, each in its own process."""
-    from embagents.system import System
 
     return System([Ticker(name="bench_ticker", trigger=100.0), Busy(name="bench_busy")], name="bench_gil")
 

@@ -29,7 +29,13 @@ from typing import Any
 
 import numpy as np
 
+from actors import ActorSystem
+from embagents.bench.arm_parts import GIL_SCRIPT, INPROCESS_VLA_SCRIPT, TARGET, jitter_ms
 from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.models.actor import ModelActor
+from embagents.models.backends.reach_policy import write_reach_policy
+from embagents.requests import Call
+from embagents.runtime.component_actor import ComponentActor
 
 __all__: list[str] = []
 
@@ -68,10 +74,6 @@ def _system_file(tmp: str, factory: str, args: str = "") -> str:
 def arm_loop(path: str, seconds: float, model: tuple[Any, ...]) -> tuple[list[float], dict[str, Any]]:
     """The policy's model actor (``model``: its args; ``bench_reach``, as the systems name it) and the system at
     ``path``; a task run for ``seconds``: the command arrival times at the Sim, and the VLA's status over them."""
-    from actors import ActorSystem
-    from embagents.models.actor import ModelActor
-    from embagents.requests import Call
-    from embagents.runtime.component_actor import ComponentActor
 
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "bench_reach", *model, wait=60, heartbeat=None)
@@ -94,8 +96,6 @@ def arm_loop(path: str, seconds: float, model: tuple[Any, ...]) -> tuple[list[fl
 
 @case("vla_control_loop", transport="embagents", kind="arm", needs="pybullet")
 def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.arm_parts import INPROCESS_VLA_SCRIPT, TARGET, jitter_ms
-    from embagents.models.backends.reach_policy import write_reach_policy
 
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
@@ -122,10 +122,6 @@ def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
 
 @case("gil_isolation", transport="embagents", kind="arm")
 def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
-    from actors import ActorSystem
-    from embagents.bench.arm_parts import GIL_SCRIPT, jitter_ms
-    from embagents.requests import Call
-    from embagents.runtime.component_actor import ComponentActor
 
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:

@@ -54,6 +54,15 @@ from embagents.bench.chaos_workers import (
     NumberSource,
 )
 from embagents.bench.registry import OWNED_SHM_PREFIXES, BenchOptions, case, shm_entries
+from embagents.components import LLM, LLMConfig
+from embagents.models import LlamaModel, LocalModelClient, models_of
+from embagents.msgs import StreamingString, String
+from embagents.requests import Call
+from embagents.supervision import build_spec
+from embagents.system import System, remember_system
+from embagents.topic import Topic
+from supervisor import ChildSpec, start_supervisor
+from supervisor.tree import Tree
 
 __all__ = ["run_chaos"]
 
@@ -75,11 +84,6 @@ RECOVERY_TIMEOUT = 60.0
 
 def chat_system() -> Any:
     """The chat system of ``examples/chat.py`` (model actor + streaming LLM component), asked by the bench."""
-    from embagents.components import LLM, LLMConfig
-    from embagents.models import LlamaModel, LocalModelClient
-    from embagents.msgs import StreamingString, String
-    from embagents.system import System
-    from embagents.topic import Topic
 
     model = LlamaModel(name=MODEL, n_threads=1)  # two cores are shared by everything here
     text_in = Topic("chaos_text_in", String)
@@ -92,10 +96,6 @@ def chat_system() -> Any:
 
 
 def _spec(workdir: str) -> Any:
-    from embagents.models import models_of
-    from embagents.supervision import build_spec
-    from embagents.system import remember_system
-    from supervisor import ChildSpec
 
     system = chat_system()
     key = os.path.join(workdir, "chaos_system.py")  # forked actors find the System in memory under this key
@@ -155,7 +155,6 @@ class _Asker(threading.Thread):
         self.results: list[tuple[float, bool, str]] = []  # (time asked, ok, error)
 
     def run(self) -> None:
-        from embagents.requests import Call
 
         while not self.stopping.is_set():
             t0 = time.monotonic()
@@ -287,8 +286,6 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
     rng = random.Random(seed)  # the sequence of targets and kinds; the row reports the seed
     before = {p.pid for p in psutil.Process().children(recursive=True)}
     watch = _Watch()
-    from supervisor import start_supervisor
-    from supervisor.tree import Tree
 
     with tempfile.TemporaryDirectory(prefix="embagents-chaos-", dir=private_dir()) as workdir:
         spec = _spec(workdir)  # before the ActorSystem: its fork server must have the System in memory

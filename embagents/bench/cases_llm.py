@@ -19,6 +19,12 @@ from typing import Any
 import embagents.msgs  # noqa: F401 - registers the message types this case decodes
 from actors import Actor, ActorSystem
 from embagents.bench.registry import BenchOptions, case
+from embagents.components import LLM, LLMConfig
+from embagents.models import LocalModelClient
+from embagents.models.actor import LlamaModelActor
+from embagents.models.files.hub import default_llm_path
+from embagents.msgs import StreamingString, String
+from embagents.topic import Topic
 
 __all__ = ["StreamCounter", "StreamingLLM"]
 
@@ -30,10 +36,6 @@ class StreamingLLM(Actor):
     """An LLM component (the real class) hosted in an actor, asked to answer one question."""
 
     def on_start(self) -> None:
-        from embagents.components import LLM, LLMConfig
-        from embagents.models import LocalModelClient
-        from embagents.msgs import StreamingString, String
-        from embagents.topic import Topic
 
         self.llm = LLM(
             name="bench_llm",
@@ -96,8 +98,6 @@ def _inprocess(path: str, max_tokens: int) -> tuple[int, float]:
 
 @case("llm_stream_overhead", transport="embagents", kind="llm", needs="llama_cpp")
 def llm_stream_overhead(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.models.actor import LlamaModelActor
-    from embagents.models.files.hub import default_llm_path
 
     path = default_llm_path()
     max_tokens = 24 if opts.quick else 64

@@ -31,7 +31,16 @@ from typing import Any
 
 import numpy as np
 
+from actors import ActorSystem
+from actors.topics import Subscription
 from embagents.bench.registry import BenchOptions, case
+from embagents.manager import Agent, Handler, Manager, Node, State, StateMachineHandler
+from embagents.msgs import String
+from embagents.supervision import build_spec
+from embagents.system import System, remember_system
+from embagents.topic import Topic
+from supervisor import start_supervisor
+from supervisor.snapshot import read as read_snapshot
 
 __all__ = ["BusyAgent"]
 
@@ -51,10 +60,6 @@ class BusyAgent:
 
 def _supervised(system: Any, key: str) -> Any:
     """A started ActorSystem and root supervisor running ``system`` (remembered under ``key``)."""
-    from actors import ActorSystem
-    from embagents.supervision import build_spec
-    from embagents.system import remember_system
-    from supervisor import start_supervisor
 
     remember_system(key, system)  # before the fork server starts: its children find the system in memory
     asys = ActorSystem()
@@ -66,8 +71,6 @@ def _supervised(system: Any, key: str) -> Any:
 
 
 def _jitter_run(isolated: bool, ticks: int, out: str, nice: int | None = None) -> list[float]:
-    from embagents.manager import Agent, Handler, Manager, State
-    from embagents.system import System
 
     agent = Agent("busy", BusyAgent, isolated=isolated, nice=nice)
     if os.path.exists(out):
@@ -135,10 +138,6 @@ def manager_loop_jitter(opts: BenchOptions) -> dict[str, Any]:
 
 def _mission_system(first_ticks: str) -> Any:
     """The mission; each incarnation appends its first tick ``[pid, state, monotonic]`` to ``first_ticks``."""
-    from embagents.manager import Manager, Node, State, StateMachineHandler
-    from embagents.msgs import String
-    from embagents.system import System
-    from embagents.topic import Topic
 
     beats = Topic("mission_beats", String, queue_size=1000, keep="all")
     node = Node("beats", publish=[beats])
@@ -168,8 +167,6 @@ def _mission_system(first_ticks: str) -> Any:
 
 @case("manager_restart_resume", transport="embagents", kind="manager")
 def manager_restart_resume(opts: BenchOptions) -> dict[str, Any]:
-    from actors.topics import Subscription
-    from supervisor.snapshot import read as read_snapshot
 
     kills = 3 if opts.quick else 15
     got: list[tuple[int, str, int, float]] = []

@@ -36,7 +36,19 @@ from typing import Any
 import numpy as np
 
 from actors import Actor, ActorSystem
+from actors.topics import Publisher, Subscription
 from embagents.bench.registry import Baseline, BenchOptions, case
+from embagents.components import Route, SemanticRouter, SemanticRouterConfig
+from embagents.components.memory_store import MemoryStore
+from embagents.models import LocalModelClient
+from embagents.models.actor import ModelActor
+from embagents.models.backends.embeddings import prepared_minilm
+from embagents.msgs import String
+from embagents.requests import Call
+from embagents.runtime.component_actor import ComponentActor
+from embagents.system import load_system, remember_system
+from embagents.topic import Topic
+from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 
 __all__ = ["RouterHost"]  # actor classes the fork server imports by name
 
@@ -56,10 +68,6 @@ class RouterHost(Actor):
         self.model = model
 
     def on_start(self) -> None:
-        from embagents.components import Route, SemanticRouter, SemanticRouterConfig
-        from embagents.models import LocalModelClient
-        from embagents.msgs import String
-        from embagents.topic import Topic
 
         routes = [Route(routes_to=Topic(name, String), samples=s) for name, s in ROUTES.items()]
         self.router = SemanticRouter(name=self.name, inputs=[Topic("bench_heard", String)], routes=routes,
@@ -151,10 +159,6 @@ finally:
 
 @case("router_latency", transport="embagents", kind="router", needs="onnxruntime")
 def router_latency(opts: BenchOptions) -> dict[str, Any]:
-    from actors.topics import Publisher, Subscription
-    from embagents.models.actor import ModelActor
-    from embagents.models.backends.embeddings import prepared_minilm
-    from embagents.msgs import String
 
     folder = prepared_minilm()
     n = 6 if opts.quick else 120
@@ -231,7 +235,6 @@ def _queries(store: Any, rng: np.random.Generator, centers: np.ndarray, n: int,
 
 @case("memory_scale", transport="embagents", kind="memory", needs="apsw")
 def memory_scale(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.components.memory_store import MemoryStore
 
     small, large, queries = (200, 2_000, 20) if opts.quick else (1_000, 100_000, 200)
     rng = np.random.default_rng(0)
@@ -285,12 +288,6 @@ system = System([memory], models=[minilm])
 
 @case("memory_crash", transport="embagents", kind="memory", needs="apsw")
 def memory_crash(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.models.actor import ModelActor
-    from embagents.models.backends.embeddings import prepared_minilm
-    from embagents.requests import Call
-    from embagents.runtime.component_actor import ComponentActor
-    from embagents.system import load_system, remember_system
-    from supervisor import ChildSpec, SupervisorSpec, start_supervisor
 
     total, kill_at = (60, 20) if opts.quick else (600, 200)
     folder = prepared_minilm()

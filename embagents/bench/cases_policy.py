@@ -26,8 +26,10 @@ from typing import Any
 
 import numpy as np
 
+from embagents.bench.arm_parts import TARGET, jitter_ms
 from embagents.bench.cases_arm import _p99, _system_file, arm_loop
 from embagents.bench.registry import BenchOptions, case
+from embagents.models.backends.reach_policy import write_reach_policy
 
 __all__: list[str] = []
 
@@ -47,8 +49,6 @@ def _server_args(policy: str, port: int, delay_ms: float = 0.0) -> tuple[Any, ..
 
 @case("policy_openpi", transport="embagents", kind="arm", needs="websockets")
 def policy_openpi(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.arm_parts import TARGET, jitter_ms
-    from embagents.models.backends.reach_policy import write_reach_policy
 
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
@@ -80,8 +80,6 @@ def policy_openpi(opts: BenchOptions) -> dict[str, Any]:
 
 @case("policy_openpi_async", transport="embagents", kind="arm", needs="websockets")
 def policy_openpi_async(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.arm_parts import TARGET, jitter_ms
-    from embagents.models.backends.reach_policy import write_reach_policy
 
     seconds = 2.0 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:

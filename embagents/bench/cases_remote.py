@@ -27,6 +27,9 @@ import embagents.msgs  # noqa: F401 - registers the message types this case deco
 from actors import ActorSystem
 from actors.curve import write_keypair
 from embagents.bench.registry import BenchOptions, case
+from embagents.models import LocalModelClient, RemoteModelClient
+from embagents.models.files.hub import default_llm_path, mtcnn_dir
+from embagents.models.remote import RemoteModelActor
 
 __all__: list[str] = []
 
@@ -59,10 +62,7 @@ def _free_port() -> int:
 
 @case("remote_model", transport="embagents", kind="model", needs="llama_cpp")
 def remote_model(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.cases_vision import _frame
-    from embagents.models import LocalModelClient, RemoteModelClient
-    from embagents.models.files.hub import default_llm_path, mtcnn_dir
-    from embagents.models.remote import RemoteModelActor
+    from embagents.bench.cases_vision import _frame  # lazy: a cycle
 
     max_tokens, rounds, detections = (24, 2, 10) if opts.quick else (64, 5, 60)
     folder = tempfile.mkdtemp(prefix="embagents-bench-keys-")  # mode 0700

@@ -23,6 +23,7 @@ import numpy as np
 import embagents.msgs  # noqa: F401 - registers Image for the subscriber's decoding
 from actors import Actor, ActorSystem
 from embagents.bench.registry import FRAME_1080P, BenchOptions, case, percentiles, scoped_environ
+from embagents.ros.bridge_actor import RosBridgeActor
 
 __all__ = ["FrameLatency"]
 
@@ -92,7 +93,6 @@ def _trimmed(lat: list[int], skip: int) -> np.ndarray:
 
 @case("ros_bridge_image", transport="embagents", payload_bytes=FRAME_1080P, kind="ros_bridge", needs="rclpy")
 def ros_bridge_image(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.bridge_actor import RosBridgeActor
 
     n = 10 if opts.quick else 40
     period, warm, skip = 0.1, 2.0, 3

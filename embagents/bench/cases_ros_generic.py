@@ -25,6 +25,8 @@ import embagents.msgs  # noqa: F401 - registers Imu and PointCloud2 for the subs
 from actors import Actor, ActorSystem
 from embagents.bench.cases_ros_bridge import _trimmed
 from embagents.bench.registry import BenchOptions, case, percentiles, scoped_environ
+from embagents.ros.bridge_actor import RosBridgeActor
+from embagents.ros.fastdds_shm import sweeping_dead_peers
 
 __all__ = ["GenericLatency"]
 
@@ -100,14 +102,12 @@ def _publish(kind: str, n: int, period: float, warm: float, env: dict[str, str])
 
 @case("ros_generic", transport="embagents", payload_bytes=POINTS * 16, kind="ros_bridge", needs="rclpy")
 def ros_generic(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.fastdds_shm import sweeping_dead_peers
 
     with sweeping_dead_peers():  # the rclpy peer is SIGKILLed: its Fast DDS files stay otherwise
         return _ros_generic(opts)
 
 
 def _ros_generic(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.bridge_actor import RosBridgeActor
 
     n_imu, n_cloud = (200, 10) if opts.quick else (1000, 40)
     imu_period, cloud_period, warm, skip = 0.005, 0.1, 2.0, 5

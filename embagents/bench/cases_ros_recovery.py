@@ -28,6 +28,7 @@ import numpy as np
 
 from actors import private_dir
 from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.ros.fastdds_shm import sweeping_dead_peers
 
 __all__ = ["ECHO_SYSTEM", "bridge_pid"]
 
@@ -136,7 +137,6 @@ def _respawned(env: dict[str, str], n: int) -> list[float]:
 
 @case("ros_bridge_recovery", transport="embagents", kind="ros_bridge", needs="rclpy")
 def ros_bridge_recovery(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.fastdds_shm import sweeping_dead_peers
 
     n = 2 if opts.quick else 12
     env = {**os.environ, "ROS_DOMAIN_ID": str(100 + os.getpid() % 40), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}

@@ -21,6 +21,8 @@ from typing import Any
 import embagents.requests  # noqa: F401 - registers Call, which the bridge sends the target
 from actors import Actor, ActorSystem
 from embagents.bench.registry import BenchOptions, case, percentiles, scoped_environ
+from embagents.ros.bridge_actor import RosBridgeActor
+from embagents.ros.fastdds_shm import sweeping_dead_peers
 
 __all__ = ["TriggerTarget"]
 
@@ -75,14 +77,12 @@ class TriggerTarget(Actor):
 
 @case("ros_service", transport="embagents", payload_bytes=0, kind="ros_bridge", needs="rclpy")
 def ros_service(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.fastdds_shm import sweeping_dead_peers
 
     with sweeping_dead_peers():  # the rclpy peer is SIGKILLed: its Fast DDS files stay otherwise
         return _ros_service(opts)
 
 
 def _ros_service(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.ros.bridge_actor import RosBridgeActor
 
     warm, n = (10, 50) if opts.quick else (30, 300)
     env = {**os.environ, "ROS_DOMAIN_ID": str(150 + (os.getpid() + 31) % 80), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}

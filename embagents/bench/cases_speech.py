@@ -29,6 +29,12 @@ import embagents.msgs  # noqa: F401 - registers the message types this case deco
 from actors import Actor, ActorSystem
 from actors.topics import Publisher, Subscription
 from embagents.bench.registry import Baseline, BenchOptions, case
+from embagents.components import SpeechToText, SpeechToTextConfig
+from embagents.models import LocalModelClient
+from embagents.models.actor import ModelActor
+from embagents.models.files.speech import silero_vad_path, speech_clip_path, whisper_tiny_en_dir
+from embagents.msgs import Audio, String
+from embagents.topic import Topic
 
 __all__ = ["SttHost"]  # the actor class the fork server imports by name
 
@@ -40,7 +46,6 @@ THREADS = 1
 
 def clip() -> np.ndarray:
     """beckett.wav's int16 samples (16 kHz mono)."""
-    from embagents.models.files.speech import speech_clip_path
 
     with wave.open(speech_clip_path()) as w:
         return np.frombuffer(w.readframes(w.getnframes()), np.int16).copy()
@@ -50,10 +55,6 @@ class SttHost(Actor):
     """The SpeechToText component, fed by ``bench_audio`` and publishing on ``bench_heard``."""
 
     def on_start(self) -> None:
-        from embagents.components import SpeechToText, SpeechToTextConfig
-        from embagents.models import LocalModelClient
-        from embagents.msgs import Audio, String
-        from embagents.topic import Topic
 
         self.stt = SpeechToText(name=self.name, inputs=[Topic("bench_audio", Audio, keep="all")],
                                 outputs=[Topic("bench_heard", String)], model_client=LocalModelClient(MODEL),
@@ -88,9 +89,6 @@ for _ in sys.stdin:
 
 @case("stt_overhead", transport="embagents", kind="speech", needs="sherpa_onnx")
 def stt_overhead(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.models.actor import ModelActor
-    from embagents.models.files.speech import silero_vad_path, whisper_tiny_en_dir
-    from embagents.msgs import Audio
 
     rounds = 1 if opts.quick else 5
     samples = clip()

@@ -39,14 +39,14 @@ def _row(samples_s: list[float], note: str) -> dict[str, Any]:
 
 @case("crash_detect", transport="embagents", kind="supervision")
 def crash_detect(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.faults import measure_crash_detect
+    from embagents.bench.faults import measure_crash_detect  # lazy: a cycle
 
     return _row(measure_crash_detect(20 if opts.quick else 100), "SIGKILL -> exit seen by the supervisor; bar p50 <= 5 ms")
 
 
 @case("restart_ready", transport="embagents", kind="supervision")
 def restart_ready(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.faults import measure_restart_ready
+    from embagents.bench.faults import measure_restart_ready  # lazy: a cycle
 
     return _row(measure_restart_ready(20 if opts.quick else 100),
                 "SIGKILL -> the restarted actor answers an ask; bar p50 <= 50 ms")
@@ -54,7 +54,7 @@ def restart_ready(opts: BenchOptions) -> dict[str, Any]:
 
 @case("hang_detect", transport="embagents", kind="supervision")
 def hang_detect(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.faults import measure_hang_detect
+    from embagents.bench.faults import measure_hang_detect  # lazy: a cycle
 
     deadline = 0.5
     late = [t - deadline for t in measure_hang_detect(deadline, 3 if opts.quick else 8)]
@@ -63,7 +63,7 @@ def hang_detect(opts: BenchOptions) -> dict[str, Any]:
 
 @case("fallback_once", transport="embagents", kind="supervision")
 def fallback_once(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.episodes import measure_fallback_once
+    from embagents.bench.episodes import measure_fallback_once  # lazy: a cycle
 
     episodes, configure_s = (2, 1.0) if opts.quick else (10, 3.0)
     res = measure_fallback_once(episodes, configure_s=configure_s)
@@ -78,7 +78,7 @@ def fallback_once(opts: BenchOptions) -> dict[str, Any]:
 
 @case("startup_loss", transport="embagents", kind="supervision")
 def startup_loss(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.episodes import measure_startup_loss
+    from embagents.bench.episodes import measure_startup_loss  # lazy: a cycle
 
     starts = 3 if opts.quick else 20
     res = measure_startup_loss(starts)
@@ -91,7 +91,7 @@ def startup_loss(opts: BenchOptions) -> dict[str, Any]:
 
 @case("standby_takeover", transport="embagents", kind="supervision")
 def standby_takeover(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.faults import measure_standby_takeover
+    from embagents.bench.faults import measure_standby_takeover  # lazy: a cycle
 
     kills, configure_s = (2, 1.0) if opts.quick else (10, 5.0)  # a quick run: a shorter configure, same code
     warm = measure_standby_takeover(kills, standby=True, configure_s=configure_s)

@@ -43,6 +43,9 @@ import numpy as np
 import embagents.msgs  # noqa: F401 - registers the message types the actors send
 from actors import Actor, ActorSystem
 from embagents.bench.registry import BenchOptions, case, stop_process
+from embagents.cli.play import read_messages
+from embagents.msgs import Image, String
+from embagents.tools.recorder import RecorderActor, rotation_files
 
 __all__ = ["SteadyPublisher", "SystemSink"]  # actor classes the fork server imports by name
 
@@ -53,7 +56,6 @@ class SteadyPublisher(Actor):
     """``["run", seconds, image_hz, small_hz]``: publish at those rates; answers the publish-call times."""
 
     def on_start(self) -> None:
-        from embagents.msgs import Image
 
         h, w = np.indices((1080, 1920), dtype=np.uint16)
         frame = np.stack([(h + w) % 256, h % 256, w % 256], axis=-1).astype(np.uint8)  # a gradient, like a scene
@@ -61,7 +63,6 @@ class SteadyPublisher(Actor):
         self.seq = 0
 
     def on_receive(self, message: Any) -> Any:
-        from embagents.msgs import String
 
         _, seconds, image_hz, small_hz = message
         image_ns: list[int] = []
@@ -114,8 +115,6 @@ def _p50_us(ns: list[int]) -> float:
 
 
 def _recorded_numbers(base: str) -> set[int]:
-    from embagents.cli.play import read_messages
-    from embagents.tools.recorder import rotation_files
 
     got: set[int] = set()
     for path in rotation_files(base):
@@ -125,7 +124,6 @@ def _recorded_numbers(base: str) -> set[int]:
 
 @case("record_overhead", transport="embagents", kind="tools", needs="mcap")
 def record_overhead(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.tools.recorder import RecorderActor
 
     # Short phases, many of them: the load of a shared machine drifts, and interleaving finely spreads it
     # over both sides alike (3 x 4 s measured 1.03 and 1.13 back to back on the same code).

@@ -34,6 +34,13 @@ import embagents.msgs  # noqa: F401 - registers the message types this case deco
 from actors import Actor, ActorSystem
 from actors.topics import Publisher, Subscription
 from embagents.bench.registry import Baseline, BenchOptions, case
+from embagents.bench.yolo_like import write_yolo_like
+from embagents.components import Vision
+from embagents.models import LocalModelClient
+from embagents.models.actor import ModelActor
+from embagents.models.files.hub import mtcnn_dir
+from embagents.msgs import Detections, Image
+from embagents.topic import Topic
 
 __all__ = ["DetectionSink", "SteppingVision"]  # actor classes the fork server imports by name
 
@@ -56,10 +63,6 @@ class SteppingVision(Actor):
         self.topic, self.size = topic, (width, height)
 
     def on_start(self) -> None:
-        from embagents.components import Vision
-        from embagents.models import LocalModelClient
-        from embagents.msgs import Detections, Image
-        from embagents.topic import Topic
 
         inp = Topic(self.topic or "bench_unused", Image)
         self.vision = Vision(name=self.name, inputs=[inp], outputs=[Topic("bench_detections", Detections)],
@@ -105,15 +108,12 @@ for _ in sys.stdin:
 
 
 def _serve(asys: ActorSystem, path: str | None = None, options: dict[str, Any] | None = None) -> None:
-    from embagents.models.actor import ModelActor
-    from embagents.models.files.hub import mtcnn_dir
 
     asys.spawn(ModelActor, MODEL, "detector", path or mtcnn_dir(), options or OPTIONS, True, wait=120, heartbeat=None)
 
 
 @case("vision_pipeline", transport="embagents", kind="vision", needs="onnxruntime")
 def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.msgs import Image
 
     frames = 2 if opts.quick else 20
     frame = _frame(1920, 1080)
@@ -146,7 +146,6 @@ def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
 
 @case("model_actor_batching", transport="embagents", kind="vision", needs="onnx")
 def model_actor_batching(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.bench.yolo_like import write_yolo_like
 
     seconds, rounds = (0.5, 1) if opts.quick else (2.0, 5)
     ones: list[float] = []

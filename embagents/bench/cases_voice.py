@@ -34,6 +34,21 @@ import embagents.msgs  # noqa: F401 - registers the message types this case deco
 from actors import Actor, ActorSystem
 from actors.topics import Publisher, Subscription
 from embagents.bench.registry import Baseline, BenchOptions, case
+from embagents.components import (
+    LLM,
+    LLMConfig,
+    SpeechToText,
+    SpeechToTextConfig,
+    TextToSpeech,
+    TextToSpeechConfig,
+    read_wav,
+)
+from embagents.components.audio_io import spoken_clip_path
+from embagents.models import LlamaModel, LocalModelClient
+from embagents.models.actor import ModelActor
+from embagents.models.files.speech import piper_joe_dir, silero_vad_path, whisper_tiny_en_dir
+from embagents.msgs import Audio, StreamingString, String
+from embagents.topic import Topic
 
 __all__ = ["VoiceHost"]  # the actor class the fork server imports by name
 
@@ -49,8 +64,6 @@ MAX_TOKENS = 64
 
 def question() -> np.ndarray:
     """The spoken question (16 kHz int16) without its trailing pause: it ends when the speech ends."""
-    from embagents.components import read_wav
-    from embagents.components.audio_io import spoken_clip_path
 
     samples, _, _ = read_wav(spoken_clip_path(QUESTION))
     return samples[:-8000]
@@ -63,17 +76,6 @@ class VoiceHost(Actor):
         self.kind, self.input_names, self.output_name = kind, inputs, output
 
     def on_start(self) -> None:
-        from embagents.components import (
-            LLM,
-            LLMConfig,
-            SpeechToText,
-            SpeechToTextConfig,
-            TextToSpeech,
-            TextToSpeechConfig,
-        )
-        from embagents.models import LocalModelClient
-        from embagents.msgs import Audio, StreamingString, String
-        from embagents.topic import Topic
 
         ctx = self.context
         if self.kind == "stt":
@@ -183,9 +185,6 @@ def _drain(q: queue.Queue[float], quiet_s: float) -> None:
 
 @case("tts_first_audio", transport="embagents", kind="speech", needs="sherpa_onnx")
 def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.models.actor import ModelActor
-    from embagents.models.files.speech import piper_joe_dir
-    from embagents.msgs import StreamingString
 
     rounds = 2 if opts.quick else 15
     path = piper_joe_dir()
@@ -223,10 +222,6 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
 
 @case("voice_loop", transport="embagents", kind="speech", needs="sherpa_onnx")
 def voice_loop(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.models import LlamaModel
-    from embagents.models.actor import ModelActor
-    from embagents.models.files.speech import piper_joe_dir, silero_vad_path, whisper_tiny_en_dir
-    from embagents.msgs import Audio
 
     rounds = 1 if opts.quick else 5
     samples = question()

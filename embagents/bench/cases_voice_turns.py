@@ -22,7 +22,26 @@ from typing import Any
 
 import numpy as np
 
+from actors import ActorSystem
+from embagents.bench.echo_room import (
+    ROBOT_LINES,
+    USER_BACKCHANNELS,
+    USER_INTERRUPTIONS,
+    echo_of,
+    rms_db,
+    robot_says,
+    room_impulse_response,
+    to_int16,
+)
 from embagents.bench.registry import BenchOptions, case
+from embagents.components import SpeechToText, SpeechToTextConfig
+from embagents.components.echo_cancel import EchoCanceller, erle_db
+from embagents.components.vad import SpeechSegmenter
+from embagents.models import LocalModelClient, TurnDetectorModel
+from embagents.models.actor import ModelActor
+from embagents.models.files.speech import silero_vad_path, whisper_tiny_en_dir
+from embagents.msgs import Audio, BargeIn, String
+from embagents.topic import Topic
 
 __all__: list[str] = []
 
@@ -33,13 +52,6 @@ BARGE_CHUNK = 320  # 20 ms: a microphone at chunk_ms=20, as a voice robot that c
 
 def _echo_stream(n: int, noise_db: float | None) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
     """``(played, mic, echo)`` per segment: the robot's line, what the mic hears, the echo alone (float)."""
-    from embagents.bench.echo_room import (
-        ROBOT_LINES,
-        echo_of,
-        robot_says,
-        room_impulse_response,
-        to_int16,
-    )
 
     rng = np.random.default_rng(7)
     played, mic, echo = [], [], []
@@ -61,7 +73,6 @@ def _cancel(played: list[np.ndarray], mic: list[np.ndarray],
 
     ``took`` gets the seconds each 100 ms chunk took to cancel.
     """
-    from embagents.components.echo_cancel import EchoCanceller
 
     aec = EchoCanceller(RATE)
     t0, at, out = 1000.0, 0, []
@@ -79,8 +90,6 @@ def _cancel(played: list[np.ndarray], mic: list[np.ndarray],
 
 
 def _vad_triggers(segments: list[np.ndarray]) -> int:
-    from embagents.components.vad import SpeechSegmenter
-    from embagents.models.files.speech import silero_vad_path
 
     vad = SpeechSegmenter(silero_vad_path(), min_silence_ms=500, min_speech_ms=250)
     triggered = 0
@@ -96,7 +105,6 @@ def _vad_triggers(segments: list[np.ndarray]) -> int:
 
 @case("aec", transport="embagents", kind="speech", needs="sherpa_onnx")
 def aec(opts: BenchOptions) -> dict[str, Any]:
-    from embagents.components.echo_cancel import erle_db
 
     n = 5 if opts.quick else 20
     played, mic, _ = _echo_stream(n, noise_db=None)
@@ -155,9 +163,6 @@ class BargeTrial:
     def run(self, t0: float, tail_s: float = 1.5) -> dict[str, Any]:
         from scipy.signal import lfilter
 
-        from embagents.bench.echo_room import rms_db, to_int16
-        from embagents.components.echo_cancel import EchoCanceller
-        from embagents.msgs import Audio, BargeIn
 
         rng = np.random.default_rng(self.seed)
         C = self.chunk
@@ -229,10 +234,6 @@ class BargeTrial:
 
 def barge_ears(model: str, **config: Any) -> Any:
     """The ears of the barge-in bench and tests: SpeechToText with barge-in on, as examples/voice.py wires it."""
-    from embagents.components import SpeechToText, SpeechToTextConfig
-    from embagents.models import LocalModelClient
-    from embagents.msgs import Audio, BargeIn, String
-    from embagents.topic import Topic
 
     ears = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all"), Topic("played", Audio, keep="all")],
                         outputs=[Topic("heard", String), Topic("barge", BargeIn, keep="all")],
@@ -245,13 +246,6 @@ def barge_ears(model: str, **config: Any) -> Any:
 
 def barge_trials(n: int) -> tuple[list[BargeTrial], list[BargeTrial]]:
     """``n`` real interruptions and ``n`` backchannels and coughs over the robot's answers, in varied rooms."""
-    from embagents.bench.echo_room import (
-        ROBOT_LINES,
-        USER_BACKCHANNELS,
-        USER_INTERRUPTIONS,
-        robot_says,
-        room_impulse_response,
-    )
 
     lines = [robot_says(t) for t in ROBOT_LINES]
     talks = [robot_says(t) for t in USER_INTERRUPTIONS]
@@ -268,9 +262,6 @@ def barge_trials(n: int) -> tuple[list[BargeTrial], list[BargeTrial]]:
 
 @case("barge_in", transport="embagents", kind="speech", needs="sherpa_onnx")
 def barge_in(opts: BenchOptions) -> dict[str, Any]:
-    from actors import ActorSystem
-    from embagents.models.actor import ModelActor
-    from embagents.models.files.speech import whisper_tiny_en_dir
 
     n = 2 if opts.quick else 20
     interrupts, backchannels = barge_trials(n)
@@ -339,7 +330,6 @@ SPLIT_QUESTIONS = (
 
 def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
     """``(clip, speech_end, split)``: ``n`` complete questions and ``n`` with a 500-800 ms pause mid-sentence."""
-    from embagents.bench.echo_room import robot_says
 
     clips = []
     for i in range(n):
@@ -356,7 +346,6 @@ def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
 
 def turn_run(ears: Any, clip: np.ndarray, t0: float) -> tuple[int, float | None]:
     """Feed ``clip`` in 20 ms chunks; ``(utterances heard, end of turn delay in s of the first)``."""
-    from embagents.msgs import Audio, String
 
     heard: list[float] = []
     ears.attach(lambda topic, msg: heard.append(time.monotonic()) if isinstance(msg, String) else None)
@@ -374,13 +363,6 @@ def turn_run(ears: Any, clip: np.ndarray, t0: float) -> tuple[int, float | None]
 
 @case("turn_detection", transport="embagents", kind="speech", needs="sherpa_onnx")
 def turn_detection(opts: BenchOptions) -> dict[str, Any]:
-    from actors import ActorSystem
-    from embagents.components import SpeechToText, SpeechToTextConfig
-    from embagents.models import LocalModelClient, TurnDetectorModel
-    from embagents.models.actor import ModelActor
-    from embagents.models.files.speech import whisper_tiny_en_dir
-    from embagents.msgs import Audio, String
-    from embagents.topic import Topic
 
     n = 1 if opts.quick else 20
     clips = turn_clips(n)

@@ -28,6 +28,9 @@ import numpy as np
 from actors import ActorSystem
 from embagents.bench.cutproxy import CutProxy
 from embagents.bench.registry import FRAME_1080P, BenchOptions, case, percentiles
+from embagents.zenoh.bench_peer import Recorder
+from embagents.zenoh.bridge_actor import ZenohBridgeActor
+from embagents.zenoh.spec import Import, ZenohBridge
 
 __all__: list[str] = []
 
@@ -64,9 +67,6 @@ class _RunB:
     """Run B in this process: a bridge importing ``a/bench_z`` and a recorder; run A as a process."""
 
     def __init__(self, port: int, connect_port: int, keep: str = "all", **send: Any) -> None:
-        from embagents.zenoh.bench_peer import Recorder
-        from embagents.zenoh.bridge_actor import ZenohBridgeActor
-        from embagents.zenoh.spec import Import, ZenohBridge
 
         self.asys = ActorSystem()
         self.asys.__enter__()

@@ -39,6 +39,7 @@ import numpy as np
 
 from actors import Actor
 from actors.codec import message
+from embagents.msgs import Image
 from embagents.realtime import next_deadline
 
 __all__ = [
@@ -198,7 +199,6 @@ class FrameSource(FaultTarget):
     """Publishes a 640x480 RGB frame at 15 Hz; every pixel is the frame number mod 251."""
 
     def on_start(self) -> None:
-        from embagents.msgs import Image
 
         self.image = Image
         self.frame = np.empty(FRAME_SHAPE, dtype=np.uint8)

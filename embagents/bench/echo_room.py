@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from embagents.components.audio_io import read_wav, spoken_clip_path
+
 __all__ = ["ROBOT_LINES", "USER_BACKCHANNELS", "USER_INTERRUPTIONS", "echo_of", "mix_at", "robot_says",
            "room_impulse_response", "rms_db"]
 
@@ -47,7 +49,6 @@ USER_INTERRUPTIONS = (
 
 def robot_says(text: str) -> np.ndarray:
     """16 kHz int16 of the Piper voice joe saying ``text`` (cached), trimmed to the speech."""
-    from embagents.components.audio_io import read_wav, spoken_clip_path
 
     samples, _, _ = read_wav(spoken_clip_path(text, progress=False))
     loud = np.flatnonzero(np.abs(samples) > 300)

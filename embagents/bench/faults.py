@@ -29,7 +29,13 @@ import time
 from typing import Any
 
 from actors import Actor, ActorCrashed, ActorSystem, Timeout
+from actors.topics import Publisher
 from embagents.bench.registry import scoped_environ
+from embagents.bench.standby_system import NUMBERS
+from embagents.msgs import String
+from embagents.requests import Call
+from embagents.supervision import build_spec
+from embagents.system import load_system, remember_system
 from supervisor.spec import ChildSpec, SupervisorSpec
 from supervisor.supervisor import start_supervisor
 from supervisor.tree import Tree
@@ -171,12 +177,6 @@ def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0
 
 
 def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float) -> tuple[list[float], int]:
-    from actors.topics import Publisher
-    from embagents.bench.standby_system import NUMBERS
-    from embagents.msgs import String
-    from embagents.requests import Call
-    from embagents.supervision import build_spec
-    from embagents.system import load_system, remember_system
 
     path = os.path.join(os.path.dirname(__file__), "standby_system.py")
     system_decl = load_system(path)
@@ -232,7 +232,6 @@ def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float
 
 def _other_pid(ref: Any, old: int, deadline: float) -> int:
     """Ask ``Call("pid")`` until a process other than ``old`` answers."""
-    from embagents.requests import Call
 
     while time.perf_counter() < deadline:
         try:

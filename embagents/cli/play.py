@@ -29,6 +29,9 @@ from datetime import datetime, timezone
 from typing import Any, NamedTuple
 
 from actors import UnsafeFolder
+from actors.topics import Publisher
+from embagents.tools.attach import Attached, run_topics
+from embagents.tools.mcap_codec import decode
 from supervisor.client import ControlError
 
 __all__ = ["MCAP_MAGIC", "Stopped", "arguments", "read_messages", "run"]
@@ -71,7 +74,6 @@ def read_messages(path: str, stopped: list[Stopped]) -> Iterator[tuple[str, int,
 
     from mcap.reader import NonSeekingReader
 
-    from embagents.tools.mcap_codec import decode
 
     size = os.path.getsize(path)
     with open(path, "rb") as f:
@@ -152,8 +154,6 @@ def _pace(args: argparse.Namespace, log_time: int, start: list[float]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Play ``args.files`` into the run; 1 if a file stopped early or the input is bad."""
-    from actors.topics import Publisher
-    from embagents.tools.attach import Attached, run_topics
 
     try:
         if args.rate <= 0:

@@ -24,6 +24,7 @@ import threading
 from typing import Any
 
 from actors import UnsafeFolder
+from embagents.tools.recorder import refusal
 from supervisor.client import ControlError, pick_run, request
 
 __all__ = ["arguments", "run", "summary"]
@@ -89,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("say where to record: -o FILE.mcap")
         path = os.path.abspath(args.output)
         if os.path.islink(path):  # the recorder refuses it too (O_NOFOLLOW); said here, before it starts
-            from embagents.tools.recorder import refusal
 
             raise ValueError(str(refusal(path)))
         req: dict[str, Any] = {

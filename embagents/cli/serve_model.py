@@ -28,8 +28,16 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from actors import UnsafeFolder
 from actors.child import configure_logging
+from actors.curve import KeyFileError, load_public_key, load_secret_key
+from embagents.models import models_of
 from embagents.models.declarations import DetectorModel, LlamaModel, Model
+from embagents.models.remote import RemoteModelActor, check_binds, default_secret_key
+from embagents.supervision import MODEL_HEARTBEAT_S
+from embagents.system import load_system
+from supervisor import ChildSpec, SupervisorSpec
+from supervisor.run import serve
 
 __all__ = ["BUILTIN_MODELS", "model_of", "run", "arguments", "serve_spec"]
 
@@ -57,8 +65,6 @@ def model_of(spec: str) -> Model:
         return DetectorModel(name=stem, family="yolo", local_model_path=spec)
     path, sep, name = spec.rpartition(":")
     if sep and path.endswith(".py"):
-        from embagents.models import models_of
-        from embagents.system import load_system
 
         models = {m.name: m for m in models_of(load_system(path))}
         if name not in models:
@@ -70,9 +76,6 @@ def model_of(spec: str) -> Model:
 
 def serve_spec(model: Model, path: str, binds: list[str], secret_key: str, allowed: list[str]) -> Any:
     """The supervision tree: one remote model actor serving ``model``'s file at ``path``."""
-    from embagents.models.remote import RemoteModelActor, check_binds
-    from embagents.supervision import MODEL_HEARTBEAT_S
-    from supervisor import ChildSpec, SupervisorSpec
 
     check_binds(binds, secret_key, allowed)
     batch = {"max_batch": model.max_batch, "batch_wait_ms": model.batch_wait_ms}
@@ -94,10 +97,6 @@ def arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from actors import UnsafeFolder
-    from actors.curve import KeyFileError, load_public_key, load_secret_key
-    from embagents.models.remote import check_binds, default_secret_key
-    from supervisor.run import serve
 
     configure_logging("serve-model", logging.DEBUG if args.verbose else logging.INFO)
     try:

@@ -33,13 +33,19 @@ import sys
 from typing import Any
 
 from actors.child import configure_logging
+from embagents.cli.serve_model import model_of
+from embagents.models.actor import ModelActor
+from embagents.models.openpi_server import check_bind, read_api_key
+from embagents.models.policy import PolicyModel
+from embagents.supervision import MODEL_HEARTBEAT_S
+from supervisor import ChildSpec, SupervisorSpec
+from supervisor.run import serve
 
 __all__ = ["policy_of", "run", "arguments", "serve_policy_spec"]
 
 
 def policy_of(spec: str) -> Any:
     """The :class:`~embagents.models.policy.PolicyModel` POLICY names (an .onnx file or SYSTEM_PY:NAME)."""
-    from embagents.models.policy import PolicyModel
 
     if spec.endswith(".onnx"):
         stem = re.sub(r"[^A-Za-z0-9_]", "_", os.path.splitext(os.path.basename(spec))[0]) or "policy"
@@ -48,7 +54,6 @@ def policy_of(spec: str) -> Any:
     if not (sep and path.endswith(".py")):
         raise ValueError(f"POLICY {spec!r} is not known: pass an ONNX policy file (.onnx) or SYSTEM_PY:NAME "
                          "(a PolicyModel a system.py declares)")
-    from embagents.cli.serve_model import model_of
 
     model = model_of(spec)
     if model.kind != "policy":
@@ -59,10 +64,6 @@ def policy_of(spec: str) -> Any:
 def serve_policy_spec(model: Any, path: str, bind: str, *, api_key_file: str | None = None,
                       tls_cert: str | None = None, tls_key: str | None = None, delay_ms: float = 0.0) -> Any:
     """The supervision tree: one policy server actor serving ``model``'s file at ``path`` on ``bind``."""
-    from embagents.models.actor import ModelActor
-    from embagents.models.openpi_server import check_bind
-    from embagents.supervision import MODEL_HEARTBEAT_S
-    from supervisor import ChildSpec, SupervisorSpec
 
     check_bind(bind, api_key=bool(api_key_file), tls=bool(tls_cert))
     openpi = {"bind": bind, "api_key_file": api_key_file, "tls_cert": tls_cert, "tls_key": tls_key,
@@ -84,8 +85,6 @@ def arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from embagents.models.openpi_server import check_bind, read_api_key
-    from supervisor.run import serve
 
     configure_logging("serve-policy", logging.DEBUG if args.verbose else logging.INFO)
     try:

@@ -38,15 +38,25 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from actors import ActorSystem, UnsafeFolder
 from actors.child import add_log_file, configure_logging
 from actors.topics import Subscription, subscriber_pids
+from embagents.check import check_system, errors
 from embagents.models import models_of
+from embagents.models.files.wheels import WheelFileError
 from embagents.requests import SUPERVISOR_REQUESTS, SupervisorRequest
 from embagents.supervision import build_spec, wiring
-from embagents.system import SYSTEM_STOP, remember_system
+from embagents.system import SYSTEM_STOP, SystemFileError, counted, load_system, remember_system
 from embagents.tools.call import call_command
+from embagents.tools.dashboard import Dashboard, DashboardError
 from embagents.tools.publish import publish_command
 from embagents.tools.root import install as install_tools
+from embagents.tools.webguard import exposed_warning
+from supervisor import Tree
+from supervisor.client import request
+from supervisor.lifecycle import ACTIVE, transition
+from supervisor.rootio import on_root
+from supervisor.run import serve
 
 __all__ = ["SUBSCRIBER_WAIT_S", "Activation", "Interrupted", "arguments", "run", "run_system"]
 
@@ -82,7 +92,6 @@ class _EarlyLines(logging.Handler):
 
 def _load(path: str, quiet: bool) -> Any:
     """``load_system(path, lenient=True)``, saying on stderr when the import takes long."""
-    from embagents.system import load_system
 
     name = os.path.basename(path)
     notice = threading.Timer(IMPORT_NOTICE_S, lambda: print(
@@ -108,10 +117,6 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bo
     ``ready_file``: written once every component is active (removed first, and when the run ends).
     ``wait_subscribers``: see :class:`Activation`.
     """
-    from actors import ActorSystem
-    from embagents.check import check_system, errors
-    from embagents.system import counted
-    from supervisor.run import serve
 
     try:
         system = _load(path, quiet)
@@ -143,7 +148,6 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bo
         requests = _SupervisorRequests(sup)
 
         def stop_requested(_msg: Any) -> None:
-            from supervisor.client import request
 
             threading.Thread(target=request, args=(asys.run_dir, {"cmd": "stop"}, 10.0), daemon=True).start()
 
@@ -235,8 +239,6 @@ class Activation:
         self._thread = threading.Thread(target=self._run, name="embagents-activate", daemon=True)
 
     def start(self) -> Activation:
-        from supervisor import Tree
-        from supervisor.rootio import on_root
 
         events = Tree.of(self.asys).events
         on_root(self.asys, lambda: events.listeners.append(self._on_event))
@@ -255,8 +257,6 @@ class Activation:
 
     def _states(self) -> tuple[dict[str, Any], dict[str, int]]:
         """Each child's pid (an int when it runs) and each component's lifecycle state (its journal)."""
-        from supervisor import Tree
-        from supervisor.rootio import on_root
 
         tree = Tree.of(self.asys)
         pids = {c.id: c.pid for c in self.sup.which_children()}
@@ -264,7 +264,6 @@ class Activation:
         return pids, on_root(self.asys, lambda: {n: tree.journal(n).state() for n in names})
 
     def _missing(self, name: str, pids: dict[str, Any], states: dict[str, int]) -> list[str]:
-        from supervisor.lifecycle import ACTIVE
 
         missing = []
         for topic, subscribers in self.waits[name].items():
@@ -280,7 +279,6 @@ class Activation:
         return list(dict.fromkeys(missing))
 
     def _run(self) -> None:
-        from supervisor.lifecycle import ACTIVE, transition
 
         deadline = time.monotonic() + self.timeout
         try:
@@ -347,8 +345,6 @@ def _reach(edges: dict[str, set[str]]) -> dict[str, set[str]]:
 
 def _start_dashboard(sup: Any, control: Any, system: Any, topics: Any, where: tuple[str, int]) -> Any:
     """The running dashboard, or None (said on stderr) if it cannot start: the system runs on without it."""
-    from embagents.tools.dashboard import Dashboard, DashboardError
-    from embagents.tools.webguard import exposed_warning
 
     try:
         dash = Dashboard(sup, control, system, topics).start(*where)
@@ -422,9 +418,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"embagents supervise: {exc}", file=sys.stderr)
         return 130
     except Exception as exc:  # a clear one-line error, not a traceback, for bad input
-        from actors import UnsafeFolder
-        from embagents.models.files.wheels import WheelFileError
-        from embagents.system import SystemFileError
 
         # ConnectionError: a model hub or PyPI out of reach (the message names the way around it)
         if isinstance(exc, (SystemFileError, FileNotFoundError, ValueError, ConnectionError, WheelFileError, UnsafeFolder)):

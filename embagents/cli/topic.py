@@ -30,7 +30,10 @@ from collections import deque
 from typing import Any
 
 from actors import UnsafeFolder
+from actors.codec import message_class
 from embagents.live import connect, find_topic
+from embagents.tools.attach import Attached, interrupted_by_sigterm, run_topics
+from embagents.tools.plain import field_types, format_text, to_plain
 from embagents.tools.publish import publish
 from supervisor.client import ControlError
 
@@ -68,7 +71,6 @@ def arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from embagents.tools.attach import run_topics
 
     found, rows = run_topics(args.run, args.timeout)
     if args.json:
@@ -85,9 +87,6 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _echo(args: argparse.Namespace) -> int:
-    from embagents.live import connect
-    from embagents.tools.attach import interrupted_by_sigterm
-    from embagents.tools.plain import format_text, to_plain
 
     with connect(args.run, timeout=args.timeout) as live, interrupted_by_sigterm():
         topic = live.topic(args.name)["name"]
@@ -115,8 +114,6 @@ def _period_stats(times: deque[float]) -> str:
 
 
 def _hz(args: argparse.Namespace) -> int:
-    from embagents.tools.attach import Attached, find_topic, run_topics
-
     found, rows = run_topics(args.run, args.timeout)
     topic = find_topic(rows, args.name)["name"]
     times: deque[float] = deque(maxlen=max(args.window, 2))
@@ -134,9 +131,6 @@ def _hz(args: argparse.Namespace) -> int:
 
 def _text_type(row: dict[str, Any]) -> bool:
     """Whether the topic's type has a ``data`` field of text (String, StreamingString)."""
-    import embagents  # noqa: F401 - registers the message types
-    from actors.codec import message_class
-    from embagents.tools.plain import field_types
 
     try:
         cls = message_class(row["wire"]) if row.get("wire") else None

@@ -41,6 +41,10 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from actors import UnsafeFolder
+from actors.codec import message_class
+from embagents.msgs import Detections
+from embagents.tools.attach import Attached, run_topics
+from embagents.tools.mcap_codec import _stamp, kind_of
 from embagents.tools.webguard import exposed_warning, new_token, same_token
 from supervisor.client import ControlError
 
@@ -72,7 +76,6 @@ def _annotations(det: Any) -> bytes:
         TextAnnotation,
     )
 
-    from embagents.tools.mcap_codec import _stamp
 
     ts, green = _stamp(det.stamp), Color(r=0.1, g=0.9, b=0.2, a=1.0)
     boxes, texts = [], []
@@ -117,9 +120,6 @@ class FoxgloveView:
             self._add(seat, foxglove, r)
 
     def _add(self, seat: Any, foxglove: Any, row: dict[str, Any]) -> None:
-        from actors.codec import message_class
-        from embagents.msgs import Detections
-        from embagents.tools.mcap_codec import kind_of
 
         cls = message_class(row["wire"]) if row["wire"] else None
         kind = kind_of(cls)
@@ -332,7 +332,6 @@ class _Inner(asyncio.Protocol):
 
 def run(args: argparse.Namespace) -> int:
     """Serve until Ctrl-C / SIGTERM / ``--duration``; 1 with a one-line error for bad input."""
-    from embagents.tools.attach import Attached, run_topics
 
     try:
         for origin in args.allow_origin:

@@ -32,9 +32,11 @@ from typing import Any
 import numpy as np
 from attrs import define, field
 
+from embagents.components.audio_format import TARGET_RATE, to_mono_16k
 from embagents.components.component import Component
 from embagents.components.echo_cancel import EchoCancelling
 from embagents.config import BaseComponentConfig, ConfigError, positive_float, to_bool
+from embagents.models.files.wheels import cache_dir
 from embagents.msgs import Audio, String
 
 __all__ = ["AudioSink", "WavFileSink", "WavFileSinkConfig", "WavFileSource", "WavFileSourceConfig", "read_wav", "spoken_clip_path"]
@@ -80,11 +82,9 @@ def spoken_clip_path(text: str, *, progress: bool = True) -> str:
     """
     import hashlib
 
-    from embagents.components.audio_format import TARGET_RATE, to_mono_16k
-    from embagents.models.backends.sherpa_tts import SherpaSpeaker
-    from embagents.models.clients.openai_audio import wav_bytes
-    from embagents.models.files.speech import piper_joe_dir
-    from embagents.models.files.wheels import cache_dir
+    from embagents.models.backends.sherpa_tts import SherpaSpeaker  # lazy: a cycle
+    from embagents.models.clients.openai_audio import wav_bytes  # lazy: a cycle
+    from embagents.models.files.speech import piper_joe_dir  # lazy: a cycle
 
     dest = cache_dir() / "prepared" / "spoken" / f"{hashlib.sha256(text.encode()).hexdigest()[:16]}.wav"
     if dest.is_file():

@@ -30,6 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from embagents.components.audio_format import _resample
+from embagents.msgs import Audio
+
 __all__ = ["APM_RATES", "EchoCanceller", "erle_db", "livekit_rtc"]
 
 #: The sample rates the WebRTC module takes.
@@ -93,7 +96,6 @@ class EchoCanceller:
 
     def reference(self, samples: np.ndarray, rate: int, stamp: float, channels: int = 1) -> None:
         """What the speaker plays from wall time ``stamp`` on (int16 or float32, any rate and channels)."""
-        from embagents.components.audio_format import _resample
 
         x = samples.reshape(-1).astype(np.float32)
         if samples.dtype == np.int16:
@@ -188,7 +190,6 @@ class EchoCancelling:
                                     "Topic(%r, Audio, keep='all')", t.name, t.name)
 
     def _aec_reference(self, topic_name: str, msg: Any) -> None:
-        from embagents.msgs import Audio
 
         if self._aec is not None and isinstance(msg, Audio) and msg.data.size:
             self._aec.reference(msg.data, msg.sample_rate, msg.stamp, msg.channels)

@@ -47,7 +47,7 @@ def limits_from_urdf(path: str) -> dict[str, JointLimit]:
     from urdf_parser_py import urdf as urdf_py
     from urdf_parser_py.xml_reflection import core
 
-    from embagents.components.sim import robot_path
+    from embagents.components.sim import robot_path  # lazy: a cycle
 
     full = robot_path(path)
     saved = core.on_error

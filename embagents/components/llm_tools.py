@@ -27,6 +27,10 @@ import inspect
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
+from actors import ActorRef
+from actors.errors import ActorError
+from embagents.requests import EVENTS_ACTOR, ToolCall
+
 __all__ = ["RemoteTool", "register_tools_on", "tool", "tool_methods", "uses_events_actor"]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -62,9 +66,6 @@ class RemoteTool:
         return f"RemoteTool({self.component!r}, {self.method!r})"
 
     def __call__(self, **kwargs: Any) -> Any:
-        from actors import ActorRef
-        from actors.errors import ActorError
-        from embagents.requests import EVENTS_ACTOR, ToolCall
 
         try:
             return ActorRef(EVENTS_ACTOR).ask(ToolCall(self.component, self.method, kwargs)).get(timeout=self.timeout)

@@ -56,6 +56,7 @@ from embagents.components.memory_store import (
     MemoryStoreError,
 )
 from embagents.config import BaseComponentConfig, int_at_least, one_of, positive_float
+from embagents.models.files.wheels import cache_dir
 from embagents.msgs import Detections, OccupancyGrid, Odometry, RosMessage, StreamingString, String
 from embagents.topic import Topic
 
@@ -175,7 +176,6 @@ class Memory(Component):
     def db_path(self) -> str:
         if self.config.db_path:
             return os.path.abspath(os.path.expanduser(self.config.db_path))
-        from embagents.models.files.wheels import cache_dir
 
         return str(cache_dir() / "memory" / f"{self.config.map_name}.db")
 

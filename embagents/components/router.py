@@ -40,11 +40,13 @@ import attrs
 import numpy as np
 from attrs import define, field
 
+from actors import ActorRef
 from embagents.components.component import Component, ComponentProblem
 from embagents.config import BaseComponentConfig, ConfigError, one_of, positive_float
 from embagents.events import Action
 from embagents.models.chat import collect_stream
 from embagents.msgs import String
+from embagents.requests import EVENTS_ACTOR, RouteFired
 from embagents.topic import Topic
 
 __all__ = ["Route", "SemanticRouter", "SemanticRouterConfig"]
@@ -218,7 +220,5 @@ class SemanticRouter(Component):
             self._fire(topic, msg.data)
 
     def _fire(self, topic: str, text: str) -> None:
-        from actors import ActorRef
-        from embagents.requests import EVENTS_ACTOR, RouteFired
 
         ActorRef(EVENTS_ACTOR).tell(RouteFired(str(self.name), topic, text))

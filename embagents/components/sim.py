@@ -36,7 +36,7 @@ from attrs import define, field
 from embagents.components.component import Component, ComponentProblem
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
 from embagents.msgs import Image, JointState, Odometry, Twist
-from embagents.realtime import next_deadline
+from embagents.realtime import next_deadline, raise_priority
 
 __all__ = ["Sim", "SimConfig", "robot_path"]
 
@@ -191,7 +191,6 @@ class Sim(Component):
 
     def on_activate(self) -> None:
         if self.config.realtime:
-            from embagents.realtime import raise_priority
 
             self.logger.info("%s: stepping at %s", self._label(), raise_priority(whole_process=True))
         now = time.monotonic()

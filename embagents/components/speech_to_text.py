@@ -50,7 +50,9 @@ from attrs import define, field
 from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
+from embagents.components.vad import SpeechOnset, SpeechSegmenter
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
+from embagents.models.protocol import ModelError, ModelUnavailable
 from embagents.msgs import Audio, BargeIn, StreamingString, String
 from embagents.topic import Topic
 
@@ -262,8 +264,7 @@ class SpeechToText(ModelComponent):
     def on_configure(self) -> None:
         cfg = self.config
         if cfg.enable_vad:
-            from embagents.components.vad import SpeechSegmenter
-            from embagents.models.files.speech import silero_vad_path
+            from embagents.models.files.speech import silero_vad_path  # lazy: a cycle
 
             self._vad = SpeechSegmenter(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold,
                                         min_silence_ms=cfg.min_silence_ms, min_speech_ms=cfg.min_speech_ms,
@@ -275,13 +276,11 @@ class SpeechToText(ModelComponent):
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
         if self.turn_client is not None and self._vad is not None:
-            from embagents.components.vad import SpeechOnset
-            from embagents.models.files.speech import silero_vad_path
+            from embagents.models.files.speech import silero_vad_path  # lazy: a cycle
 
             self._turn_vad = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
         if cfg.playback_input and self._barge_outputs and self._vad is not None:
-            from embagents.components.vad import SpeechOnset
-            from embagents.models.files.speech import silero_vad_path
+            from embagents.models.files.speech import silero_vad_path  # lazy: a cycle
 
             self._onset = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.interrupt_vad_threshold,
                                       level_db=cfg.interrupt_level_db)
@@ -346,7 +345,6 @@ class SpeechToText(ModelComponent):
     # --- end of turn -----------------------------------------------------------------------
     def _end_of_turn(self, samples: np.ndarray) -> None:
         """After ``turn_silence_ms`` of pause, ask the turn model; a finished turn ends the utterance now."""
-        from embagents.models.protocol import ModelError, ModelUnavailable
 
         vad = self._turn_vad
         vad.feed(samples)
@@ -449,7 +447,6 @@ class SpeechToText(ModelComponent):
         return f"{self.name}-{self._utterances + 1}"
 
     def _transcribe(self, samples: np.ndarray) -> str | None:
-        from embagents.models.protocol import ModelError, ModelUnavailable
 
         try:
             return str(self.model_client.transcribe(samples).get("text", "")).strip()

@@ -45,6 +45,8 @@ from attrs import define, field
 
 from embagents.components.model_component import ModelComponent
 from embagents.config import BaseComponentConfig, ConfigError
+from embagents.models.protocol import ModelError, ModelUnavailable
+from embagents.models.sentences import speakable
 from embagents.msgs import Audio, BargeIn, StreamingString, String
 
 __all__ = ["TextToSpeech", "TextToSpeechConfig", "take_sentences"]
@@ -170,7 +172,6 @@ class TextToSpeech(ModelComponent):
         self._enqueue(sentences + ([rest.strip()] if rest.strip() else []), ends=True)
 
     def _enqueue(self, sentences: list[str], *, ends: bool) -> None:
-        from embagents.models.sentences import speakable
 
         said = [s for s in sentences if speakable(s)]
         for s in sentences:
@@ -200,7 +201,6 @@ class TextToSpeech(ModelComponent):
             self.call_later(0.0, self._pump)
 
     def _speak(self, sentence: str) -> None:
-        from embagents.models.protocol import ModelError, ModelUnavailable
 
         options = {"speed": self.config.speed} if self.config.speed is not None else {}
         try:

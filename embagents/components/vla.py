@@ -74,6 +74,7 @@ from embagents.events import Event
 from embagents.models.policy import STATE_KEY, PolicyLate, image_key
 from embagents.models.protocol import ModelError, ModelUnavailable
 from embagents.msgs import Image, JointState, JointTrajectory, String, TaskFeedback
+from embagents.realtime import raise_priority
 from embagents.topic import Topic
 
 __all__ = ["VLA", "VLAConfig"]
@@ -212,7 +213,6 @@ class VLA(Component):
 
     def on_activate(self) -> None:
         if self.config.realtime:
-            from embagents.realtime import raise_priority
 
             self.logger.info("%s: action loop at %s", self._label(), raise_priority(whole_process=True))
 

@@ -38,7 +38,11 @@ from typing import Any
 
 import attrs
 
+from actors import ActorNotFound, runtime, wire
 from actors.codec import message
+from actors.errors import ActorCrashed, RemoteError
+from actors.link import Pending
+from actors.wire import check_name
 
 __all__ = ["Agent", "AgentCall", "AgentCrashed", "AgentError", "AgentFuture", "AgentNotRunning"]
 
@@ -126,7 +130,6 @@ class Agent:
         cpu_affinity: list[int] | None = None,
         **kwargs: Any,
     ) -> None:
-        from actors.wire import check_name
 
         check_name(name)
         if not callable(factory):
@@ -162,7 +165,6 @@ class Agent:
 
     def _connect(self) -> None:
         """On an actor's loop thread, connect to the agent's actor now, not on the first tick that calls it."""
-        from actors import ActorNotFound, runtime
 
         rt = runtime.current()
         loop = rt.loop_here()
@@ -217,9 +219,6 @@ class Agent:
         return fut
 
     def _isolated_call(self, method: str, args: Any, kwargs: Any) -> AgentFuture:
-        from actors import runtime, wire
-        from actors.errors import ActorCrashed, RemoteError
-        from actors.link import Pending
 
         rt = runtime.current()
         fut: AgentFuture

@@ -63,7 +63,7 @@ class ModelActor(Actor):
         self.batch_wait = max(0.0, float(batch.get("batch_wait_ms", 3.0))) / 1000.0
 
     def _load(self) -> None:
-        from embagents.models.serving import make_serving
+        from embagents.models.serving import make_serving  # lazy: a cycle
 
         t0 = time.monotonic()
         self.serving = make_serving(self.kind, self.path, self.options)

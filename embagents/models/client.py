@@ -29,6 +29,7 @@ from zmq.utils.monitor import recv_monitor_message
 
 from actors import wire
 from actors.link import monitor_socket
+from actors.runtime import current
 from embagents.models.chat import collect_stream
 from embagents.models.declarations import Model
 from embagents.models.protocol import (
@@ -89,7 +90,6 @@ class LocalModelClient:
         return f"LocalModelClient({self.name!r})"
 
     def _conn(self) -> _Conn:
-        from actors.runtime import current
 
         conn: _Conn | None = getattr(self._local, "conn", None)
         if conn is None or conn.pid != os.getpid():
@@ -125,7 +125,6 @@ class LocalModelClient:
         camera's ring may reuse the frame meanwhile (after ``ring`` newer
         frames and 0.5 s), and then the answer is :class:`StaleInput`.
         """
-        from actors.runtime import current
 
         rt = current()
         conn = self._conn()

@@ -26,6 +26,7 @@ from typing import Any, ClassVar
 import attrs
 
 from actors import wire
+from embagents.models.backends.sherpa_stt import SpeechModelError, detect_stt_model
 from embagents.models.vlm_handlers import VLM_HANDLERS
 
 __all__ = ["DETECTOR_FAMILIES", "VLM_HANDLERS", "DetectorModel", "EmbeddingModel", "LlamaModel", "Model",
@@ -84,12 +85,12 @@ class LlamaModel(Model):
     seed: int = 0
 
     def resolve(self) -> str:
-        from embagents.models.files.hub import default_llm_path, resolve_model_path
+        from embagents.models.files.hub import default_llm_path, resolve_model_path  # lazy: a cycle
 
         return default_llm_path() if self.local_model_path is None else resolve_model_path(self.local_model_path)
 
     def file_problem(self) -> str | None:
-        from embagents.models.files.hub import local_file_problem
+        from embagents.models.files.hub import local_file_problem  # lazy: a cycle
 
         return local_file_problem(self.local_model_path)
 
@@ -129,7 +130,7 @@ class DetectorModel(Model):
     providers: list[str] | None = None
 
     def resolve(self) -> str:
-        from embagents.models.files.hub import mtcnn_dir, resolve_model_path
+        from embagents.models.files.hub import mtcnn_dir, resolve_model_path  # lazy: a cycle
 
         if self.family == "mtcnn":
             return mtcnn_dir() if self.local_model_path is None else resolve_model_path(self.local_model_path)
@@ -139,7 +140,7 @@ class DetectorModel(Model):
         return resolve_model_path(self.local_model_path, filename_glob="*.onnx")
 
     def file_problem(self) -> str | None:
-        from embagents.models.files.hub import local_file_problem
+        from embagents.models.files.hub import local_file_problem  # lazy: a cycle
 
         if self.family == "yolo" and self.local_model_path is None:
             return f"detector {self.name!r}: a yolo detector needs local_model_path (a YOLO .onnx file)"
@@ -177,8 +178,7 @@ class SpeechToTextModel(Model):
     provider: str = "cpu"
 
     def resolve(self) -> str:
-        from embagents.models.backends.sherpa_stt import detect_stt_model
-        from embagents.models.files.speech import whisper_tiny_en_dir
+        from embagents.models.files.speech import whisper_tiny_en_dir  # lazy: a cycle
 
         if self.local_model_path is None:
             return whisper_tiny_en_dir()
@@ -186,7 +186,6 @@ class SpeechToTextModel(Model):
         return os.path.abspath(os.path.expanduser(self.local_model_path))
 
     def file_problem(self) -> str | None:
-        from embagents.models.backends.sherpa_stt import SpeechModelError, detect_stt_model
 
         if self.local_model_path is None:
             return None
@@ -230,9 +229,12 @@ class TextToSpeechModel(Model):
     provider: str = "cpu"
 
     def resolve(self) -> str:
-        from embagents.models.backends.sherpa_tts import KOKORO_FILES, check_voice_dir
-        from embagents.models.files.hub import resolve_model_dir
-        from embagents.models.files.speech import piper_joe_dir
+        from embagents.models.backends.sherpa_tts import (  # lazy: a cycle
+            KOKORO_FILES,
+            check_voice_dir,
+        )
+        from embagents.models.files.hub import resolve_model_dir  # lazy: a cycle
+        from embagents.models.files.speech import piper_joe_dir  # lazy: a cycle
 
         if self.local_model_path is None:
             return piper_joe_dir()
@@ -243,8 +245,11 @@ class TextToSpeechModel(Model):
         return check_voice_dir(folder)  # a missing file is named now, not in the actor
 
     def file_problem(self) -> str | None:
-        from embagents.models.backends.sherpa_tts import TTSModelError, check_voice_dir
-        from embagents.models.files.hub import is_repo_id
+        from embagents.models.backends.sherpa_tts import (  # lazy: a cycle
+            TTSModelError,
+            check_voice_dir,
+        )
+        from embagents.models.files.hub import is_repo_id  # lazy: a cycle
 
         if self.local_model_path is None or is_repo_id(self.local_model_path):
             return None  # the default and hub repos are fetched at start, not checked here
@@ -289,17 +294,17 @@ class VLMModel(Model):
 
     def specs(self) -> tuple[str, str]:
         """The (language model, projector) specs: paths, ``repo:glob`` ids, or the moondream2 default."""
-        from embagents.models.files.vlm import model_specs
+        from embagents.models.files.vlm import model_specs  # lazy: a cycle
 
         return model_specs(self.local_model_path, self.projector_path)
 
     def resolve(self) -> str:
-        from embagents.models.files.vlm import resolve_pair
+        from embagents.models.files.vlm import resolve_pair  # lazy: a cycle
 
         return resolve_pair(*self.specs())[0]
 
     def file_problem(self) -> str | None:
-        from embagents.models.files.vlm import pair_problem
+        from embagents.models.files.vlm import pair_problem  # lazy: a cycle
 
         return pair_problem(self.name, *self.specs())
 
@@ -327,7 +332,7 @@ class TurnDetectorModel(Model):
     threads: int = 1
 
     def resolve(self) -> str:
-        from embagents.models.files.speech import smart_turn_path
+        from embagents.models.files.speech import smart_turn_path  # lazy: a cycle
 
         if self.local_model_path is None:
             return smart_turn_path()
@@ -363,7 +368,7 @@ class EmbeddingModel(Model):
     max_batch: int = 32
 
     def resolve(self) -> str:
-        from embagents.models.backends.embeddings import prepared_minilm
+        from embagents.models.backends.embeddings import prepared_minilm  # lazy: a cycle
 
         if self.local_model_path is None:
             return prepared_minilm()

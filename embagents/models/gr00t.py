@@ -127,7 +127,7 @@ class Gr00tPolicyClient:
         self.time_dim = bool(time_dim)
         self.resets = 0
         self._sock: zmq.Socket | None = None
-        from embagents.models.lerobot import is_loopback
+        from embagents.models.lerobot import is_loopback  # lazy: a cycle
 
         if not is_loopback(parts.netloc):
             log.warning("%s: GR00T's protocol to %s is plaintext ZeroMQ%s: anyone on that network can read the "

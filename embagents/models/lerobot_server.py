@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from embagents.models.lerobot import SERVICE, decode_payload, encode_payload, messages
+from embagents.models.policy import PolicyServing
 
 __all__ = ["PolicyServer", "main", "onnx_policy"]
 
@@ -48,7 +49,6 @@ Policy = Callable[[Mapping[str, np.ndarray], str], np.ndarray]
 
 def onnx_policy(path: str, threads: int | None = 1) -> Policy:
     """An ONNX file as a policy function: the model layer's ONNX policy serving (its checks name bad keys and shapes)."""
-    from embagents.models.policy import PolicyServing
 
     serving = PolicyServing(path, {"threads": threads})
 

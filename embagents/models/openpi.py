@@ -136,7 +136,7 @@ def default_key(key: str) -> str:
 
 
 def _loopback(host: str) -> bool:
-    from embagents.models.lerobot import is_loopback
+    from embagents.models.lerobot import is_loopback  # lazy: a cycle
 
     return is_loopback(f"[{host}]:0" if ":" in host else f"{host}:0")
 

@@ -41,6 +41,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from embagents.models.lerobot import is_loopback
 from embagents.models.openpi import MAX_MESSAGE_BYTES, normalize_key, packb, unpackb
 from embagents.models.policy import PolicyServing
 
@@ -61,7 +62,6 @@ def check_bind(bind: str, *, api_key: bool, tls: bool) -> tuple[str, str, int]:
     ...
     ValueError: ws://0.0.0.0:8000 reaches beyond this machine with neither TLS nor a key: anyone on the network could drive the policy; pass --api-key-file FILE (clients send Authorization: Api-Key ...) and/or bind wss:// with --tls-cert CERT.pem --tls-key KEY.pem, or bind ws://127.0.0.1:PORT
     """
-    from embagents.models.lerobot import is_loopback
 
     parts = urlsplit(bind)
     try:

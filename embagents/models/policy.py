@@ -29,9 +29,11 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import attrs
 import numpy as np
 
+from embagents.models.backends.onnx import OnnxSession
 from embagents.models.client import LocalModelClient
 from embagents.models.declarations import Model
 from embagents.models.protocol import BadRequest, ModelUnavailable
+from embagents.realtime import raise_priority
 
 __all__ = ["PolicyClient", "PolicyLate", "PolicyModel", "PolicyServing", "LocalPolicyClient", "STATE_KEY", "image_key"]
 
@@ -94,14 +96,14 @@ class PolicyModel(Model):
                              "wss:// serve it with embagents serve-policy --tls-cert/--tls-key")
 
     def resolve(self) -> str:
-        from embagents.models.files.hub import resolve_model_path
+        from embagents.models.files.hub import resolve_model_path  # lazy: a cycle
 
         if not self.local_model_path:
             raise ValueError(f"policy {self.name!r}: needs local_model_path (an .onnx policy file)")
         return resolve_model_path(self.local_model_path, filename_glob="*.onnx")
 
     def file_problem(self) -> str | None:
-        from embagents.models.files.hub import local_file_problem
+        from embagents.models.files.hub import local_file_problem  # lazy: a cycle
 
         if not self.local_model_path:
             return f"policy {self.name!r}: needs local_model_path (an .onnx policy file)"
@@ -125,7 +127,6 @@ class PolicyServing:
     _NP = {"tensor(float)": np.float32, "tensor(uint8)": np.uint8, "tensor(double)": np.float64}
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.models.backends.onnx import OnnxSession
 
         self.session = OnnxSession(path, threads=options.get("threads"), providers=options.get("providers"))
         self.realtime = bool(options.get("realtime"))
@@ -135,7 +136,6 @@ class PolicyServing:
         if self.realtime:  # the session (and its threads) exist: the whole process
             import logging
 
-            from embagents.realtime import raise_priority
 
             logging.getLogger("embagents.model").info("serving at %s", raise_priority(whole_process=True))
 

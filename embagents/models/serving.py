@@ -17,8 +17,15 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from embagents.models.backends.detectors import make_detector
+from embagents.models.backends.embeddings import SentenceEncoder
+from embagents.models.backends.llama import LlamaBackend
+from embagents.models.backends.vlm import VLMBackend
 from embagents.models.chat import CHAT_OPTIONS, check_messages
+from embagents.models.openpi_server import OpenPIPolicyServing
+from embagents.models.policy import PolicyServing
 from embagents.models.protocol import BadRequest
+from embagents.models.speech_serving import SpeechToTextServing, TextToSpeechServing, TurnServing
 
 __all__ = ["ChatServing", "DetectorServing", "EmbeddingServing", "Serving", "VLMServing", "check_image", "make_serving",
            "serving_kinds"]
@@ -54,7 +61,6 @@ class ChatServing:
     batchable = False
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.models.backends.llama import LlamaBackend
 
         self.backend = LlamaBackend(path, **options)
 
@@ -112,7 +118,6 @@ class DetectorServing:
     batchable = True
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.models.backends.detectors import make_detector
 
         self.detector = make_detector(path, **options)
 
@@ -141,7 +146,6 @@ class VLMServing(ChatServing):
     """A llama.cpp vision-language model behind the ``chat`` task: ``inputs["images"]`` ride shared memory."""
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.models.backends.vlm import VLMBackend
 
         self.backend = VLMBackend(path, **options)  # type: ignore[assignment]
 
@@ -158,29 +162,24 @@ class VLMServing(ChatServing):
 
 
 def _stt(path: str, options: dict[str, Any]) -> Any:
-    from embagents.models.speech_serving import SpeechToTextServing
 
     return SpeechToTextServing(path, options)
 
 
 def _tts(path: str, options: dict[str, Any]) -> Any:
-    from embagents.models.speech_serving import TextToSpeechServing
 
     return TextToSpeechServing(path, options)
 
 
 def _turn(path: str, options: dict[str, Any]) -> Any:
-    from embagents.models.speech_serving import TurnServing
 
     return TurnServing(path, options)
 
 
 def _policy(path: str, options: dict[str, Any]) -> Any:
     if options.get("openpi"):  # also served over openpi's WebSocket protocol (embagents serve-policy)
-        from embagents.models.openpi_server import OpenPIPolicyServing
 
         return OpenPIPolicyServing(path, options)
-    from embagents.models.policy import PolicyServing
 
     return PolicyServing(path, options)
 
@@ -195,7 +194,6 @@ class EmbeddingServing:
     batchable = True
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-        from embagents.models.backends.embeddings import SentenceEncoder
 
         self.encoder = SentenceEncoder(path, **options)
 

@@ -20,7 +20,11 @@ from typing import Any
 
 import numpy as np
 
+from embagents.models.backends.sherpa_stt import SherpaRecognizer, check_samples
+from embagents.models.backends.sherpa_tts import SherpaSpeaker
+from embagents.models.backends.smart_turn import SmartTurn
 from embagents.models.protocol import BadRequest
+from embagents.models.sentences import speakable
 
 __all__ = ["SPEAK_OPTIONS", "TRANSCRIBE_OPTIONS", "SpeechToTextServing", "TextToSpeechServing", "TurnServing"]
 
@@ -38,7 +42,6 @@ class SpeechToTextServing:
         self.recognizer: Any = None
 
     def load(self) -> None:
-        from embagents.models.backends.sherpa_stt import SherpaRecognizer
 
         self.recognizer = SherpaRecognizer(self.path, **self.options)
 
@@ -46,7 +49,6 @@ class SpeechToTextServing:
         self.recognizer.transcribe(np.zeros(8000, np.float32))
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-        from embagents.models.backends.sherpa_stt import check_samples
 
         if task != "transcribe":
             raise BadRequest(f"a speech-to-text model serves task 'transcribe', not {task!r}")
@@ -93,7 +95,6 @@ class TextToSpeechServing:
         self.speaker: Any = None
 
     def load(self) -> None:
-        from embagents.models.backends.sherpa_tts import SherpaSpeaker
 
         self.speaker = SherpaSpeaker(self.path, **self.options)
 
@@ -102,7 +103,6 @@ class TextToSpeechServing:
             pass
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-        from embagents.models.sentences import speakable
 
         if task != "speak":
             raise BadRequest(f"a text-to-speech model serves task 'speak', not {task!r}")
@@ -146,7 +146,6 @@ class TurnServing:
         self.model: Any = None
 
     def load(self) -> None:
-        from embagents.models.backends.smart_turn import SmartTurn
 
         self.model = SmartTurn(self.path, **self.options)
 
@@ -154,7 +153,6 @@ class TurnServing:
         self.model.probability(np.zeros(16000, np.float32))
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-        from embagents.models.backends.sherpa_stt import check_samples
 
         if task != "end_of_turn":
             raise BadRequest(f"a turn model serves task 'end_of_turn', not {task!r}")

@@ -30,8 +30,22 @@ from typing import Any
 
 from actors import Actor, ActorRef
 from actors.errors import UnknownMessage
+from embagents.msgs import RosMessage
+from embagents.requests import Call
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments, mapped_fastdds_files
-from embagents.ros.spec import BRIDGE_NAME
+from embagents.ros.spec import (
+    BRIDGE_NAME,
+    DEFAULT_ROS_TYPE,
+    QoS,
+    RosAction,
+    RosCall,
+    RosInput,
+    RosLifecycle,
+    RosOutput,
+    RosService,
+    ros_interface_class,
+)
+from embagents.system import loaded_system
 
 __all__ = ["BRIDGE_NAME", "REDISCOVER_AFTER", "REDISCOVER_TRIES", "RosBridgeActor", "lifecycle_services"]
 
@@ -55,7 +69,6 @@ _LIFECYCLE_METHODS = ("_ros_get_state", "_ros_change_state", "_ros_get_available
 
 def lifecycle_services(components: list[str]) -> list[Any]:
     """The ``lifecycle_msgs`` services that make each component a ROS managed node (see RosLifecycle)."""
-    from embagents.ros.spec import RosService
 
     out = []
     for c in components:
@@ -68,7 +81,6 @@ def lifecycle_services(components: list[str]) -> list[Any]:
 
 
 def _describe(response: Any, tid: int) -> Any:
-    from embagents.ros.spec import ros_interface_class
 
     d = ros_interface_class("lifecycle_msgs/msg/TransitionDescription")()
     what, start = _TRANSITIONS[tid]
@@ -104,18 +116,8 @@ class RosBridgeActor(Actor):
         self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
     def _declarations(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
-        from embagents.ros.spec import (
-            DEFAULT_ROS_TYPE,
-            QoS,
-            RosAction,
-            RosInput,
-            RosLifecycle,
-            RosOutput,
-            RosService,
-        )
 
         if self.system_path is not None:
-            from embagents.system import loaded_system
 
             system = loaded_system(self.system_path)
             ins = [d for d in system.ros if isinstance(d, RosInput)]
@@ -148,7 +150,7 @@ class RosBridgeActor(Actor):
         )
 
     def on_start(self) -> None:
-        from embagents.ros.node import RosBridgeCore
+        from embagents.ros.node import RosBridgeCore  # lazy: heavy (builtin_interfaces)
 
         # A killed predecessor could not unlink its DDS segment and ports; their names say they are
         # not some other participant's half-made files, so they need no minimum age.
@@ -240,9 +242,10 @@ class RosBridgeActor(Actor):
         """One request of a RosService (the core's service thread): ask the component, fill the response."""
         if decl.method in _LIFECYCLE_METHODS:
             return self._lifecycle(decl, request, response)
-        from embagents.msgs import RosMessage
-        from embagents.requests import Call
-        from embagents.ros.generic import generic_from_ros, generic_to_ros
+        from embagents.ros.generic import (  # lazy: heavy (rosidl_parser)
+            generic_from_ros,
+            generic_to_ros,
+        )
 
         names = response.get_fields_and_field_types()
         status = "success" in names and "message" in names  # std_srvs/Trigger, SetBool and the like
@@ -308,7 +311,6 @@ class RosBridgeActor(Actor):
         return response
 
     def _transition_event(self, component: str, tid: int, start: str, goal: str) -> None:
-        from embagents.ros.spec import ros_interface_class
 
         event = ros_interface_class("lifecycle_msgs/msg/TransitionEvent")()
         event.timestamp = time.time_ns()
@@ -327,10 +329,9 @@ class RosBridgeActor(Actor):
             log.error("goal on %s not sent: %s", goal_topic, exc)
 
     def on_receive(self, message: Any) -> Any:
-        from embagents.ros.spec import RosCall
 
         if isinstance(message, RosCall):
-            from embagents.ros.generic import generic_from_ros
+            from embagents.ros.generic import generic_from_ros  # lazy: heavy (rosidl_parser)
 
             return generic_from_ros(self.core.call(message.ros_name, message.srv_type, message.fields, message.timeout))
         if message == "stats":

@@ -28,6 +28,7 @@ import numpy as np
 from rosidl_parser.definition import AbstractNestedType, AbstractSequence, BasicType, NamespacedType
 
 from embagents.msgs import RosMessage
+from embagents.ros.spec import ros_interface_class
 
 __all__ = ["generic_from_ros", "generic_to_ros", "ros_type_name"]
 
@@ -54,7 +55,6 @@ def _nested_name(t: NamespacedType) -> str:
 
 
 def _nested_class(t: NamespacedType) -> type:
-    from embagents.ros.spec import ros_interface_class
 
     return ros_interface_class(_nested_name(t))
 

@@ -84,7 +84,9 @@ from typing import Any
 
 import attrs
 
+from actors import ActorRef
 from actors.codec import message
+from actors.errors import RemoteError, Timeout
 from embagents.msgs import (
     CompressedImage,
     Detections,
@@ -513,8 +515,6 @@ def ros_call(ros_name: str, srv_type: str, timeout: float = 5.0, **fields: Any) 
         reply = ros_call("/arm/home", "std_srvs/Trigger", timeout=10)
         if not reply.success: ...
     """
-    from actors import ActorRef
-    from actors.errors import RemoteError, Timeout
     _check_ros_name("ros_call", ros_name)
     full = normalize_ros_type(srv_type, "srv")
     if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or timeout <= 0:

@@ -21,6 +21,9 @@ from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import Any
 
+from actors.loop import Loop
+from actors.runtime import Runtime
+from actors.topics import Subscription
 from embagents.live import find_topic
 from supervisor.client import pick_run, request
 
@@ -51,9 +54,6 @@ class Attached:
     """This process's runtime in the run ``run`` (a :func:`supervisor.client.pick_run` entry)."""
 
     def __init__(self, run: dict[str, Any]) -> None:
-        import embagents  # noqa: F401 - registers the message types, so frames decode
-        from actors.loop import Loop
-        from actors.runtime import Runtime
 
         self.rt = Runtime(run["run_dir"], run["run_id"])
         self.loop = Loop()
@@ -65,7 +65,6 @@ class Attached:
         The queue holds a burst; a terminal that stops reading fills it, and then the
         publisher drops for it (its high-water mark) without waiting.
         """
-        from actors.topics import Subscription
 
         sub = Subscription(self.rt, self.loop, topic, callback, queue_size=queue_size, keep="latest")
         self.subs.append(sub)

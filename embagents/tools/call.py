@@ -24,6 +24,13 @@ import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+from actors import ActorRef
+from actors.errors import RemoteError, Timeout
+from embagents.components.component import Component
+from embagents.components.model_component import ModelComponent
+from embagents.live import connect
+from embagents.requests import Call
+
 if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
     from embagents.system import System
 
@@ -55,8 +62,6 @@ def actions(component: Any) -> list[str]:
     Hooks (``on_activate``), health setters (``set_system_failure``) and the
     rest of :class:`~embagents.components.Component`'s machinery are not listed.
     """
-    from embagents.components.component import Component
-    from embagents.components.model_component import ModelComponent
 
     base = set(dir(ModelComponent)) | set(dir(Component)) | {"chat_stream"}  # a generator: the LLM's stream, no action
     return sorted(n for n in dir(type(component)) if not n.startswith("_") and (n not in base or n in BASE_ACTIONS)
@@ -65,9 +70,6 @@ def actions(component: Any) -> list[str]:
 
 def call_command(asys: Any, system: System) -> Callable[[dict[str, Any]], dict[str, Any]]:
     """The root's handler of ``{"cmd": "call", "component", "method", "args", "kwargs", "timeout"}``."""
-    from actors import ActorRef
-    from actors.errors import RemoteError, Timeout
-    from embagents.requests import Call
 
     def handle(req: dict[str, Any]) -> dict[str, Any]:
         name, method = req.get("component"), req.get("method")
@@ -112,7 +114,6 @@ def call(component: str, method: str, args: Sequence[Any] = (), kwargs: dict[str
     Raises ``supervisor.client.ControlError`` with the root's reason (no run, unknown
     component or method, the method's own error: its traceback in ``err.reply["traceback"]``).
     """
-    from embagents.live import connect
 
     msg = {"cmd": "call", "component": component, "method": method, "args": list(args),
            "kwargs": dict(kwargs or {}), "timeout": timeout}

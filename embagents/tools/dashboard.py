@@ -53,7 +53,11 @@ from importlib import resources
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from actors.errors import RemoteError
+from actors.topics import Subscription
+from embagents.components.imaging import annotate, image_rgb
 from embagents.tools.webguard import host_allowed, new_token, same_token
+from supervisor import lifecycle
 
 __all__ = ["DEFAULT_PORT", "Dashboard", "DashboardError"]
 
@@ -108,7 +112,6 @@ _REASONS = {200: "OK", 303: "See Other", 403: "Forbidden", 404: "Not Found", 421
 
 def _one_line(exc: BaseException) -> str:
     """An error as one line, type and message: not a remote traceback (it names paths of the robot's files)."""
-    from actors.errors import RemoteError
 
     if isinstance(exc, RemoteError):
         return f"{exc.exc_type}: {(exc.remote_message.splitlines() or [''])[0]}"
@@ -118,7 +121,6 @@ def _one_line(exc: BaseException) -> str:
 def _jpeg(msg: Any, detections: list[Any]) -> bytes:
     import cv2
 
-    from embagents.components.imaging import annotate, image_rgb
 
     rgb = image_rgb(msg).copy()  # the frame may live in a ring the publisher reuses: copy it once
     for d in detections:
@@ -148,8 +150,7 @@ class Dashboard:
     # -- data ------------------------------------------------------------------
     def subscribe(self) -> None:
         """Watch the run's text, image and detection topics and its events (keep-latest)."""
-        from actors.topics import Subscription
-        from embagents.tools.root import topic_rows
+        from embagents.tools.root import topic_rows  # lazy: a cycle
 
         asys = self.control.system
         for row in topic_rows(self.system, asys.run_dir):
@@ -200,7 +201,6 @@ class Dashboard:
 
     def act(self, req: dict[str, Any]) -> dict[str, Any]:
         """A button: ``restart`` or ``lifecycle`` (``transition``) on actor ``name``."""
-        from supervisor import lifecycle
 
         op, name = req.get("op"), req.get("name")
         if op == "restart":

@@ -31,6 +31,9 @@ from typing import Any, NamedTuple
 import attrs
 import numpy as np
 
+from actors.codec import message_class, message_name
+from actors.errors import UnregisteredType
+from embagents.msgs import Audio, CompressedImage, Image, RosMessage
 from embagents.tools.plain import field_types
 
 __all__ = ["EVENTS_SCHEMA", "Kind", "decode", "kind_of"]
@@ -127,7 +130,6 @@ def _plain_value(v: Any) -> Any:
 
 def _generic_fields(value: Any) -> Any:
     """A RosMessage's recorded fields back: nested messages as RosMessages, packed arrays as arrays."""
-    from embagents.msgs import RosMessage
 
     if isinstance(value, dict):
         if set(value) == {"dtype", "shape", "base64"}:
@@ -156,7 +158,6 @@ def _event_json(msg: Any) -> bytes:
 @cache
 def kind_of(cls: type | None) -> Kind:
     """How messages of ``cls`` are stored (``None``: supervisor events, plain dicts)."""
-    from embagents.msgs import Audio, CompressedImage, Image
 
     if cls is None or cls is dict:
         schema = {"title": EVENTS_SCHEMA, "type": "object"}
@@ -169,7 +170,6 @@ def kind_of(cls: type | None) -> Kind:
         name, encode = foxglove[cls]
         schema = getattr(fm, name).get_schema()
         return Kind(schema.name, schema.encoding, bytes(schema.data), "protobuf", encode)
-    from actors.codec import message_name
 
     name = message_name(cls).replace("/", ".")  # "embagents/String" -> "embagents.String"; a user's "demo.Point"
     props = {n: _json_schema(t) for n, t in field_types(cls).items()}
@@ -186,7 +186,6 @@ def _array_field(cls: type, name: str, value: Any) -> np.ndarray:
 
 
 def _from_json(cls: type, data: bytes) -> Any:
-    from embagents.msgs import RosMessage
 
     values = json.loads(data)
     if cls is RosMessage:
@@ -220,7 +219,6 @@ def _seconds(ts: Any) -> float:
 
 
 def _from_proto(schema_name: str, data: bytes) -> Any:
-    from embagents.msgs import Audio, CompressedImage, Image
 
     p = _proto_class(schema_name).FromString(data)
     if schema_name == "foxglove.RawImage":
@@ -242,8 +240,6 @@ def decode(schema_name: str, data: bytes) -> Any:
 
     Raises ValueError for a schema this version does not know.
     """
-    from actors.codec import message_class
-    from actors.errors import UnregisteredType
 
     if schema_name == EVENTS_SCHEMA:
         return json.loads(data)

@@ -28,6 +28,8 @@ from typing import Any
 import attrs
 import numpy as np
 
+from embagents.msgs import RosMessage
+
 __all__ = ["build_message", "field_types", "format_text", "to_plain"]
 
 
@@ -36,7 +38,6 @@ def to_plain(msg: Any, *, full_arrays: bool = False) -> Any:
 
     A :class:`~embagents.msgs.RosMessage` shows its ROS fields, as ``ros2 topic echo`` does.
     """
-    from embagents.msgs import RosMessage
 
     if isinstance(msg, RosMessage):
         return to_plain(msg.fields, full_arrays=full_arrays)

@@ -22,6 +22,10 @@ from typing import TYPE_CHECKING, Any
 
 import attrs
 
+from actors.topics import Publisher
+from embagents.live import connect
+from embagents.tools.plain import build_message
+
 if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
     from embagents.system import System
 
@@ -30,7 +34,6 @@ __all__ = ["publish", "publish_command"]
 
 def _message(topic: Any, fields: dict[str, Any]) -> Any:
     """``topic.msg_type(**fields)``, or ValueError naming the fields the type has."""
-    from embagents.tools.plain import build_message
 
     cls = topic.msg_type
     if not attrs.has(cls):
@@ -43,7 +46,6 @@ def _message(topic: Any, fields: dict[str, Any]) -> Any:
 
 def publish_command(asys: Any, system: System) -> Callable[[dict[str, Any]], dict[str, Any]]:
     """The root's handler of ``{"cmd": "publish", "topic": NAME, "fields": {...}}`` for ``system``."""
-    from actors.topics import Publisher
 
     publishers: dict[str, Any] = {}  # one per topic, made on the root's IO thread when first used
 
@@ -79,7 +81,6 @@ def publish(topic: str, text: str | None = None, fields: str | None = None, *, r
     ``text`` is the ``data`` field; ``fields`` a JSON object of fields. Raises
     ``supervisor.client.ControlError`` (no run, unknown topic, bad fields) or ``ValueError`` (bad JSON).
     """
-    from embagents.live import connect
 
     values: dict[str, Any] = {}
     if fields:

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 from actors.codec import message_name
 from actors.topics import topic_dir
 from embagents.tools.recorder import RecorderActor, rotation_files
+from supervisor import ChildSpec
 
 if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
     from embagents.system import System
@@ -124,7 +125,6 @@ class _Recorders:
         self.seq = 0
 
     def start(self, req: dict[str, Any]) -> dict[str, Any]:
-        from supervisor import ChildSpec
 
         path = req.get("path")
         if not isinstance(path, str) or not os.path.isabs(path) or not path.endswith(".mcap"):

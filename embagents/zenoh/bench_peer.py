@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from actors import Actor
+from actors import Actor, ActorSystem
+from embagents.zenoh.bridge_actor import ZenohBridgeActor
+from embagents.zenoh.spec import Export, ZenohBridge
 
 __all__ = ["Recorder", "Sender", "main"]
 
@@ -127,9 +129,6 @@ class Recorder(Actor):
 
 
 def _send(port: int, n: int, size: int, period: float, warm: float, keep: str, window: int) -> None:
-    from actors import ActorSystem
-    from embagents.zenoh.bridge_actor import ZenohBridgeActor
-    from embagents.zenoh.spec import Export, ZenohBridge
 
     bridge = ZenohBridge("a", exports=[Export(TOPIC, keep=keep, window=window)], listen=[f"tcp/127.0.0.1:{port}"])
     with ActorSystem() as asys:

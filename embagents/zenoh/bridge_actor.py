@@ -39,7 +39,9 @@ import numpy as np
 from actors import Actor
 from actors.codec import Codec
 from actors.errors import CodecError, CorruptFrame, UnknownMessage
-from embagents.msgs import Health, HealthStatus
+from embagents.msgs import CompressedImage, Health, HealthStatus, Image
+from embagents.requests import HealthQuery
+from embagents.system import loaded_system
 from embagents.zenoh.spec import BRIDGE_NAME, ZenohBridge, zenoh_key
 
 __all__ = ["BRIDGE_NAME", "CHECK_EVERY_S", "ZenohBridgeActor", "zenoh_config"]
@@ -181,7 +183,6 @@ def _to_jpeg(msg: Any, quality: int) -> Any:
     """An Image as a CompressedImage (JPEG), for ``Export(compress="jpeg")``; anything else as it is."""
     import cv2
 
-    from embagents.msgs import CompressedImage, Image
 
     if not isinstance(msg, Image) or msg.data.dtype != np.uint8 or msg.encoding not in ("rgb8", "bgr8", "mono8"):
         raise ValueError(f"compress='jpeg' takes an Image of rgb8, bgr8 or mono8 uint8 pixels, got {msg!r:.120}; "
@@ -196,7 +197,6 @@ def _to_jpeg(msg: Any, quality: int) -> Any:
 def _from_jpeg(msg: Any) -> Any:
     import cv2
 
-    from embagents.msgs import CompressedImage, Image
 
     if not isinstance(msg, CompressedImage):
         raise CorruptFrame(f"a JPEG payload that holds no CompressedImage: {msg!r:.100}")
@@ -258,7 +258,6 @@ class ZenohBridgeActor(Actor):
 
     def _spec(self) -> ZenohBridge:
         if self.system_path is not None:
-            from embagents.system import loaded_system
 
             spec = loaded_system(self.system_path).zenoh
             if spec is None:
@@ -490,7 +489,6 @@ class ZenohBridgeActor(Actor):
                 "health_text": self.health[1], "lines": lines}
 
     def on_receive(self, message: Any) -> Any:
-        from embagents.requests import HealthQuery
 
         if message == "stats":
             return self.status_detail()

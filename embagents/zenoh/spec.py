@@ -34,6 +34,7 @@ from typing import Any
 
 import attrs
 
+from embagents.msgs import MESSAGE_TYPES
 from embagents.topic import Topic
 
 __all__ = [
@@ -188,7 +189,6 @@ class Import:
 
 def _msg_type(value: Any) -> Any:
     if isinstance(value, str):
-        from embagents.msgs import MESSAGE_TYPES
 
         if value not in MESSAGE_TYPES:
             raise ValueError(f"Import msg_type {value!r} is not a message class; one of {', '.join(sorted(MESSAGE_TYPES))}")

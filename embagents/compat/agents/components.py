@@ -33,10 +33,15 @@ import attrs
 import numpy as np
 
 from embagents import components as native
-from embagents.compat._core import CompatError, unsupported
+from embagents.compat._core import CompatError, note, unsupported
 from embagents.compat.agents.clients import build_client, local_default
-from embagents.compat.agents.config import _Config
+from embagents.compat.agents.config import CortexConfig, _Config
+from embagents.compat.agents.ros import FunctionAction
+from embagents.components.llm_tools import register_tools_on, tool_methods
+from embagents.components.memory import embedding_dim
+from embagents.components.memory_store import MemoryStore
 from embagents.events import Action, Fallback
+from embagents.models.files.wheels import cache_dir
 from embagents.msgs import (
     Audio,
     CompressedImage,
@@ -198,7 +203,6 @@ class _Rag:
 
     @property
     def path(self) -> str:
-        from embagents.models.files.wheels import cache_dir
 
         return str(cache_dir() / "memory" / f"{self.collection}.db")  # where a Memory of that map_name keeps it
 
@@ -206,8 +210,6 @@ class _Rag:
         """The retrieved items as lines (with position, layer and time when ``add_metadata``); "" for none."""
         import json
 
-        from embagents.components.memory import embedding_dim
-        from embagents.components.memory_store import MemoryStore
 
         if self.store is None:
             name = getattr(self.client, "name", None) or type(self.client).__name__
@@ -246,13 +248,11 @@ class LLM(_Clients, native.LLM, _Lifecycle):
             self.rag = _Rag(build_client(db_client, "embedding", str(kw["name"])),
                             str(self._extras.get("collection_name", "map")), int(self._extras.get("n_results", 1)),
                             bool(self._extras.get("add_metadata", False)))
-            from embagents.compat._core import note
 
             note(f"{kw['name']}: RAG reads the memory database {self.rag.collection!r} (a Memory or MapEncoding "
                  f"with MemoryConfig(map_name={self.rag.collection!r}) writes it); its {self.rag.n_results} closest "
                  "items come before each question")
         elif db_client is not None:
-            from embagents.compat._core import note
 
             note(f"{kw['name']}: db_client= is unused without LLMConfig(enable_rag=True) (as in EmbodiedAgents)")
         self._templates: dict[str, str] = {}
@@ -261,7 +261,6 @@ class LLM(_Clients, native.LLM, _Lifecycle):
         config = kw.get("config")
         if config is not None and getattr(config, "stream", False) and not any(t.msg_type is StreamingString for t in kw.get("outputs") or ()):
             # EmbodiedAgents streams chunks on a String topic; here a stream is a StreamingString topic.
-            from embagents.compat._core import note
 
             note(f"{kw['name']}: stream=True streams on a StreamingString output here; its String outputs get "
                  "the whole answer (add Topic(..., msg_type='StreamingString') for the stream)")
@@ -491,7 +490,6 @@ class Memory(_Fallbacks, native.Memory, _Lifecycle):
     def __init__(self, *, layers: list[Any], position: Topic | None = None, model_client: Any = None,
                  embedding_client: Any = None, config: Any = None, trigger: Any = 10.0,
                  component_name: str | None = None, **kw: Any) -> None:
-        from embagents.compat._core import note
 
         if component_name is not None:
             kw["component_name"] = component_name
@@ -550,7 +548,6 @@ class Memory(_Fallbacks, native.Memory, _Lifecycle):
                           send_tool_response_to_model: bool = True) -> None:
         """Offer this memory's tools (all, or ``tools``) to ``llm``; ``send_tool_response_to_model=False``:
         the tool's text is the answer (a publisher preprocessor turns it into the output)."""
-        from embagents.components.llm_tools import register_tools_on
 
         for t in tools or ():
             if t not in self.llm_tools:
@@ -576,8 +573,6 @@ class Cortex(LLM):
 
     def __init__(self, *, actions: Sequence[Any] | None = None, output: Topic | None = None, model_client: Any = None,
                  db_client: Any = None, config: Any = None, component_name: str | None = None, **kw: Any) -> None:
-        from embagents.compat.agents.config import CortexConfig
-        from embagents.compat.agents.ros import FunctionAction
 
         name = str(component_name or kw.pop("name", "") or "")
         if not name:
@@ -603,7 +598,6 @@ class Cortex(LLM):
 
     def discover_tools(self, components: Sequence[native.Component]) -> list[str]:
         """Offer ``components``' tools (their ``llm_tools``) to this Cortex; returns the tool names added."""
-        from embagents.components.llm_tools import register_tools_on, tool_methods
 
         offering = [c for c in components if tool_methods(c) and not isinstance(c, Cortex)]
         return register_tools_on(self, *offering) if offering else []

@@ -31,6 +31,7 @@ from typing import Any
 import attrs
 
 from embagents import events as native_events
+from embagents.cli.supervise import run
 from embagents.compat._core import CompatError, note, unsupported
 from embagents.components.component import Component
 from embagents.components.memory import MapLayer as _NativeMapLayer
@@ -292,6 +293,5 @@ class Launcher:
             os.environ["EMBAGENTS_OFFLINE"] = "1"  # the actor processes (spawned ones too) map clients the same way
         import argparse
 
-        from embagents.cli.supervise import run
 
         raise SystemExit(run(argparse.Namespace(system=os.path.abspath(path), verbose=False, dashboard=False)))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from embagents.compat._core import unsupported
 from embagents.compat.agents.ros import Action, Event
 from embagents.components import Component as BaseComponent
 from embagents.events import Fallback
@@ -22,7 +23,6 @@ def ComponentFallbacks(on_any_fail: Any = None, on_algorithm_fail: Any = None,  
                        on_component_fail: Any = None, on_system_fail: Any = None, on_giveup: Any = None,
                        max_retries: int | None = None) -> Fallback:
     """Sugarcoat's fallbacks as an embagents :class:`~embagents.events.Fallback` (``fallback=`` of a component)."""
-    from embagents.compat._core import unsupported
 
     if on_giveup is not None:
         unsupported("ComponentFallbacks(on_giveup=...)", "an Event on the component's Health, or restart()")

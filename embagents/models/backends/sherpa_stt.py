@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from embagents.models.files.speech import WHISPER_PREPARE_HINT
+
 __all__ = ["STT_FAMILIES", "SherpaRecognizer", "SpeechModelError", "check_samples", "detect_stt_model"]
 
 log = logging.getLogger("embagents.stt")
@@ -87,7 +89,6 @@ def _listing(names: list[str]) -> str:
 
 
 def _hint() -> str:
-    from embagents.models.files.speech import WHISPER_PREPARE_HINT
 
     return WHISPER_PREPARE_HINT
 

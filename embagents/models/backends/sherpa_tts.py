@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from embagents.models.backends.phonemes import phonemize
+from embagents.models.files.speech import PIPER_PREPARE_HINT
 from embagents.models.sentences import speakable
 
 __all__ = ["KOKORO_FILES", "SherpaSpeaker", "TTSModelError", "check_voice_dir", "speakable", "voice_family"]
@@ -47,7 +49,6 @@ class TTSModelError(FileNotFoundError):
 
 def check_voice_dir(path: str) -> str:
     """``path`` (expanded) if it is a complete Piper voice folder; else :class:`TTSModelError` naming what is missing."""
-    from embagents.models.files.speech import PIPER_PREPARE_HINT
 
     folder = os.path.abspath(os.path.expanduser(path))
     if not os.path.isdir(folder):
@@ -104,7 +105,6 @@ class SherpaSpeaker:
         """``(samples, sample_rate, phonemes)`` per sentence of ``text``: float32 mono in [-1, 1]."""
         import sherpa_onnx
 
-        from embagents.models.backends.phonemes import phonemize
 
         for sentence in phonemize(text, self.espeak_voice):
             gen = sherpa_onnx.GenerationConfig()

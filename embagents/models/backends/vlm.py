@@ -29,6 +29,7 @@ import numpy as np
 
 from embagents.models.backends.llama import LlamaBackend
 from embagents.models.chat import collect_stream, with_images
+from embagents.models.files.hub import resolve_model_path
 from embagents.models.vlm_handlers import VLM_HANDLERS
 
 __all__ = ["VLMBackend", "handler_class", "ppm_bytes"]
@@ -114,7 +115,6 @@ class VLMBackend:
         """Load both files (idempotent)."""
         if self.llm is not None:
             return
-        from embagents.models.files.hub import resolve_model_path
 
         try:
             cls = handler_class(self.handler_name)

@@ -29,7 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from embagents.models.backends.sherpa_stt import check_samples
 from embagents.models.clients.openai_http import OpenAIHTTPClient
+from embagents.models.sentences import speakable, split_sentences
 
 __all__ = ["OpenAISpeechClient", "OpenAITranscriptionClient", "wav_bytes"]
 
@@ -70,7 +72,6 @@ class OpenAITranscriptionClient(OpenAIHTTPClient):
         Raises ``ConnectionError`` / ``TimeoutError`` / :class:`~embagents.models.clients.openai_http.OpenAIHTTPError`
         with the URL and what to check.
         """
-        from embagents.models.backends.sherpa_stt import check_samples
 
         samples = np.asarray(audio)
         check_samples(samples)  # a clear error here, not an HTTP 400 from the server
@@ -106,7 +107,6 @@ class OpenAISpeechClient(OpenAIHTTPClient):
         ``TimeoutError`` / :class:`~embagents.models.clients.openai_http.OpenAIHTTPError` naming the URL,
         and ``ValueError`` when the server's answer is not a WAV file.
         """
-        from embagents.models.sentences import speakable, split_sentences
 
         if not speakable(text):
             raise ValueError(f"text {str(text)[:60]!r} has no speakable characters (no letters or digits); send words")

