@@ -16,65 +16,22 @@ Example::
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
+
+from embagents.models.convert.onnx_graph import Graph
 
 __all__ = ["build_bert_onnx"]
 
 
-class _Graph:
-    """Nodes and initializers of a graph being written (names are made unique here)."""
-
-    def __init__(self, helper: Any, numpy_helper: Any) -> None:
-        self.h, self.nh = helper, numpy_helper
-        self.nodes: list[Any] = []
-        self.inits: list[Any] = []
-        self.count = 0
-
-    def const(self, value: np.ndarray, name: str | None = None) -> str:
-        self.count += 1
-        name = name or f"c{self.count}"
-        self.inits.append(self.nh.from_array(np.asarray(value), name))
-        return name
-
-    def op(self, kind: str, *inputs: str, **attrs: Any) -> str:
-        self.count += 1
-        out = f"{kind.lower()}{self.count}"
-        self.nodes.append(self.h.make_node(kind, list(inputs), [out], **attrs))
-        return out
-
-    def linear(self, x: str, w: np.ndarray, b: np.ndarray) -> str:
-        return self.op("Add", self.op("MatMul", x, self.const(w.T.copy())), self.const(b))
-
-    def layer_norm(self, x: str, w: np.ndarray, b: np.ndarray, eps: float) -> str:
-        return self.op("LayerNormalization", x, self.const(w), self.const(b), axis=-1, epsilon=eps)
-
-
-def _attention(g: _Graph, x: str, w: Callable[[str], np.ndarray], p: str, heads: int, head_dim: int,
+def _attention(g: Graph, x: str, w: Callable[[str], np.ndarray], p: str, heads: int, hidden: int,
                mask_bias: str) -> str:
-    split = g.const(np.array([0, 0, heads, head_dim], np.int64))
-
-    def heads_of(name: str, perm: list[int]) -> str:
-        y = g.linear(x, w(f"{p}.attention.self.{name}.weight"), w(f"{p}.attention.self.{name}.bias"))
-        return g.op("Transpose", g.op("Reshape", y, split), perm=perm)
-
-    q, k, v = heads_of("query", [0, 2, 1, 3]), heads_of("key", [0, 2, 3, 1]), heads_of("value", [0, 2, 1, 3])
-    scores = g.op("Mul", g.op("MatMul", q, k), g.const(np.array(1.0 / math.sqrt(head_dim), np.float32)))
-    probs = g.op("Softmax", g.op("Add", scores, mask_bias), axis=-1)
-    ctx = g.op("Transpose", g.op("MatMul", probs, v), perm=[0, 2, 1, 3])
-    ctx = g.op("Reshape", ctx, g.const(np.array([0, 0, heads * head_dim], np.int64)))
+    q, k, v = (g.linear(x, w(f"{p}.attention.self.{n}.weight"), w(f"{p}.attention.self.{n}.bias"))
+               for n in ("query", "key", "value"))
+    ctx = g.attention(q, k, v, heads, hidden, mask_bias)
     return g.linear(ctx, w(f"{p}.attention.output.dense.weight"), w(f"{p}.attention.output.dense.bias"))
-
-
-def _gelu(g: _Graph, x: str) -> str:
-    """Exact (erf) GELU, as BERT's ``hidden_act: gelu``."""
-    inner = g.op("Erf", g.op("Mul", x, g.const(np.array(1 / math.sqrt(2), np.float32))))
-    return g.op("Mul", g.op("Mul", x, g.const(np.array(0.5, np.float32))),
-                g.op("Add", inner, g.const(np.array(1.0, np.float32))))
 
 
 def build_bert_onnx(folder: str, out_path: str, progress: Callable[[int, int], None] | None = None) -> str:
@@ -84,7 +41,7 @@ def build_bert_onnx(folder: str, out_path: str, progress: Callable[[int, int], N
     The file is written atomically (a half-written graph is never seen).
     """
     import onnx
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import TensorProto, helper
     from safetensors.numpy import load_file
 
     with open(os.path.join(folder, "config.json"), encoding="utf-8") as f:
@@ -98,7 +55,7 @@ def build_bert_onnx(folder: str, out_path: str, progress: Callable[[int, int], N
     hidden, heads, layers = int(cfg["hidden_size"]), int(cfg["num_attention_heads"]), int(cfg["num_hidden_layers"])
     eps = float(cfg.get("layer_norm_eps", 1e-12))
     total = layers + 2
-    g = _Graph(helper, numpy_helper)
+    g = Graph()
     # Embeddings: words + positions + token type 0 (one sentence per input), then layer norm.
     words = g.op("Gather", g.const(w("embeddings.word_embeddings.weight")), "input_ids")
     seq = g.op("Gather", g.op("Shape", "input_ids"), g.const(np.array(1, np.int64)))
@@ -114,10 +71,10 @@ def build_bert_onnx(folder: str, out_path: str, progress: Callable[[int, int], N
         progress(1, total)
     for i in range(layers):
         p = f"encoder.layer.{i}"
-        attn = _attention(g, x, w, p, heads, hidden // heads, bias)
+        attn = _attention(g, x, w, p, heads, hidden, bias)
         x = g.layer_norm(g.op("Add", attn, x), w(f"{p}.attention.output.LayerNorm.weight"),
                          w(f"{p}.attention.output.LayerNorm.bias"), eps)
-        inter = _gelu(g, g.linear(x, w(f"{p}.intermediate.dense.weight"), w(f"{p}.intermediate.dense.bias")))
+        inter = g.gelu(g.linear(x, w(f"{p}.intermediate.dense.weight"), w(f"{p}.intermediate.dense.bias")))
         out = g.linear(inter, w(f"{p}.output.dense.weight"), w(f"{p}.output.dense.bias"))
         x = g.layer_norm(g.op("Add", out, x), w(f"{p}.output.LayerNorm.weight"), w(f"{p}.output.LayerNorm.bias"), eps)
         if progress:
@@ -133,10 +90,7 @@ def build_bert_onnx(folder: str, out_path: str, progress: Callable[[int, int], N
     g.nodes.append(helper.make_node("Div", [mean, norm], ["sentence_embedding"]))
     ints = [helper.make_tensor_value_info(n, TensorProto.INT64, ["batch", "seq"]) for n in ("input_ids", "attention_mask")]
     outs = [helper.make_tensor_value_info("sentence_embedding", TensorProto.FLOAT, ["batch", hidden])]
-    graph = helper.make_graph(g.nodes, "sentence_encoder", ints, outs, g.inits)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)], producer_name="embagents")
-    model.ir_version = 8
-    helper.set_model_props(model, {"embedding_dim": str(hidden), "source": os.path.abspath(folder)})
+    model = g.model("sentence_encoder", ints, outs, {"embedding_dim": hidden, "source": os.path.abspath(folder)}, opset=18)
     onnx.checker.check_model(model)
     part = f"{out_path}.part{os.getpid()}"
     onnx.save(model, part)

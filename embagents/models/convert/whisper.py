@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from embagents.models.convert.onnx_graph import Graph
 from embagents.models.progress import progress_bar
 
 __all__ = ["CONVERTER_VERSION", "WHISPER_FILES", "convert_ct2_whisper", "gpt2_token_bytes", "read_ct2_model"]
@@ -123,68 +124,14 @@ def gpt2_token_bytes(token: str) -> bytes:
     return bytes(back[c] for c in token)
 
 
-class _Graph:
-    """A little onnx.helper graph builder: nodes get unique names, weights become initializers."""
+def _layer_norm(g: Graph, x: str, w: dict[str, np.ndarray], prefix: str) -> str:
+    return g.layer_norm(x, w[prefix + "/gamma"], w[prefix + "/beta"])
 
-    def __init__(self) -> None:
-        import onnx.helper
-        import onnx.numpy_helper
 
-        self.h, self.nh = onnx.helper, onnx.numpy_helper
-        self.nodes: list[Any] = []
-        self.inits: list[Any] = []
-        self.n = 0
-
-    def const(self, value: Any, name: str | None = None) -> str:
-        self.n += 1
-        name = name or f"c{self.n}"
-        self.inits.append(self.nh.from_array(np.asarray(value), name))
-        return name
-
-    def op(self, kind: str, *inputs: str, outputs: int = 1, name: str | None = None, **attrs: Any) -> Any:
-        self.n += 1
-        outs = [name] if name and outputs == 1 else [f"{kind.lower()}{self.n}_{i}" for i in range(outputs)]
-        self.nodes.append(self.h.make_node(kind, list(inputs), outs, **attrs))
-        return outs[0] if outputs == 1 else outs
-
-    # -- layers ----------------------------------------------------------------------------
-    def linear(self, x: str, w: np.ndarray, b: np.ndarray | None) -> str:
-        y = self.op("MatMul", x, self.const(np.ascontiguousarray(w.T)))
-        return y if b is None else self.op("Add", y, self.const(b))
-
-    def layer_norm(self, x: str, weights: dict[str, np.ndarray], prefix: str) -> str:
-        return self.op("LayerNormalization", x, self.const(weights[prefix + "/gamma"]),
-                       self.const(weights[prefix + "/beta"]), axis=-1, epsilon=1e-5)
-
-    def gelu(self, x: str) -> str:  # exact (erf) GELU, as Whisper's; opset 17 has no Gelu op
-        erf = self.op("Erf", self.op("Div", x, self.const(np.float32(np.sqrt(2.0)))))
-        return self.op("Mul", self.op("Mul", x, self.const(np.float32(0.5))),
-                       self.op("Add", erf, self.const(np.float32(1.0))))
-
-    def attention(self, q: str, k: str, v: str, heads: int, dim: int, mask: str | None = None) -> str:
-        """Multi-head attention of (N, Tq, D) queries over (N, Tk, D) keys/values."""
-        split = self.const(np.array([0, 0, heads, dim // heads], np.int64))
-        qh = self.op("Transpose", self.op("Reshape", q, split), perm=[0, 2, 1, 3])
-        kh = self.op("Transpose", self.op("Reshape", k, split), perm=[0, 2, 3, 1])
-        vh = self.op("Transpose", self.op("Reshape", v, split), perm=[0, 2, 1, 3])
-        qk = self.op("Mul", self.op("MatMul", qh, kh), self.const(np.float32((dim // heads) ** -0.5)))
-        if mask is not None:
-            qk = self.op("Add", qk, mask)
-        out = self.op("MatMul", self.op("Softmax", qk, axis=-1), vh)
-        return self.op("Reshape", self.op("Transpose", out, perm=[0, 2, 1, 3]),
-                       self.const(np.array([0, 0, dim], np.int64)))
-
-    def ffn(self, x: str, w: dict[str, np.ndarray], prefix: str) -> str:
-        h = self.layer_norm(x, w, prefix + "/layer_norm")
-        h = self.gelu(self.linear(h, w[prefix + "/linear_0/weight"], w[prefix + "/linear_0/bias"]))
-        return self.op("Add", x, self.linear(h, w[prefix + "/linear_1/weight"], w[prefix + "/linear_1/bias"]))
-
-    def model(self, name: str, inputs: list[Any], outputs: list[Any], metadata: dict[str, Any]) -> Any:
-        graph = self.h.make_graph(self.nodes, name, inputs, outputs, self.inits)
-        model = self.h.make_model(graph, opset_imports=[self.h.make_opsetid("", _OPSET)], producer_name="embagents")
-        model.ir_version = 8  # loadable by the onnxruntime sherpa-onnx bundles, not only the newest
-        self.h.set_model_props(model, {k: str(v) for k, v in metadata.items()})
-        return model
+def _ffn(g: Graph, x: str, w: dict[str, np.ndarray], prefix: str) -> str:
+    h = _layer_norm(g, x, w, prefix + "/layer_norm")
+    h = g.gelu(g.linear(h, w[prefix + "/linear_0/weight"], w[prefix + "/linear_0/bias"]))
+    return g.op("Add", x, g.linear(h, w[prefix + "/linear_1/weight"], w[prefix + "/linear_1/bias"]))
 
 
 def _dims(w: dict[str, np.ndarray]) -> dict[str, int]:
@@ -204,8 +151,8 @@ def _dims(w: dict[str, np.ndarray]) -> dict[str, int]:
     }
 
 
-def _encoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], None]) -> tuple[_Graph, list[Any]]:
-    g = _Graph()
+def _encoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], None]) -> tuple[Graph, list[Any]]:
+    g = Graph()
     state, heads = d["n_audio_state"], d["n_audio_head"]
     x = g.gelu(g.op("Conv", "mel", g.const(w["encoder/conv1/weight"]), g.const(w["encoder/conv1/bias"]),
                     kernel_shape=[3], pads=[1, 1]))
@@ -218,15 +165,15 @@ def _encoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], Non
     x = g.op("Add", x, pos)  # the audio may be shorter than 30 s: as sherpa-onnx's export, slice the positions
     for i in range(d["n_audio_layer"]):
         p = f"encoder/layer_{i}"
-        h = g.layer_norm(x, w, p + "/self_attention/layer_norm")
+        h = _layer_norm(g, x, w, p + "/self_attention/layer_norm")
         qkv = g.linear(h, w[p + "/self_attention/linear_0/weight"], w[p + "/self_attention/linear_0/bias"])
         q, k, v = g.op("Split", qkv, g.const(np.array([state] * 3, np.int64)), axis=-1, outputs=3)
         att = g.attention(q, k, v, heads, state)
         x = g.op("Add", x, g.linear(att, w[p + "/self_attention/linear_1/weight"],
                                     w[p + "/self_attention/linear_1/bias"]))
-        x = g.ffn(x, w, p + "/ffn")
+        x = _ffn(g, x, w, p + "/ffn")
         step()
-    x = g.layer_norm(x, w, "encoder/layer_norm")
+    x = _layer_norm(g, x, w, "encoder/layer_norm")
     ks, vs = [], []
     for i in range(d["n_text_layer"]):  # each decoder layer's cross-attention keys and values, computed once
         p = f"decoder/layer_{i}/attention/linear_1"
@@ -243,8 +190,8 @@ def _encoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], Non
     return g, [[t("mel", f32, ["n_audio", d["n_mels"], "T"])], outputs]
 
 
-def _decoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], None]) -> tuple[_Graph, list[Any]]:
-    g = _Graph()
+def _decoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], None]) -> tuple[Graph, list[Any]]:
+    g = Graph()
     state, heads, ctx = d["n_text_state"], d["n_text_head"], d["n_text_ctx"]
     i64 = lambda *v: g.const(np.array(v, np.int64))  # noqa: E731
     n = g.op("Slice", g.op("Shape", "tokens"), i64(1), i64(2))  # (1,): tokens in this call
@@ -261,7 +208,7 @@ def _decoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], Non
     new_k, new_v = [], []
     for i in range(d["n_text_layer"]):
         p = f"decoder/layer_{i}"
-        h = g.layer_norm(x, w, p + "/self_attention/layer_norm")
+        h = _layer_norm(g, x, w, p + "/self_attention/layer_norm")
         qkv = g.linear(h, w[p + "/self_attention/linear_0/weight"], w[p + "/self_attention/linear_0/bias"])
         q, k, v = g.op("Split", qkv, i64(state, state, state), axis=-1, outputs=3)
         full = []
@@ -275,17 +222,17 @@ def _decoder(w: dict[str, np.ndarray], d: dict[str, int], step: Callable[[], Non
         att = g.attention(q, seen_k, seen_v, heads, state, mask)
         x = g.op("Add", x, g.linear(att, w[p + "/self_attention/linear_1/weight"],
                                     w[p + "/self_attention/linear_1/bias"]))
-        h = g.layer_norm(x, w, p + "/attention/layer_norm")
+        h = _layer_norm(g, x, w, p + "/attention/layer_norm")
         q = g.linear(h, w[p + "/attention/linear_0/weight"], w[p + "/attention/linear_0/bias"])
         ck = g.op("Gather", "n_layer_cross_k", g.const(np.int64(i)), axis=0)
         cv = g.op("Gather", "n_layer_cross_v", g.const(np.int64(i)), axis=0)
         att = g.attention(q, ck, cv, heads, state)
         x = g.op("Add", x, g.linear(att, w[p + "/attention/linear_2/weight"], w[p + "/attention/linear_2/bias"]))
-        x = g.ffn(x, w, p + "/ffn")
+        x = _ffn(g, x, w, p + "/ffn")
         new_k.append(g.op("Unsqueeze", full[0], i64(0)))
         new_v.append(g.op("Unsqueeze", full[1], i64(0)))
         step()
-    x = g.layer_norm(x, w, "decoder/layer_norm")
+    x = _layer_norm(g, x, w, "decoder/layer_norm")
     # logits = x @ embeddings^T, as a 2-D Gemm so the embedding matrix is stored once
     flat = g.op("Gemm", g.op("Reshape", x, i64(-1, state)), emb, transB=1)
     g.op("Reshape", flat, g.op("Concat", g.op("Slice", g.op("Shape", "tokens"), i64(0), i64(2)), i64(-1), axis=0),
@@ -364,9 +311,9 @@ def convert_ct2_whisper(src: str, dest: str, *, name: str = "tiny.en", progress:
     tmp.mkdir(parents=True, exist_ok=True)
     try:
         enc, (ins, outs) = _encoder(w, d, step)
-        onnx.save(enc.model("encoder", ins, outs, _metadata(vocab, d, config, name)), str(tmp / "encoder.onnx"))
+        onnx.save(enc.model("encoder", ins, outs, _metadata(vocab, d, config, name), opset=_OPSET), str(tmp / "encoder.onnx"))
         dec, (ins, outs) = _decoder(w, d, step)
-        onnx.save(dec.model("decoder", ins, outs, {"model_type": f"whisper-{name}"}), str(tmp / "decoder.onnx"))
+        onnx.save(dec.model("decoder", ins, outs, {"model_type": f"whisper-{name}"}, opset=_OPSET), str(tmp / "decoder.onnx"))
         eot = vocab.index("<|endoftext|>")
         with open(tmp / "tokens.txt", "w", encoding="utf-8") as f:  # regular tokens only: from eot on, special
             for i, tok in enumerate(vocab[:eot]):
