@@ -36,27 +36,20 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-import attrs
-
 from actors import ActorNotFound, runtime, wire
-from actors.codec import message
 from actors.errors import ActorCrashed, RemoteError
 from actors.link import Pending
 from actors.wire import check_name
+from embagents.requests import Call
 
 __all__ = ["Agent", "AgentCall", "AgentCrashed", "AgentError", "AgentFuture", "AgentNotRunning"]
 
 log = logging.getLogger("embagents.manager.agents")
 
 
-@message("embagents/AgentCall")
-@attrs.define
-class AgentCall:
-    """One call to an isolated agent's actor: ``method(*args, **kwargs)``; the ask gets its return value."""
-
-    method: str
-    args: list[Any] = attrs.field(factory=list, converter=list)
-    kwargs: dict[str, Any] = attrs.field(factory=dict, converter=dict)
+#: One call to an isolated agent's actor is the message a component's actor gets: a
+#: :class:`~embagents.requests.Call` (``method(*args, **kwargs)``; the ask gets its return value).
+AgentCall = Call
 
 
 class AgentError(RuntimeError):
@@ -237,7 +230,7 @@ class Agent:
                 fut.set_exception(value if isinstance(value, BaseException) else AgentError(str(value)))
 
         pending = Pending(settle)
-        message = AgentCall(method, list(args), dict(kwargs))
+        message = Call(method, list(args), dict(kwargs))
         loop = rt.loop_here()
         if loop is not None:  # the manager actor's own loop thread: answers arrive between ticks
             link = rt.link(self.actor_name, loop)

@@ -3,7 +3,7 @@
 The System was loaded before the fork server started, so the agent's
 declaration is already in memory: the actor finds it by manager and agent
 name, builds the agent's object here and answers each
-:class:`~embagents.manager.agents.AgentCall` with the method's return value
+:class:`~embagents.requests.Call` with the method's return value
 (an exception reaches the caller's future as an error naming the agent).
 
 Example::
@@ -17,7 +17,8 @@ from __future__ import annotations
 from typing import Any
 
 from actors import Actor
-from embagents.manager.agents import AgentCall, invoke
+from embagents.manager.agents import invoke
+from embagents.requests import Call
 from embagents.system import loaded_system
 
 __all__ = ["AgentActor"]
@@ -37,8 +38,8 @@ class AgentActor(Actor):
         self.obj = decl.build()
 
     def on_receive(self, message: Any) -> Any:
-        if not isinstance(message, AgentCall):
-            raise ValueError(f"{self.label}: expected an AgentCall(method, args, kwargs), got {message!r}")
+        if not isinstance(message, Call):
+            raise ValueError(f"{self.label}: expected a Call(method, args, kwargs), got {message!r}")
         return invoke(self.agent_name, self.obj, message.method, message.args, message.kwargs)
 
     def on_stop(self) -> None:
