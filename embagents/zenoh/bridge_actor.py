@@ -12,8 +12,11 @@ Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
 samples cached, heartbeats for miss detection) and advanced subscriber
 (recovery of missed samples by sequence number, in order, once): a link cut
 shorter than the window loses nothing; a loss beyond it is counted
-(``lost`` in ``embagents status``) and logged. Keep-latest topics are plain
-publishers that drop under congestion and just resume.
+(``lost`` in ``embagents status``) and logged. A restarted bridge gets the
+publishers' caches again: what its killed incarnation had forwarded (the last
+sequence number of each source, in a file of the run: :class:`_Delivered`)
+is dropped and counted as ``replayed``, so a component gets each message once.
+Keep-latest topics are plain publishers that drop under congestion and just resume.
 
 Links: explicit endpoints, multicast scouting off. Each endpoint's state
 (up, down since when, never up with the last error) and the traffic each
@@ -116,6 +119,54 @@ class _Blobs:
         if not ok:
             raise CorruptFrame(f"bad array handle {handle!r:.100} in a {len(data)}-byte payload")
         return np.frombuffer(data, dtype=dt, count=count, offset=base + off).reshape(shape)
+
+
+class _Delivered:
+    """The last sequence number forwarded from each keep-all Zenoh source, in a file of the run.
+
+    A restarted bridge's advanced subscriber gets the publishers' whole replay cache again
+    (history): what its previous incarnation already forwarded is dropped here (counted as
+    ``replayed``), so the component gets each message once. One slot per source (a publisher
+    incarnation: session id and entity id), written after each forward: a memory write into a
+    shared mapping, which survives this process being killed. The oldest slot is reused past
+    ``slots`` sources.
+    """
+
+    DTYPE = np.dtype([("zid", "S32"), ("eid", "<u4"), ("sn", "<u8"), ("used", "<u8")])
+
+    def __init__(self, path: str, slots: int = 1024) -> None:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        reuse = os.path.exists(path) and os.path.getsize(path) == slots * self.DTYPE.itemsize
+        self.table: Any = np.memmap(path, dtype=self.DTYPE, mode="r+" if reuse else "w+", shape=(slots,))
+        self.slot = {(bytes(r["zid"]), int(r["eid"])): i for i, r in enumerate(self.table) if r["used"]}
+        self.tick = int(self.table["used"].max()) if len(self.slot) else 0
+
+    def seen(self, source: tuple[bytes, int], sn: int) -> bool:
+        i = self.slot.get(source)
+        return i is not None and sn <= int(self.table[i]["sn"])
+
+    def forwarded(self, source: tuple[bytes, int], sn: int) -> None:
+        i = self.slot.get(source)
+        self.tick += 1
+        if i is None:
+            free = np.flatnonzero(self.table["used"] == 0)
+            i = int(free[0]) if len(free) else int(np.argmin(self.table["used"]))
+            old = self.table[i]
+            self.slot.pop((bytes(old["zid"]), int(old["eid"])), None)
+            self.table[i] = (source[0], source[1], sn, self.tick)
+            self.slot[source] = i
+            return
+        self.table[i]["sn"] = sn  # one source's samples come in order (the advanced subscriber's)
+        self.table[i]["used"] = self.tick
+
+
+def _source(sample: Any) -> tuple[tuple[bytes, int], int] | None:
+    """A sample's (source id, sequence number), set by the advanced publisher; None on a plain put."""
+    info = sample.source_info
+    if info is None:
+        return None
+    gid = info.source_id
+    return (str(gid.zid).encode(), int(gid.eid)), int(info.source_sn)
 
 
 def zenoh_config(spec: ZenohBridge) -> Any:
@@ -277,7 +328,8 @@ class ZenohBridgeActor(Actor):
         self.spec = spec = self._spec()
         self.blobs = _Blobs()
         self.codec = Codec(source=self.blobs)
-        self.counts = {"msgs_out": 0, "bytes_out": 0, "msgs_in": 0, "bytes_in": 0, "lost": 0, "refused": 0}
+        self.counts = {"msgs_out": 0, "bytes_out": 0, "msgs_in": 0, "bytes_in": 0, "lost": 0, "refused": 0,
+                       "replayed": 0}
         self._prev: tuple[float, dict[str, int]] | None = None
         self._lock = threading.Lock()  # counters touched by zenoh's threads
         now = time.monotonic()
@@ -314,12 +366,14 @@ class ZenohBridgeActor(Actor):
             self.publishers[e.topic] = pub
             ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic), queue_size=max(10, min(e.window, 1000)),
                           keep=e.keep)
+        # What this bridge's earlier incarnations forwarded (keep-all imports), by source and sequence number.
+        self.delivered = _Delivered(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.delivered"))
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
         sub: Any
         for i in spec.imports:
             assert i.topic is not None  # Import fills it in from the key
-            cb = self._in_callback(i.topic)
+            cb = self._in_callback(i.topic, once=i.keep == "all")
             if i.keep == "all":
                 sub = zext.declare_advanced_subscriber(
                     self.session, zenoh_key(i.key), cb, allowed_origin=zenoh.Locality.REMOTE,
@@ -359,10 +413,16 @@ class ZenohBridgeActor(Actor):
             self.counts["msgs_out"] += 1
             self.counts["bytes_out"] += len(data)
 
-    def _in_callback(self, topic: str) -> Any:
+    def _in_callback(self, topic: str, once: bool = False) -> Any:
         codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
+        delivered = self.delivered
 
         def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
+            source = _source(sample) if once else None
+            if source is not None and delivered.seen(*source):  # forwarded by an earlier incarnation
+                with lock:
+                    counts["replayed"] += 1
+                return
             data = sample.payload.to_bytes()
             try:
                 if data[:4] == LZ4:
@@ -378,7 +438,15 @@ class ZenohBridgeActor(Actor):
             with lock:
                 counts["msgs_in"] += 1
                 counts["bytes_in"] += len(data)
-            ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
+            if source is None:
+                ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
+                return
+
+            def forward() -> None:
+                ctx.publish(topic, msg)
+                delivered.forwarded(*source)
+
+            ctx.call_soon_threadsafe(forward)
 
         return on_sample
 
@@ -485,7 +553,7 @@ class ZenohBridgeActor(Actor):
             lines.append(f"zenoh {ln['role']} {ln['endpoint']}: {state}, {ln['links']} link(s){err}")
         lines.append(f"zenoh {self.spec.namespace}: out {rates['msgs_out']:g} msg/s {rates['bytes_out']:g} B/s, "
                      f"in {rates['msgs_in']:g} msg/s {rates['bytes_in']:g} B/s, lost {counts['lost']}, "
-                     f"refused {counts['refused']}; health {self.health[0].name}")
+                     f"refused {counts['refused']}, replayed {counts['replayed']}; health {self.health[0].name}")
         return {"links": links, "counts": counts, "rates": rates, "health": self.health[0].name,
                 "health_text": self.health[1], "lines": lines}
 
@@ -505,3 +573,4 @@ class ZenohBridgeActor(Actor):
             pub.undeclare()
         self.link_listener.undeclare()
         self.session.close()
+        self.delivered.table.flush()
