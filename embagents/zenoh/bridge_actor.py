@@ -30,6 +30,7 @@ from __future__ import annotations
 import functools
 import json
 import logging
+import mmap
 import os
 import socket
 import struct
@@ -128,36 +129,50 @@ class _Delivered:
     (history): what its previous incarnation already forwarded is dropped here (counted as
     ``replayed``), so the component gets each message once. One slot per source (a publisher
     incarnation: session id and entity id), written after each forward: a memory write into a
-    shared mapping, which survives this process being killed. The oldest slot is reused past
-    ``slots`` sources.
+    shared mapping, which survives this process being killed. The least recently used slot is
+    reused past ``slots`` sources. Lookups read dicts, not the mapping (the receive path is hot).
     """
 
-    DTYPE = np.dtype([("zid", "S32"), ("eid", "<u4"), ("sn", "<u8"), ("used", "<u8")])
+    SLOT = struct.Struct("<32sIQQ")  # zid, eid, last sequence number, last use (0: free)
 
     def __init__(self, path: str, slots: int = 1024) -> None:
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        reuse = os.path.exists(path) and os.path.getsize(path) == slots * self.DTYPE.itemsize
-        self.table: Any = np.memmap(path, dtype=self.DTYPE, mode="r+" if reuse else "w+", shape=(slots,))
-        self.slot = {(bytes(r["zid"]), int(r["eid"])): i for i, r in enumerate(self.table) if r["used"]}
-        self.tick = int(self.table["used"].max()) if len(self.slot) else 0
+        size = slots * self.SLOT.size
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            if os.fstat(fd).st_size != size:
+                os.ftruncate(fd, 0)
+                os.ftruncate(fd, size)
+            self.map = mmap.mmap(fd, size)
+        finally:
+            os.close(fd)
+        self.slot: dict[tuple[bytes, int], int] = {}
+        self.last: dict[tuple[bytes, int], int] = {}
+        self.used = [0] * slots
+        for i in range(slots):
+            zid, eid, sn, used = self.SLOT.unpack_from(self.map, i * self.SLOT.size)
+            if used:
+                key = (zid.rstrip(b"\0"), eid)
+                self.slot[key], self.last[key], self.used[i] = i, sn, used
+        self.tick = max(self.used)
 
     def seen(self, source: tuple[bytes, int], sn: int) -> bool:
-        i = self.slot.get(source)
-        return i is not None and sn <= int(self.table[i]["sn"])
+        return sn <= self.last.get(source, -1)
 
     def forwarded(self, source: tuple[bytes, int], sn: int) -> None:
-        i = self.slot.get(source)
         self.tick += 1
+        i = self.slot.get(source)
         if i is None:
-            free = np.flatnonzero(self.table["used"] == 0)
-            i = int(free[0]) if len(free) else int(np.argmin(self.table["used"]))
-            old = self.table[i]
-            self.slot.pop((bytes(old["zid"]), int(old["eid"])), None)
-            self.table[i] = (source[0], source[1], sn, self.tick)
+            i = min(range(len(self.used)), key=self.used.__getitem__)  # a free one (0) or the least recently used
+            for key, j in list(self.slot.items()):
+                if j == i:
+                    del self.slot[key], self.last[key]
             self.slot[source] = i
-            return
-        self.table[i]["sn"] = sn  # one source's samples come in order (the advanced subscriber's)
-        self.table[i]["used"] = self.tick
+        self.last[source], self.used[i] = sn, self.tick
+        self.SLOT.pack_into(self.map, i * self.SLOT.size, source[0], source[1], sn, self.tick)
+
+    def close(self) -> None:
+        self.map.close()
 
 
 def _source(sample: Any) -> tuple[tuple[bytes, int], int] | None:
@@ -573,4 +588,4 @@ class ZenohBridgeActor(Actor):
             pub.undeclare()
         self.link_listener.undeclare()
         self.session.close()
-        self.delivered.table.flush()
+        self.delivered.close()
