@@ -62,6 +62,8 @@ JPEG = b"EZJ\0"  # then a MAGIC payload's rest: its message is a CompressedImage
 #: The most an lz4 payload may grow to (a decompression bomb is a corrupt frame).
 MAX_PAYLOAD = 256 * 1024 * 1024
 _HEAD = struct.Struct("<4sI")  # magic, msgpack body length
+#: A keep-all sample's attachment: its number among all its export's samples, across bridge restarts.
+_NUMBER = struct.Struct("<Q")
 
 
 class _Blobs:
@@ -170,6 +172,30 @@ class _Delivered:
             self.slot[source] = i
         self.last[source], self.used[i] = sn, self.tick
         self.SLOT.pack_into(self.map, i * self.SLOT.size, source[0], source[1], sn, self.tick)
+
+    def close(self) -> None:
+        self.map.close()
+
+
+class _Numbers:
+    """Numbers of the run that outlive this process (a killed bridge's successor goes on from them): an mmap."""
+
+    def __init__(self, path: str, n: int) -> None:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            if os.fstat(fd).st_size != 8 * max(n, 1):
+                os.ftruncate(fd, 0)
+                os.ftruncate(fd, 8 * max(n, 1))
+            self.map = mmap.mmap(fd, 8 * max(n, 1))
+        finally:
+            os.close(fd)
+
+    def get(self, i: int) -> int:
+        return int(_NUMBER.unpack_from(self.map, 8 * i)[0])
+
+    def set(self, i: int, value: int) -> None:
+        _NUMBER.pack_into(self.map, 8 * i, value)
 
     def close(self) -> None:
         self.map.close()
@@ -368,8 +394,12 @@ class ZenohBridgeActor(Actor):
         self.link_listener = self.session.info.declare_link_events_listener(on_link, history=True)
         self.publishers: dict[str, Any] = {}
         self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
+        # Keep-all samples are numbered across this bridge's incarnations (the attachment): a receiver
+        # counts what a killed incarnation took but never got out (the advanced subscriber's sequence
+        # numbers start again with each incarnation, so they cannot tell).
+        self.sent = _Numbers(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.sent"), len(spec.exports))
         pub: Any
-        for e in spec.exports:
+        for n, e in enumerate(spec.exports):
             key = spec.key_of(e)
             if e.keep == "all":
                 pub = zext.declare_advanced_publisher(
@@ -379,10 +409,12 @@ class ZenohBridgeActor(Actor):
             else:
                 pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
-            ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic), queue_size=max(10, min(e.window, 1000)),
+            ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic, number=n if e.keep == "all" else -1),
+                          queue_size=max(10, min(e.window, 1000)),
                           keep=e.keep)
         # What this bridge's earlier incarnations forwarded (keep-all imports), by source and sequence number.
         self.delivered = _Delivered(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.delivered"))
+        self.chains: dict[str, tuple[tuple[bytes, int], int]] = {}  # key -> last (source, number) received
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
         sub: Any
@@ -404,7 +436,7 @@ class ZenohBridgeActor(Actor):
         self._timer = ctx.call_later(CHECK_EVERY_S, self._check)
 
     # -- traffic ------------------------------------------------------------------------
-    def _out(self, pub: Any, msg: Any, topic: str = "") -> None:
+    def _out(self, pub: Any, msg: Any, topic: str = "", number: int = -1) -> None:
         how, quality = self.compress.get(topic, (None, 0))
         try:
             if how == "jpeg":
@@ -423,14 +455,19 @@ class ZenohBridgeActor(Actor):
                 self.counts["refused"] += 1
             log.error("not sent: %s (%s)", type(msg).__name__, exc)
             return
-        pub.put(data)
+        if number < 0:
+            pub.put(data)
+        else:
+            n = self.sent.get(number) + 1
+            pub.put(data, attachment=_NUMBER.pack(n))
+            self.sent.set(number, n)  # after the put: a kill before it numbers the message again, never skips
         with self._lock:
             self.counts["msgs_out"] += 1
             self.counts["bytes_out"] += len(data)
 
     def _in_callback(self, topic: str, once: bool = False) -> Any:
         codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
-        delivered = self.delivered
+        delivered, chains = self.delivered, self.chains
 
         def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
             source = _source(sample) if once else None
@@ -438,6 +475,14 @@ class ZenohBridgeActor(Actor):
                 with lock:
                     counts["replayed"] += 1
                 return
+            if source is not None and (att := sample.attachment) is not None and len(number := att.to_bytes()) == 8:
+                # A new incarnation of the exporting bridge goes on from its predecessor's last number:
+                # a jump is what the killed one took from its component but never got out.
+                n, key = _NUMBER.unpack(number)[0], str(sample.key_expr)
+                prev = chains.get(key)
+                if prev is not None and prev[0] != source[0] and n > prev[1] + 1:
+                    self._lost_at_restart(key, n - prev[1] - 1)
+                chains[key] = (source[0], n)
             data = sample.payload.to_bytes()
             try:
                 if data[:4] == LZ4:
@@ -464,6 +509,12 @@ class ZenohBridgeActor(Actor):
             ctx.call_soon_threadsafe(forward)
 
         return on_sample
+
+    def _lost_at_restart(self, key: str, n: int) -> None:  # zenoh's thread
+        with self._lock:
+            self.counts["lost"] += n
+        log.error("%d message(s) on %s lost: the exporting bridge was killed with them taken from its component "
+                  "but not sent", n, key)
 
     def _missed(self, key: str, source: str, n: int) -> None:  # zenoh's thread
         with self._lock:
@@ -589,3 +640,4 @@ class ZenohBridgeActor(Actor):
         self.link_listener.undeclare()
         self.session.close()
         self.delivered.close()
+        self.sent.close()
