@@ -157,6 +157,7 @@ class _Delivered:
                 key = (zid.rstrip(b"\0"), eid)
                 self.slot[key], self.last[key], self.used[i] = i, sn, used
         self.tick = max(self.used)
+        self.restarted = bool(self.slot)  # an earlier incarnation forwarded something
 
     def seen(self, source: tuple[bytes, int], sn: int) -> bool:
         return sn <= self.last.get(source, -1)
@@ -398,6 +399,7 @@ class ZenohBridgeActor(Actor):
         # counts what a killed incarnation took but never got out (the advanced subscriber's sequence
         # numbers start again with each incarnation, so they cannot tell).
         self.sent = _Numbers(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.sent"), len(spec.exports))
+        self.numbers = [self.sent.get(i) for i in range(len(spec.exports))]
         pub: Any
         for n, e in enumerate(spec.exports):
             key = spec.key_of(e)
@@ -458,7 +460,7 @@ class ZenohBridgeActor(Actor):
         if number < 0:
             pub.put(data)
         else:
-            n = self.sent.get(number) + 1
+            n = self.numbers[number] = self.numbers[number] + 1
             pub.put(data, attachment=_NUMBER.pack(n))
             self.sent.set(number, n)  # after the put: a kill before it numbers the message again, never skips
         with self._lock:
@@ -467,22 +469,15 @@ class ZenohBridgeActor(Actor):
 
     def _in_callback(self, topic: str, once: bool = False) -> Any:
         codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
-        delivered, chains = self.delivered, self.chains
+        delivered, after = self.delivered, self._forwarded
 
         def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
-            source = _source(sample) if once else None
-            if source is not None and delivered.seen(*source):  # forwarded by an earlier incarnation
+            # Only a restarted bridge gets replays of what it forwarded: a first one skips the look-up
+            # (each step costs tens of microseconds on a core that just woke up).
+            if once and delivered.restarted and (source := _source(sample)) is not None and delivered.seen(*source):
                 with lock:
                     counts["replayed"] += 1
                 return
-            if source is not None and (att := sample.attachment) is not None and len(number := att.to_bytes()) == 8:
-                # A new incarnation of the exporting bridge goes on from its predecessor's last number:
-                # a jump is what the killed one took from its component but never got out.
-                n, key = _NUMBER.unpack(number)[0], str(sample.key_expr)
-                prev = chains.get(key)
-                if prev is not None and prev[0] != source[0] and n > prev[1] + 1:
-                    self._lost_at_restart(key, n - prev[1] - 1)
-                chains[key] = (source[0], n)
             data = sample.payload.to_bytes()
             try:
                 if data[:4] == LZ4:
@@ -498,23 +493,37 @@ class ZenohBridgeActor(Actor):
             with lock:
                 counts["msgs_in"] += 1
                 counts["bytes_in"] += len(data)
-            if source is None:
+            if not once:
                 ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
                 return
 
             def forward() -> None:
                 ctx.publish(topic, msg)
-                delivered.forwarded(*source)
+                after(sample)  # the bookkeeping once the message is on its way
 
             ctx.call_soon_threadsafe(forward)
 
         return on_sample
 
-    def _lost_at_restart(self, key: str, n: int) -> None:  # zenoh's thread
-        with self._lock:
-            self.counts["lost"] += n
-        log.error("%d message(s) on %s lost: the exporting bridge was killed with them taken from its component "
-                  "but not sent", n, key)
+    def _forwarded(self, sample: Any) -> None:
+        """Note a keep-all sample as forwarded (for a successor); count a jump in its export's numbers."""
+        source = _source(sample)
+        if source is None:
+            return
+        self.delivered.forwarded(*source)
+        att = sample.attachment
+        number = att.to_bytes() if att is not None else b""
+        if len(number) == 8:
+            # A new incarnation of the exporting bridge goes on from its predecessor's last number:
+            # a jump is what the killed one had taken from its component but never got out.
+            n, key = _NUMBER.unpack(number)[0], str(sample.key_expr)
+            prev = self.chains.get(key)
+            if prev is not None and prev[0] != source[0] and n > prev[1] + 1:
+                with self._lock:
+                    self.counts["lost"] += n - prev[1] - 1
+                log.error("%d message(s) on %s lost: the exporting bridge was killed with them taken from its "
+                          "component but not sent", n - prev[1] - 1, key)
+            self.chains[key] = (source[0], n)
 
     def _missed(self, key: str, source: str, n: int) -> None:  # zenoh's thread
         with self._lock:
