@@ -10,7 +10,8 @@ Latency is one way, from the CLOCK_MONOTONIC stamp the sender writes.
 
 ``zenoh_link_cut``: a keep-all topic at 500 Hz from A to B through a TCP
 forwarder that is cut for 3 s and restored, ``cuts`` times (10; 2 quick).
-``lost`` (never delivered, must be 0), ``duplicates`` (delivered twice to
+``lost`` (never delivered, must be 0; ``lost_reported``: what the receiving bridge
+counted and logged, the same number when it is honest), ``duplicates`` (delivered twice to
 the recorder, must be 0), ``resume_ms`` (restore -> first message, p50
 <= 1000 ms).
 """
@@ -96,6 +97,10 @@ class _RunB:
             seen = self.seen()
         return seen
 
+    def counts(self) -> dict[str, int]:
+        """The receiving bridge's counters (``lost``: what it reports lost; ``replayed``...)."""
+        return dict(self.bridge.ask("stats", timeout=30).get()["counts"])
+
     def close(self) -> None:
         sender = getattr(self, "sender", None)
         if sender is not None:
@@ -158,6 +163,7 @@ def zenoh_link_cut(opts: BenchOptions) -> dict[str, Any]:
                 proxy.restore()
                 time.sleep(between_s)
             seen = run.wait_for(n, 60)
+            counts = run.counts()
         finally:
             run.close()
     finally:
@@ -175,7 +181,7 @@ def zenoh_link_cut(opts: BenchOptions) -> dict[str, Any]:
     return {
         # p50_us / p99_us: restore -> first message (the table's columns); the bar reads resume_ms
         "p50_us": float(np.median(resume)) * 1e3, "p99_us": max(resume) * 1e3, "msgs_per_s": rate,
-        "lost": lost, "duplicates": len(indices) - len(set(indices)),
+        "lost": lost, "lost_reported": counts["lost"], "duplicates": len(indices) - len(set(indices)),
         "in_order": indices == sorted(indices),
         "resume_ms": float(np.median(resume)), "resume_ms_max": max(resume),
         "cuts": cuts, "sent": n,

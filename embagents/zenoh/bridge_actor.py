@@ -12,8 +12,11 @@ Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
 samples cached, heartbeats for miss detection) and advanced subscriber
 (recovery of missed samples by sequence number, in order, once): a link cut
 shorter than the window loses nothing; a loss beyond it is counted
-(``lost`` in ``embagents status``) and logged. Keep-latest topics are plain
-publishers that drop under congestion and just resume.
+(``lost`` in ``embagents status``) and logged. A restarted bridge gets the
+publishers' caches again: what its killed incarnation had forwarded (the last
+sequence number of each source, in a file of the run: :class:`_Delivered`)
+is dropped and counted as ``replayed``, so a component gets each message once.
+Keep-latest topics are plain publishers that drop under congestion and just resume.
 
 Links: explicit endpoints, multicast scouting off. Each endpoint's state
 (up, down since when, never up with the last error) and the traffic each
@@ -27,6 +30,7 @@ from __future__ import annotations
 import functools
 import json
 import logging
+import mmap
 import os
 import socket
 import struct
@@ -60,6 +64,8 @@ JPEG = b"EZJ\0"  # then a MAGIC payload's rest: its message is a CompressedImage
 #: The most an lz4 payload may grow to (a decompression bomb is a corrupt frame).
 MAX_PAYLOAD = 256 * 1024 * 1024
 _HEAD = struct.Struct("<4sI")  # magic, msgpack body length
+#: A keep-all sample's attachment: its number among all its export's samples, across bridge restarts.
+_NUMBER = struct.Struct("<Q")
 
 
 class _Blobs:
@@ -118,6 +124,93 @@ class _Blobs:
         if not ok:
             raise CorruptFrame(f"bad array handle {handle!r:.100} in a {len(data)}-byte payload")
         return np.frombuffer(data, dtype=dt, count=count, offset=base + off).reshape(shape)
+
+
+class _Delivered:
+    """The last sequence number forwarded from each keep-all Zenoh source, in a file of the run.
+
+    A restarted bridge's advanced subscriber gets the publishers' whole replay cache again
+    (history): what its previous incarnation already forwarded is dropped here (counted as
+    ``replayed``), so the component gets each message once. One slot per source (a publisher
+    incarnation: session id and entity id), written after each forward: a memory write into a
+    shared mapping, which survives this process being killed. The least recently used slot is
+    reused past ``slots`` sources. Lookups read dicts, not the mapping (the receive path is hot).
+    """
+
+    SLOT = struct.Struct("<32sIQQ")  # zid, eid, last sequence number, last use (0: free)
+
+    def __init__(self, path: str, slots: int = 1024) -> None:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        size = slots * self.SLOT.size
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            if os.fstat(fd).st_size != size:
+                os.ftruncate(fd, 0)
+                os.ftruncate(fd, size)
+            self.map = mmap.mmap(fd, size)
+        finally:
+            os.close(fd)
+        self.slot: dict[tuple[bytes, int], int] = {}
+        self.last: dict[tuple[bytes, int], int] = {}
+        self.used = [0] * slots
+        for i in range(slots):
+            zid, eid, sn, used = self.SLOT.unpack_from(self.map, i * self.SLOT.size)
+            if used:
+                key = (zid.rstrip(b"\0"), eid)
+                self.slot[key], self.last[key], self.used[i] = i, sn, used
+        self.tick = max(self.used)
+        self.restarted = bool(self.slot)  # an earlier incarnation forwarded something
+
+    def seen(self, source: tuple[bytes, int], sn: int) -> bool:
+        return sn <= self.last.get(source, -1)
+
+    def forwarded(self, source: tuple[bytes, int], sn: int) -> None:
+        self.tick += 1
+        i = self.slot.get(source)
+        if i is None:
+            i = min(range(len(self.used)), key=self.used.__getitem__)  # a free one (0) or the least recently used
+            for key, j in list(self.slot.items()):
+                if j == i:
+                    del self.slot[key], self.last[key]
+            self.slot[source] = i
+        self.last[source], self.used[i] = sn, self.tick
+        self.SLOT.pack_into(self.map, i * self.SLOT.size, source[0], source[1], sn, self.tick)
+
+    def close(self) -> None:
+        self.map.close()
+
+
+class _Numbers:
+    """Numbers of the run that outlive this process (a killed bridge's successor goes on from them): an mmap."""
+
+    def __init__(self, path: str, n: int) -> None:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            if os.fstat(fd).st_size != 8 * max(n, 1):
+                os.ftruncate(fd, 0)
+                os.ftruncate(fd, 8 * max(n, 1))
+            self.map = mmap.mmap(fd, 8 * max(n, 1))
+        finally:
+            os.close(fd)
+
+    def get(self, i: int) -> int:
+        return int(_NUMBER.unpack_from(self.map, 8 * i)[0])
+
+    def set(self, i: int, value: int) -> None:
+        _NUMBER.pack_into(self.map, 8 * i, value)
+
+    def close(self) -> None:
+        self.map.close()
+
+
+def _source(sample: Any) -> tuple[tuple[bytes, int], int] | None:
+    """A sample's (source id, sequence number), set by the advanced publisher; None on a plain put."""
+    info = sample.source_info
+    if info is None:
+        return None
+    gid = info.source_id
+    return (str(gid.zid).encode(), int(gid.eid)), int(info.source_sn)
 
 
 def zenoh_config(spec: ZenohBridge) -> Any:
@@ -276,7 +369,8 @@ class ZenohBridgeActor(Actor):
         self.spec = spec = self._spec()
         self.blobs = _Blobs()
         self.codec = Codec(source=self.blobs)
-        self.counts = {"msgs_out": 0, "bytes_out": 0, "msgs_in": 0, "bytes_in": 0, "lost": 0, "refused": 0}
+        self.counts = {"msgs_out": 0, "bytes_out": 0, "msgs_in": 0, "bytes_in": 0, "lost": 0, "refused": 0,
+                       "replayed": 0}
         self._prev: tuple[float, dict[str, int]] | None = None
         self._lock = threading.Lock()  # counters touched by zenoh's threads
         now = time.monotonic()
@@ -300,8 +394,13 @@ class ZenohBridgeActor(Actor):
         self.link_listener = self.session.info.declare_link_events_listener(on_link, history=True)
         self.publishers: dict[str, Any] = {}
         self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
+        # Keep-all samples are numbered across this bridge's incarnations (the attachment): a receiver
+        # counts what a killed incarnation took but never got out (the advanced subscriber's sequence
+        # numbers start again with each incarnation, so they cannot tell).
+        self.sent = _Numbers(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.sent"), len(spec.exports))
+        self.numbers = [self.sent.get(i) for i in range(len(spec.exports))]
         pub: Any
-        for e in spec.exports:
+        for n, e in enumerate(spec.exports):
             key = spec.key_of(e)
             if e.keep == "all":
                 pub = zext.declare_advanced_publisher(
@@ -311,14 +410,18 @@ class ZenohBridgeActor(Actor):
             else:
                 pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
-            ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic), queue_size=max(10, min(e.window, 1000)),
+            ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic, number=n if e.keep == "all" else -1),
+                          queue_size=max(10, min(e.window, 1000)),
                           keep=e.keep)
+        # What this bridge's earlier incarnations forwarded (keep-all imports), by source and sequence number.
+        self.delivered = _Delivered(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.delivered"))
+        self.chains: dict[str, tuple[tuple[bytes, int], int]] = {}  # key -> last (source, number) received
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
         sub: Any
         for i in spec.imports:
             assert i.topic is not None  # Import fills it in from the key
-            cb = self._in_callback(i.topic)
+            cb = self._in_callback(i.topic, once=i.keep == "all")
             if i.keep == "all":
                 sub = zext.declare_advanced_subscriber(
                     self.session, zenoh_key(i.key), cb, allowed_origin=zenoh.Locality.REMOTE,
@@ -334,7 +437,7 @@ class ZenohBridgeActor(Actor):
         self._timer = ctx.call_later(CHECK_EVERY_S, self._check)
 
     # -- traffic ------------------------------------------------------------------------
-    def _out(self, pub: Any, msg: Any, topic: str = "") -> None:
+    def _out(self, pub: Any, msg: Any, topic: str = "", number: int = -1) -> None:
         how, quality = self.compress.get(topic, (None, 0))
         try:
             if how == "jpeg":
@@ -353,15 +456,27 @@ class ZenohBridgeActor(Actor):
                 self.counts["refused"] += 1
             log.error("not sent: %s (%s)", type(msg).__name__, exc)
             return
-        pub.put(data)
+        if number < 0:
+            pub.put(data)
+        else:
+            n = self.numbers[number] = self.numbers[number] + 1
+            pub.put(data, attachment=_NUMBER.pack(n))
+            self.sent.set(number, n)  # after the put: a kill before it numbers the message again, never skips
         with self._lock:
             self.counts["msgs_out"] += 1
             self.counts["bytes_out"] += len(data)
 
-    def _in_callback(self, topic: str) -> Any:
+    def _in_callback(self, topic: str, once: bool = False) -> Any:
         codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
+        delivered, after = self.delivered, self._forwarded
 
         def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
+            # Only a restarted bridge gets replays of what it forwarded: a first one skips the look-up
+            # (each step costs tens of microseconds on a core that just woke up).
+            if once and delivered.restarted and (source := _source(sample)) is not None and delivered.seen(*source):
+                with lock:
+                    counts["replayed"] += 1
+                return
             data = sample.payload.to_bytes()
             try:
                 if data[:4] == LZ4:
@@ -377,9 +492,37 @@ class ZenohBridgeActor(Actor):
             with lock:
                 counts["msgs_in"] += 1
                 counts["bytes_in"] += len(data)
-            ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
+            if not once:
+                ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
+                return
+
+            def forward() -> None:
+                ctx.publish(topic, msg)
+                after(sample)  # the bookkeeping once the message is on its way
+
+            ctx.call_soon_threadsafe(forward)
 
         return on_sample
+
+    def _forwarded(self, sample: Any) -> None:
+        """Note a keep-all sample as forwarded (for a successor); count a jump in its export's numbers."""
+        source = _source(sample)
+        if source is None:
+            return
+        self.delivered.forwarded(*source)
+        att = sample.attachment
+        number = att.to_bytes() if att is not None else b""
+        if len(number) == 8:
+            # A new incarnation of the exporting bridge goes on from its predecessor's last number:
+            # a jump is what the killed one had taken from its component but never got out.
+            n, key = _NUMBER.unpack(number)[0], str(sample.key_expr)
+            prev = self.chains.get(key)
+            if prev is not None and prev[0] != source[0] and n > prev[1] + 1:
+                with self._lock:
+                    self.counts["lost"] += n - prev[1] - 1
+                log.error("%d message(s) on %s lost: the exporting bridge was killed with them taken from its "
+                          "component but not sent", n - prev[1] - 1, key)
+            self.chains[key] = (source[0], n)
 
     def _missed(self, key: str, source: str, n: int) -> None:  # zenoh's thread
         with self._lock:
@@ -484,7 +627,7 @@ class ZenohBridgeActor(Actor):
             lines.append(f"zenoh {ln['role']} {ln['endpoint']}: {state}, {ln['links']} link(s){err}")
         lines.append(f"zenoh {self.spec.namespace}: out {rates['msgs_out']:g} msg/s {rates['bytes_out']:g} B/s, "
                      f"in {rates['msgs_in']:g} msg/s {rates['bytes_in']:g} B/s, lost {counts['lost']}, "
-                     f"refused {counts['refused']}; health {self.health[0].name}")
+                     f"refused {counts['refused']}, replayed {counts['replayed']}; health {self.health[0].name}")
         return {"links": links, "counts": counts, "rates": rates, "health": self.health[0].name,
                 "health_text": self.health[1], "lines": lines}
 
@@ -503,3 +646,5 @@ class ZenohBridgeActor(Actor):
             pub.undeclare()
         self.link_listener.undeclare()
         self.session.close()
+        self.delivered.close()
+        self.sent.close()

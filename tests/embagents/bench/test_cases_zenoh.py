@@ -24,7 +24,7 @@ def test_the_zenoh_cases_measure_both_paths_and_a_cut_loses_nothing(tmp_path: Pa
     for tag in ("64b", "6mb"):
         assert type(bridge[f"ratio_{tag}"]) is float and bridge[f"raw_p50_us_{tag}"] > 0
     assert bridge["received_64b"] >= 90 and bridge["received_6mb"] >= 9
-    assert cut["lost"] == 0 and cut["duplicates"] == 0 and cut["in_order"] is True and cut["cuts"] == 2
+    assert cut["lost"] == 0 and cut["lost_reported"] == 0 and cut["duplicates"] == 0 and cut["in_order"] is True and cut["cuts"] == 2
     assert 0 < cut["resume_ms"] < 5000
     names = {b["name"] for b in doc["bars"]}
     assert {"Zenoh bridges run A -> run B, 64 B p50 / raw zenoh", "keep-all 500 Hz across 3 s link cuts: lost",

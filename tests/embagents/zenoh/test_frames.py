@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from embagents.zenoh.bridge_actor import (
     MAGIC,
     MAX_PAYLOAD,
     _Blobs,
+    _Delivered,
     _from_jpeg,
     _to_jpeg,
     _unlz4,
@@ -77,3 +80,17 @@ def test_an_lz4_bomb_or_garbage_is_a_corrupt_frame() -> None:
         _unlz4(lz4.frame.compress(bytes(MAX_PAYLOAD + 1)))
     with pytest.raises(CorruptFrame):
         _unlz4(b"not lz4 at all")
+
+
+def test_what_a_killed_bridge_forwarded_is_known_to_its_successor_and_old_sources_make_room(tmp_path: Path) -> None:
+    path = f"{tmp_path}/zenoh/_zenoh_bridge.delivered"
+    first = _Delivered(path, slots=2)
+    first.forwarded((b"zid-a", 1), 41)
+    first.forwarded((b"zid-a", 1), 42)
+    first.forwarded((b"zid-b", 7), 5)
+    del first  # killed: nothing flushed by hand
+    again = _Delivered(path, slots=2)
+    assert again.seen((b"zid-a", 1), 42) and not again.seen((b"zid-a", 1), 43)
+    assert again.seen((b"zid-b", 7), 5) and not again.seen((b"zid-c", 1), 1)
+    again.forwarded((b"zid-c", 1), 1)  # a third source takes the least recently used slot (zid-a's)
+    assert again.seen((b"zid-c", 1), 1) and again.seen((b"zid-b", 7), 5) and not again.seen((b"zid-a", 1), 42)

@@ -69,3 +69,29 @@ def test_a_cut_longer_than_the_window_counts_and_logs_the_loss(tmp_path: Path) -
     finally:
         b.stop(), a.stop()
         proxy.close()
+
+
+def test_what_a_bridge_killed_during_a_cut_had_kept_is_counted_as_lost_on_the_other_side(tmp_path: Path) -> None:
+    import os
+    import signal
+
+    a, b, proxy = _linked(tmp_path, window=5000)
+    try:
+        proxy.cut()
+        time.sleep(1.5)  # the exporting bridge keeps ~75 messages for the link to come back, then dies with them
+        rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
+        os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
+        wait_for(lambda: {r["name"]: r for r in (a.status() or {"rows": []})["rows"]}
+                 .get("_zenoh_bridge", {}).get("restarts") == 1, 30, "the bridge restarted")
+        proxy.restore()
+        n = len(b.got())
+        wait_for(lambda: len(b.got()) >= n + 50, 60, "messages after the restart")
+        got = b.got()
+        missing = set(range(got[0], got[-1] + 1)) - set(got)
+        assert len(set(got)) == len(got) and got == sorted(got)
+        detail = wait_for(lambda: (d := b.bridge()) and d["counts"]["lost"] and d, 10, "a counted loss")
+        assert len(missing) >= 20 and detail["counts"]["lost"] == len(missing)  # never silent, counted exactly
+        wait_for(lambda: any("the exporting bridge was killed" in x for x in b.all), 10, "the log line of the loss")
+    finally:
+        b.stop(), a.stop()
+        proxy.close()
