@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 import attrs
-from attrs import define, field
+from attrs import AttrsInstance, define, field
 
 __all__ = [
     "LOG_LEVELS",
@@ -38,12 +38,13 @@ __all__ = [
     "one_of",
     "optional_positive_float",
     "positive_float",
+    "positive_int",
     "to_bool",
 ]
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
 
-C = TypeVar("C")
+C = TypeVar("C", bound=AttrsInstance)
 
 
 class ConfigError(ValueError):
@@ -101,6 +102,15 @@ def int_at_least(low: int) -> Callable[[object], int]:
         return out
 
     return conv
+
+
+def positive_int(value: object) -> int:
+    """Converter: an integer (or integral string) >= 1; a named function, so mypy types the field.
+
+    >>> positive_int("3")
+    3
+    """
+    return int_at_least(1)(value)
 
 
 def one_of(name: str, *allowed: str, meanings: Mapping[str, str] | None = None) -> Callable[[object], str]:
@@ -190,7 +200,8 @@ def config_fields(config_or_class: object) -> list[str]:
 
 
 def _evolve(config: C, changes: dict[str, Any]) -> C:
-    return attrs.evolve(copy.deepcopy(config), **copy.deepcopy(changes))
+    # mypy's attrs plugin takes a TypeVar for an attrs class only when bound to one class, not to AttrsInstance.
+    return attrs.evolve(copy.deepcopy(config), **copy.deepcopy(changes))  # type: ignore[misc]
 
 
 def apply_config(config: C, overrides: Mapping[str, Any]) -> C:

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import contextlib
 import enum
-from typing import Any
+from collections.abc import Iterable
+from typing import Any, SupportsFloat
 
 import attrs
 import numpy as np
@@ -56,13 +57,13 @@ Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 
 
-def _vec3(v: object) -> Vec3:
-    x, y, z = (float(c) for c in v)  # type: ignore[union-attr]
+def _vec3(v: Iterable[SupportsFloat | str]) -> Vec3:
+    x, y, z = (float(c) for c in v)
     return (x, y, z)
 
 
-def _quat(v: object) -> Quat:
-    x, y, z, w = (float(c) for c in v)  # type: ignore[union-attr]
+def _quat(v: Iterable[SupportsFloat | str]) -> Quat:
+    x, y, z, w = (float(c) for c in v)
     return (x, y, z, w)
 
 
@@ -76,6 +77,23 @@ def _array(dtype: str, ndim: int | None = None):  # noqa: ANN202 - attrs convert
         return a
 
     return conv
+
+
+# Named converters: mypy's attrs plugin types a field through a named function, not a factory's result.
+def _int8_2d(v: object) -> np.ndarray:
+    return _array("int8", 2)(v)
+
+
+def _float64_1d(v: object) -> np.ndarray:
+    return _array("float64", 1)(v)
+
+
+def _float64_2d(v: object) -> np.ndarray:
+    return _array("float64", 2)(v)
+
+
+def _uint8_3d(v: object) -> np.ndarray:
+    return _array("uint8", 3)(v)
 
 
 @message("embagents/String")
@@ -236,7 +254,7 @@ class Odometry:
 class OccupancyGrid:
     """A 2-D map: ``data`` (height, width) int8, -1 unknown, 0..100 occupancy."""
 
-    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0), np.int8), converter=_array("int8", 2))
+    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0), np.int8), converter=_int8_2d)
     resolution: float = 0.05
     origin_position: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)
     origin_orientation: Quat = attrs.field(default=(0.0, 0.0, 0.0, 1.0), converter=_quat)
@@ -250,9 +268,9 @@ class JointState:
     """Joint names with positions (rad or m), velocities and efforts."""
 
     name: list[str] = attrs.field(factory=list)
-    position: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
-    velocity: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
-    effort: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_array("float64", 1))
+    position: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_float64_1d)
+    velocity: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_float64_1d)
+    effort: np.ndarray = attrs.field(factory=lambda: np.zeros(0), converter=_float64_1d)
     stamp: float = 0.0
 
 
@@ -263,8 +281,8 @@ class JointTrajectory:
     ``time_from_start[t]`` seconds after ``stamp``. Either array may be empty (shape (0, N))."""
 
     joint_names: list[str] = attrs.field(factory=list)
-    positions: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0)), converter=_array("float64", 2))
-    velocities: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0)), converter=_array("float64", 2))
+    positions: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0)), converter=_float64_2d)
+    velocities: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0)), converter=_float64_2d)
     time_from_start: np.ndarray = _column("float64")
     stamp: float = 0.0
 
@@ -323,6 +341,10 @@ class HealthStatus(enum.IntEnum):
         raise ValueError(f"unknown health status {value!r}; known: {', '.join(cls.__members__)}")
 
 
+def _health_status(value: object) -> HealthStatus:  # named: mypy's attrs plugin does not take a classmethod
+    return HealthStatus.parse(value)
+
+
 @message("embagents/Health")
 @attrs.define
 class Health:
@@ -334,7 +356,7 @@ class Health:
     """
 
     component: str = ""
-    status: HealthStatus = attrs.field(default=HealthStatus.HEALTHY, converter=HealthStatus.parse)
+    status: HealthStatus = attrs.field(default=HealthStatus.HEALTHY, converter=_health_status)
     text: str = ""
     stamp: float = 0.0
     incarnation: int = 0
@@ -342,24 +364,24 @@ class Health:
 
 
 # Converters of nested fields: the class itself, a tuple, or a dict of its fields (JSON, YAML).
-def _point(v: object) -> Point:
+def _point(v: dict[str, Any] | Point | Iterable[SupportsFloat | str]) -> Point:
     if isinstance(v, dict):
         return Point(**v)
     return v if isinstance(v, Point) else Point(*_vec3(v))
 
 
-def _quaternion(v: object) -> Quaternion:
+def _quaternion(v: dict[str, Any] | Quaternion | Iterable[SupportsFloat | str]) -> Quaternion:
     if isinstance(v, dict):
         return Quaternion(**v)
     return v if isinstance(v, Quaternion) else Quaternion(*_quat(v))
 
 
-def _pose(v: object) -> Pose:
+def _pose(v: dict[str, Any] | Pose | Iterable[Any]) -> Pose:
     if isinstance(v, dict):
         return Pose(**v)
     if isinstance(v, Pose):
         return v
-    position, orientation = v  # type: ignore[misc]
+    position, orientation = v
     return Pose(position, orientation)
 
 
@@ -471,7 +493,7 @@ class PointCloud2:
     (1, 3)
     """
 
-    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0, 0), np.uint8), converter=_array("uint8", 3))
+    data: np.ndarray = attrs.field(factory=lambda: np.zeros((0, 0, 0), np.uint8), converter=_uint8_3d)
     fields: list[tuple[str, int, str, int]] = attrs.field(
         factory=list, converter=lambda v: [(str(n), int(o), str(t), int(c)) for n, o, t, c in v]
     )
@@ -500,13 +522,14 @@ class PointCloud2:
     def from_points(cls, points: np.ndarray, frame_id: str = "", stamp: float = 0.0) -> PointCloud2:
         """A cloud of a (N,) or (H, W) structured array (fields of plain numeric dtypes)."""
         pts = np.ascontiguousarray(points)
-        if pts.dtype.names is None:
+        names, layout = pts.dtype.names, pts.dtype.fields  # both None or neither
+        if names is None or layout is None:
             raise ValueError(f"PointCloud2.from_points needs a structured array (fields x, y, z, ...), got {pts.dtype}")
         if pts.ndim == 1:
             pts = pts.reshape(1, -1)
         fields = []
-        for name in pts.dtype.names:
-            dt, offset = pts.dtype.fields[name][:2]
+        for name in names:
+            dt, offset = layout[name][:2]
             base, count = (dt.base, int(np.prod(dt.shape))) if dt.shape else (dt, 1)
             fields.append((name, int(offset), base.str, count))
         data = pts.view(np.uint8).reshape(pts.shape[0], pts.shape[1], pts.dtype.itemsize)

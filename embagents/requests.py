@@ -25,6 +25,7 @@ Example::
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import attrs
@@ -75,6 +76,11 @@ class RouteFired:
     text: str = ""
 
 
+def _as_list(value: Iterable[Any]) -> list[Any]:
+    # Named (not ``converter=list``): mypy's attrs plugin then types ``args`` as any iterable, not ``Iterable[_T]``.
+    return list(value)
+
+
 @message("embagents/Call")
 @attrs.define
 class Call:
@@ -86,7 +92,7 @@ class Call:
     """
 
     method: str
-    args: list[Any] = attrs.field(factory=list, converter=list)
+    args: list[Any] = attrs.field(factory=list, converter=_as_list)
     kwargs: dict[str, Any] = attrs.field(factory=dict, converter=dict)
     deadline: float | None = None
 

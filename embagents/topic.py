@@ -111,7 +111,7 @@ def _strip_slash(name: object) -> object:
     return name[1:] if isinstance(name, str) and name.startswith("/") else name
 
 
-def _check_name(_inst: object, _attr: object, name: object) -> None:
+def _check_name(_inst: object, _attr: attrs.Attribute[str], name: object) -> None:
     if not isinstance(name, str) or not _NAME.match(name):
         raise TopicError(
             f"invalid topic name {name!r}: use tokens of letters, digits and '_' (not starting "

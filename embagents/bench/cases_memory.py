@@ -31,6 +31,7 @@ import tempfile
 import textwrap
 import threading
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -171,11 +172,19 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
         asys.spawn(ModelActor, "bench_minilm", "embedding", folder, {}, True, wait=120, heartbeat=None)
         asys.spawn(RouterHost, "bench_router", "bench_minilm", wait=60)
         got: queue.Queue[tuple[float, str]] = queue.Queue()
+
+        def subscribe(name: str) -> Subscription:
+            return Subscription(asys.rt, asys.loop, name, lambda msg: got.put((time.monotonic(), name)),
+                                queue_size=100, keep="all")
+
         for name in ROUTES:
-            asys.rt.on_client(lambda name=name: Subscription(
-                asys.rt, asys.loop, name, lambda msg, name=name: got.put((time.monotonic(), name)),
-                queue_size=100, keep="all"))
+            asys.rt.on_client(partial(subscribe, name))
         pub = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_heard"))
+
+        def send(text: str, sent: list[float]) -> None:
+            sent.append(time.monotonic())
+            pub.publish(String(data=text))
+
         # Subscriptions connected, and the router's start-up client (it embedded the samples) no longer
         # counts as active: the model actor would hold a request up to batch_wait_ms for it.
         time.sleep(1.2)
@@ -184,8 +193,7 @@ def router_latency(opts: BenchOptions) -> dict[str, Any]:
             sent: list[float] = []
             # Both ends are stamped on this process's IO thread: as the String goes out, as the routed one
             # arrives (the hand-offs to and from the bench's own thread are the harness, not the runtime).
-            asys.rt.on_client(lambda text=text, sent=sent: (sent.append(time.monotonic()),
-                                                            pub.publish(String(data=text))))
+            asys.rt.on_client(partial(send, text, sent))
             t1, ours = got.get(timeout=60)  # waited for, not polled
             t0 = sent[0]
             secs, theirs = base.ask(text).split()
@@ -312,6 +320,7 @@ def memory_crash(opts: BenchOptions) -> dict[str, Any]:
                     while len(acked) < kill_at:
                         time.sleep(0.005)
                     pid = [c.pid for c in sup.which_children() if c.id == "bench_memory"][0]
+                    assert isinstance(pid, int), f"bench_memory is not running: {pid!r}"
                     t_kill[0] = time.monotonic()
                     os.kill(pid, signal.SIGKILL)
                     killed.set()

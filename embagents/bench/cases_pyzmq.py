@@ -29,7 +29,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import zmq
@@ -137,6 +137,12 @@ def peer(mode: str, extra: str = "") -> Iterator[tuple[zmq.Context, str]]:
         shutil.rmtree(d, ignore_errors=True)
 
 
+def _sendable(size: int) -> bytes | memoryview:
+    """``payload(size)`` as pyzmq's types take it: an array as its memoryview (the same buffer, no copy)."""
+    data = payload(size)
+    return data if isinstance(data, bytes) else data.data
+
+
 def _socket(ctx: zmq.Context, kind: int, endpoint: str) -> zmq.Socket:
     s = ctx.socket(kind)
     s.linger = 0
@@ -149,17 +155,17 @@ def _socket(ctx: zmq.Context, kind: int, endpoint: str) -> zmq.Socket:
 def ask_case(size: int, opts: BenchOptions) -> dict[str, Any]:
     """DEALER -> ROUTER echo -> DEALER round trips of ``size`` bytes."""
     warmup, n = iterations(size, opts)
-    data = payload(size)
+    data = _sendable(size)
     with peer("echo") as (ctx, endpoint):
         s = _socket(ctx, zmq.DEALER, endpoint)
         clock = time.perf_counter_ns
         lat = np.empty(n, dtype=np.int64)
         for i in range(-warmup, n):
             t0 = clock()
-            s.send(data, copy=size < 65536)
+            s.send(data, 0, copy=size < 65536)  # flags given: the stubs take a bool copy only then
             reply = s.recv(copy=size < 65536)
             if size >= 65536:
-                arr = np.frombuffer(reply.buffer, dtype=np.uint8)  # what a user would do
+                arr = np.frombuffer(cast(zmq.Frame, reply).buffer, dtype=np.uint8)  # what a user would do (copy=False: a Frame)
                 del arr
             if i >= 0:
                 lat[i] = clock() - t0
@@ -179,7 +185,7 @@ def topic_case(size: int, opts: BenchOptions) -> dict[str, Any]:
     """PUB -> SUB one-way latency at the same pace as ``embagents_topic_*``."""
     warmup, n = iterations(size, opts, "topic")
     interval = _TOPIC_INTERVAL.get(size, _TOPIC_INTERVAL_LARGE)
-    data = payload(size)
+    data = _sendable(size)
     clock = time.perf_counter_ns
     with peer("sub", "back") as (ctx, endpoint):
         back_ep = endpoint[: -len("peer")] + "back"
@@ -226,7 +232,7 @@ def topic_case(size: int, opts: BenchOptions) -> dict[str, Any]:
 def tell_case(opts: BenchOptions) -> dict[str, Any]:
     """``n`` 64-byte DEALER sends as fast as possible, then a marker the peer answers."""
     n, rounds = (5000, 2) if opts.quick else (50000, 3)
-    data = payload(64)
+    data = _sendable(64)
     clock = time.perf_counter_ns
     with peer("sink") as (ctx, endpoint):
         s = _socket(ctx, zmq.DEALER, endpoint)

@@ -87,8 +87,9 @@ def ask_case(size: int, opts: BenchOptions) -> dict[str, Any]:
     pong, pong_err = _peer("pong", prefix)
     ping = ping_err = None
     try:
+        assert pong.stdout is not None  # _peer pipes it
         ready, _, _ = select.select([pong.stdout], [], [], _START_TIMEOUT)
-        if not ready or pong.stdout.readline().strip() != "READY":  # type: ignore[union-attr]
+        if not ready or pong.stdout.readline().strip() != "READY":
             raise RuntimeError(f"the rclpy pong process did not start: {_tail(pong_err)}")
         ping, ping_err = _peer(
             "ping", prefix, "--size", str(size), "--warmup", str(warmup), "--n", str(n), "--timeout", str(timeout)

@@ -58,7 +58,12 @@ def _outages(env: dict[str, str], n: int, kill: Callable[[], float]) -> list[flo
                                 env=env)
     arrivals: queue.Queue[float] = queue.Queue()
     assert streamer.stdout is not None and streamer.stdin is not None
-    reader = threading.Thread(target=lambda: [arrivals.put(float(x)) for x in streamer.stdout or ()], daemon=True)
+
+    def read() -> None:
+        for x in streamer.stdout or ():
+            arrivals.put(float(x))
+
+    reader = threading.Thread(target=read, daemon=True)
     reader.start()
     out = []
     try:

@@ -26,6 +26,7 @@ import queue
 import statistics
 import tempfile
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -70,10 +71,10 @@ class SteppingVision(Actor):
         self.vision.attach(lambda topic, msg: self.context.publish(topic, msg))
         self.image = Image(data=_frame(*self.size), frame_id=self.name)
         if self.topic:
-            self.context.subscribe(self.topic, self._on_frame, queue_size=2)
+            self.context.subscribe(self.topic, partial(self._on_frame, self.topic), queue_size=2)
 
-    def _on_frame(self, msg: Any) -> None:
-        if self.vision.on_message(self.topic, msg):
+    def _on_frame(self, topic: str, msg: Any) -> None:
+        if self.vision.on_message(topic, msg):
             self.vision.execute()
 
     def on_receive(self, message: Any) -> Any:

@@ -26,6 +26,7 @@ import json
 import queue
 import statistics
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -97,7 +98,7 @@ class VoiceHost(Actor):
         self.comp.attach(lambda topic, msg: ctx.publish(topic, msg), None, ctx.call_later)
         self.comp.on_configure()
         for name in self.input_names:
-            ctx.subscribe(name, lambda msg, name=name: self._on(name, msg), queue_size=1000, keep="all")
+            ctx.subscribe(name, partial(self._on, name), queue_size=1000, keep="all")
 
     def _on(self, topic: str, msg: Any) -> None:
         if self.comp.on_message(topic, msg):
@@ -199,12 +200,12 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
         head, tail = SENTENCE[:-1], ". And then"
         for r in range(rounds + 1):  # the first round warms both up; interleaved, so drifts hit both
             sid = f"s{r}"
-            asys.rt.on_client(lambda sid=sid: pub.publish(StreamingString(data=head, stream_id=sid)))
+            asys.rt.on_client(partial(pub.publish, StreamingString(data=head, stream_id=sid)))
             time.sleep(0.05)  # the LLM is still writing: nothing to say yet
             t0 = time.monotonic()
-            asys.rt.on_client(lambda sid=sid: pub.publish(StreamingString(data=tail, stream_id=sid)))
+            asys.rt.on_client(partial(pub.publish, StreamingString(data=tail, stream_id=sid)))
             t1 = got.get(timeout=60)
-            asys.rt.on_client(lambda sid=sid: pub.publish(StreamingString(data=" stop.", done=True, stream_id=sid)))
+            asys.rt.on_client(partial(pub.publish, StreamingString(data=" stop.", done=True, stream_id=sid)))
             _drain(got, 1.0)
             took = json.loads(baseline.ask())[0]
             if r:
@@ -246,7 +247,7 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
         time.sleep(0.5)  # subscriptions connected
         for r in range(rounds + 1):  # the first round warms everything up; interleaved with the baseline
             for c in chunks:
-                asys.rt.on_client(lambda c=c: pub.publish(Audio(data=c)))
+                asys.rt.on_client(partial(pub.publish, Audio(data=c)))
                 time.sleep(0.1)  # a microphone's pace
             t0 = time.monotonic()
             asys.rt.on_client(lambda: pub.publish(Audio(data=np.zeros(0, np.int16))))  # the question ends

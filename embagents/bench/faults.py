@@ -26,6 +26,7 @@ import signal
 import tempfile
 import threading
 import time
+from functools import partial
 from typing import Any
 
 from actors import Actor, ActorCrashed, ActorSystem, Timeout
@@ -199,7 +200,7 @@ def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float
             n = 0
             while not stop.wait(1.0 / rate_hz):
                 ref.tell(Call("record", [n]))
-                system.rt.on_client(lambda n=n: numbers.publish(String(data=str(n))))
+                system.rt.on_client(partial(numbers.publish, String(data=str(n))))
                 n += 1
             sent[0] = n
             ref.ask(Call("pid"), timeout=60).get()  # in order: every tell before it was handled

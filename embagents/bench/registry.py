@@ -129,6 +129,7 @@ def payload(size: int) -> bytes | np.ndarray:
     """
     if size < 64 * 1024:
         return bytes(range(256)) * (size // 256) + bytes(size % 256)
+    arr: np.ndarray
     if size == FRAME_1080P:
         arr = np.empty((1080, 1920, 3), dtype=np.uint8)
     else:

@@ -76,14 +76,14 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         if ours is not None or raw is not None:
             bars.append(_bar(
                 f"ask {label(size)} p50: ours / raw pyzmq",
-                _ratio(ours and ours["p50_us"], raw and raw["p50_us"]), "<=", 1.5, "x",
+                _ratio(ours["p50_us"] if ours else None, raw["p50_us"] if raw else None), "<=", 1.5, "x",
             ))
     for size, target in ((64, 3.0), (FRAME_1080P, 30.0)):
         ours, ros = _find(rows, "embagents", "ask", size), _find(rows, "rclpy", "ask", size)
         if ours is not None or ros is not None:
             bars.append(_bar(
                 f"ask {label(size)} p50: rclpy / ours",
-                _ratio(ros and ros["p50_us"], ours and ours["p50_us"]), ">=", target, "x",
+                _ratio(ros["p50_us"] if ros else None, ours["p50_us"] if ours else None), ">=", target, "x",
             ))
     tell = _find(rows, "embagents", "tell", 64)
     if tell is not None:
@@ -296,8 +296,8 @@ def format_report(doc: dict[str, Any]) -> str:
     if doc.get("bars"):
         bar_rows = []
         for b in doc["bars"]:
-            t = float(b["target"])
-            target = f"{b['op']} {_num(t, 2 if t < 1 or round(t, 1) != t else 1)} {b['unit']}"
+            goal = float(b["target"])
+            target = f"{b['op']} {_num(goal, 2 if goal < 1 or round(goal, 1) != goal else 1)} {b['unit']}"
             verdict = ("not graded" if doc.get("quick") else "n/a") if b["pass"] is None else ("PASS" if b["pass"] else "FAIL")
             bar_rows.append([b["name"], _num(b["value"], 2), target, verdict])
         out.append(table(["bar", "measured", "target", "result"], bar_rows, "lrrl"))

@@ -56,6 +56,7 @@ from embagents.config import (
     int_at_least,
     one_of,
     positive_float,
+    positive_int,
     to_bool,
 )
 from embagents.msgs import Audio, BargeIn
@@ -140,6 +141,10 @@ class _DeviceConfig(BaseComponentConfig):
     retry_max_s: float = field(default=10.0, converter=positive_float)
 
 
+def _dtype(value: object) -> str:
+    return one_of("dtype", "int16", "float32")(value)
+
+
 @define(kw_only=True)
 class MicrophoneConfig(_DeviceConfig):
     """Settings of :class:`Microphone`; ``buffer_ms``: audio the device holds between two steps.
@@ -148,10 +153,10 @@ class MicrophoneConfig(_DeviceConfig):
     2
     """
 
-    sample_rate: int = field(default=16000, converter=int_at_least(1))
-    channels: int = field(default=1, converter=int_at_least(1))
+    sample_rate: int = field(default=16000, converter=positive_int)
+    channels: int = field(default=1, converter=positive_int)
     chunk_ms: float = field(default=100.0, converter=positive_float)
-    dtype: str = field(default="int16", converter=one_of("dtype", "int16", "float32"))
+    dtype: str = field(default="int16", converter=_dtype)
     buffer_ms: float = field(default=500.0, converter=positive_float)
     echo_cancellation: bool = field(default=True, converter=to_bool)
     echo_delay_ms: float = field(default=0.0, converter=non_negative_float)

@@ -176,7 +176,7 @@ def _check_allowed_spec(owner: str, what: str, spec: AllowedTypes | None) -> Non
 
 
 def _entries(spec: AllowedTypes, key: str) -> list[tuple[type, ...]]:
-    return [tuple(e) if isinstance(e, (list, tuple)) else (e,) for e in spec.get(key, ())]
+    return [(e,) if isinstance(e, type) else tuple(e) for e in spec.get(key, ())]
 
 
 class Component:

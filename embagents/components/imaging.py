@@ -47,7 +47,7 @@ def image_rgb(msg: Image | CompressedImage) -> np.ndarray:
     return cv2.cvtColor(data, getattr(cv2, conv))
 
 
-def annotate(rgb: np.ndarray, boxes: np.ndarray, labels: Sequence[str], scores: Sequence[float],
+def annotate(rgb: np.ndarray, boxes: np.ndarray, labels: Sequence[str], scores: Sequence[float] | np.ndarray,
              ids: Sequence[Any] | None = None) -> np.ndarray:
     """A copy of ``rgb`` with each box, its label and score (and track id) drawn."""
     import cv2

@@ -40,7 +40,7 @@ import json
 import re
 import string
 import uuid
-from collections.abc import Callable, Generator, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from typing import Any
 
 import attrs
@@ -48,7 +48,14 @@ from attrs import define, field
 
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, to_bool
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    int_at_least,
+    one_of,
+    positive_int,
+    to_bool,
+)
 from embagents.models.chat import chat_chunks, openai_tool_call, tool_calls_from_text
 from embagents.msgs import BargeIn, StreamingString, String
 from embagents.topic import Topic
@@ -181,6 +188,14 @@ def tool_schema(name: str, fn: Callable[..., Any], parameters: Mapping[str, Any]
     }
 
 
+def _tool_rounds(value: object) -> int:
+    return int_at_least(0)(value)
+
+
+def _tool_choice(value: object) -> str:
+    return one_of("tool_choice", "auto", "required", meanings={"required": "the first reply must call a tool"})(value)
+
+
 @define(kw_only=True)
 class LLMConfig(BaseComponentConfig):
     """Settings of :class:`LLM`.
@@ -207,18 +222,17 @@ class LLMConfig(BaseComponentConfig):
     """
 
     chat_history: bool = field(default=False, converter=to_bool)
-    history_size: int = field(default=10, converter=int_at_least(1))
+    history_size: int = field(default=10, converter=positive_int)
     system_prompt: str | None = field(default=None, validator=_optional_str)
     prompt_template: str | None = field(default=None, validator=_check_template)
     stream: bool = field(default=False, converter=to_bool)
-    max_new_tokens: int = field(default=256, converter=int_at_least(1))
+    max_new_tokens: int = field(default=256, converter=positive_int)
     temperature: float = field(default=0.7, converter=_temperature)
     stop: list[str] = field(factory=list, converter=_str_list)
     tools: dict[str, Callable[..., Any]] = field(factory=dict, validator=_check_tools)
     tool_schemas: dict[str, dict[str, Any]] = field(factory=dict)
-    max_tool_rounds: int = field(default=3, converter=int_at_least(0))
-    tool_choice: str = field(default="auto", converter=one_of(
-        "tool_choice", "auto", "required", meanings={"required": "the first reply must call a tool"}))
+    max_tool_rounds: int = field(default=3, converter=_tool_rounds)
+    tool_choice: str = field(default="auto", converter=_tool_choice)
     tools_answer_directly: list[str] = field(factory=list, converter=list)
 
     def __attrs_post_init__(self) -> None:
@@ -295,7 +309,7 @@ class LLM(ModelComponent):
         for _ in self.chat_stream([{"role": "user", "content": "Hi"}], max_tokens=1):
             pass
 
-    def default_trigger(self) -> Topic | None:
+    def default_trigger(self) -> Topic | Sequence[Topic] | None:  # VLM's: all its inputs
         return self.inputs[0] if self.inputs else None
 
     def validate(self) -> list[ComponentProblem]:
@@ -559,7 +573,7 @@ class LLM(ModelComponent):
             calls = [openai_tool_call(c, i) for i, c in enumerate(tool_calls)]
             # A reply that is only the calls' JSON (a model without native tool calls) has no content besides them.
             content = "" if tool_calls_from_text(text, tools) else text
-            new = [{"role": "assistant", "content": content, "tool_calls": calls}]
+            new: list[dict[str, Any]] = [{"role": "assistant", "content": content, "tool_calls": calls}]
             new += [{"role": "tool", "tool_call_id": c["id"], "name": c["function"]["name"],
                      "content": self._run_tool(c)} for c in calls]
             messages += new

@@ -55,7 +55,7 @@ from embagents.components.memory_store import (
     MemoryStore,
     MemoryStoreError,
 )
-from embagents.config import BaseComponentConfig, int_at_least, one_of, positive_float
+from embagents.config import BaseComponentConfig, one_of, positive_float, positive_int
 from embagents.models.files.wheels import cache_dir
 from embagents.msgs import Detections, OccupancyGrid, Odometry, RosMessage, StreamingString, String
 from embagents.topic import Topic
@@ -83,6 +83,10 @@ class MapLayer:
         return self.subscribes_to.name
 
 
+def _durability(value: object) -> str:
+    return one_of("durability", "normal", "full", meanings={"normal": "survives a crash", "full": "also a power loss"})(value)
+
+
 @define(kw_only=True)
 class MemoryConfig(BaseComponentConfig):
     """Settings of :class:`Memory`.
@@ -103,10 +107,9 @@ class MemoryConfig(BaseComponentConfig):
 
     db_path: str | None = None
     map_name: str = "memory"
-    durability: str = field(default="normal", converter=one_of(
-        "durability", "normal", "full", meanings={"normal": "survives a crash", "full": "also a power loss"}))
+    durability: str = field(default="normal", converter=_durability)
     locate_max_distance: float = field(default=0.35, converter=positive_float)
-    max_pending: int = field(default=10000, converter=int_at_least(1))
+    max_pending: int = field(default=10000, converter=positive_int)
     near_m: float = field(default=1.5, converter=positive_float)
 
 
@@ -245,7 +248,7 @@ class Memory(Component):
             text = "".join(self._streams.pop(key))
             return [(layer.name, text, {"stream_id": msg.stream_id})] if text.strip() else []
         if isinstance(msg, Detections):
-            out = []
+            out: list[tuple[str, str, dict[str, Any] | None]] = []
             for label, score in zip(msg.labels, [float(s) for s in msg.scores], strict=False):
                 if not layer.temporal_change and self._seen_here(layer, label):
                     continue

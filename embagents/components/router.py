@@ -73,6 +73,14 @@ def _routes(value: object) -> dict[str, list[str]]:
     return out
 
 
+def _mode(value: object) -> str:
+    return one_of("mode", "vector", "llm")(value)
+
+
+def _distance_func(value: object) -> str:
+    return one_of("distance_func", "l2", "cosine")(value)
+
+
 @define(kw_only=True)
 class SemanticRouterConfig(BaseComponentConfig):
     """Settings of :class:`SemanticRouter`.
@@ -89,8 +97,8 @@ class SemanticRouterConfig(BaseComponentConfig):
     """
 
     router_name: str = "router"
-    mode: str = field(default="vector", converter=one_of("mode", "vector", "llm"))
-    distance_func: str = field(default="l2", converter=one_of("distance_func", "l2", "cosine"))
+    mode: str = field(default="vector", converter=_mode)
+    distance_func: str = field(default="l2", converter=_distance_func)
     maximum_distance: float = field(default=0.4, converter=positive_float)
     routes: dict[str, list[str]] = field(factory=dict, converter=_routes)
     system_prompt: str = "Pick the route for the user's text by calling one tool."

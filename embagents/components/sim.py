@@ -34,7 +34,14 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.component import Component, ComponentProblem
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    int_at_least,
+    positive_float,
+    positive_int,
+    to_bool,
+)
 from embagents.msgs import Image, JointState, Odometry, Twist
 from embagents.realtime import next_deadline, raise_priority
 
@@ -81,6 +88,10 @@ PANDA_READY = {"panda_joint1": 0.0, "panda_joint2": -0.6, "panda_joint3": 0.0, "
                "panda_joint5": 0.0, "panda_joint6": 1.6, "panda_joint7": 0.8}
 
 
+def _camera_side(value: object) -> int:
+    return int_at_least(8)(value)
+
+
 @define(kw_only=True)
 class SimConfig(BaseComponentConfig):
     """Settings of :class:`Sim` (see the module docstring).
@@ -102,14 +113,14 @@ class SimConfig(BaseComponentConfig):
     mobile_base: str | None = None
     joint_state_hz: float = field(default=50.0, converter=positive_float)
     camera_hz: float = field(default=5.0, converter=positive_float)
-    camera_width: int = field(default=320, converter=int_at_least(8))
-    camera_height: int = field(default=240, converter=int_at_least(8))
+    camera_width: int = field(default=320, converter=_camera_side)
+    camera_height: int = field(default=240, converter=_camera_side)
     camera_eye: tuple[float, float, float] = field(default=(1.3, -0.2, 0.9), converter=_vec3)
     camera_target: tuple[float, float, float] = field(default=(0.3, 0.15, 0.4), converter=_vec3)
     camera_fov: float = field(default=60.0, converter=positive_float)
     frame_id: str = "camera"
     command_timeout_s: float = field(default=0.5, converter=positive_float)
-    max_catchup_steps: int = field(default=20, converter=int_at_least(1))
+    max_catchup_steps: int = field(default=20, converter=positive_int)
     realtime: bool = field(default=False, converter=to_bool)
 
 

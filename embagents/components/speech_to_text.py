@@ -51,7 +51,7 @@ from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.components.vad import SpeechOnset, SpeechSegmenter
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
+from embagents.config import BaseComponentConfig, ConfigError, positive_float, positive_int, to_bool
 from embagents.models.protocol import ModelError, ModelUnavailable
 from embagents.msgs import Audio, BargeIn, StreamingString, String
 from embagents.topic import Topic
@@ -182,7 +182,7 @@ class SpeechToTextConfig(BaseComponentConfig):
     interrupt_vad_threshold: float = field(default=0.3, converter=_unit)
     interrupt_level_db: float | None = field(default=-45.0, converter=_optional_db)
     interrupt_min_speech_ms: float = field(default=500.0, converter=positive_float)
-    interrupt_min_words: int = field(default=2, converter=int_at_least(1))  # type: ignore[misc]
+    interrupt_min_words: int = field(default=2, converter=positive_int)
     backchannels: tuple[str, ...] = field(default=BACKCHANNELS, converter=_phrases)
     false_interruption_s: float = field(default=2.0, converter=positive_float)
     turn_silence_ms: float = field(default=150.0, converter=positive_float)

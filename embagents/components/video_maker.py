@@ -34,7 +34,14 @@ from attrs import define, field
 
 from embagents.components.component import Component
 from embagents.components.imaging import image_rgb
-from embagents.config import BaseComponentConfig, ConfigError, int_at_least, one_of, positive_float
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    int_at_least,
+    one_of,
+    positive_float,
+    positive_int,
+)
 from embagents.msgs import Image, Video
 from embagents.topic import Topic
 
@@ -50,6 +57,14 @@ def _percent(value: object) -> float:
     return out
 
 
+def _method(value: object) -> str:
+    return one_of("method", *METHODS)(value)
+
+
+def _analysis_width(value: object) -> int:
+    return int_at_least(8)(value)
+
+
 @define(kw_only=True)
 class VideoMakerConfig(BaseComponentConfig):
     """Settings of :class:`VideoMessageMaker` (see the module docstring).
@@ -58,13 +73,13 @@ class VideoMakerConfig(BaseComponentConfig):
     'optical_flow'
     """
 
-    method: str = field(default="difference", converter=one_of("method", *METHODS))
+    method: str = field(default="difference", converter=_method)
     threshold_percent: float = field(default=1.0, converter=_percent)
-    pixel_threshold: int = field(default=25, converter=int_at_least(1))
+    pixel_threshold: int = field(default=25, converter=positive_int)
     flow_threshold: float = field(default=1.0, converter=positive_float)
-    min_frames: int = field(default=5, converter=int_at_least(1))
-    max_frames: int = field(default=60, converter=int_at_least(1))
-    analysis_width: int = field(default=160, converter=int_at_least(8))
+    min_frames: int = field(default=5, converter=positive_int)
+    max_frames: int = field(default=60, converter=positive_int)
+    analysis_width: int = field(default=160, converter=_analysis_width)
 
     def __attrs_post_init__(self) -> None:
         if self.max_frames < self.min_frames:
@@ -78,7 +93,7 @@ def motion_percent(prev: np.ndarray, cur: np.ndarray, config: VideoMakerConfig) 
     if config.method == "difference":
         changed = cv2.absdiff(prev, cur) > config.pixel_threshold
     else:
-        flow = cv2.calcOpticalFlowFarneback(prev, cur, None, 0.5, 3, 15, 3, 5, 1.2, 0)
+        flow = cv2.calcOpticalFlowFarneback(prev, cur, None, 0.5, 3, 15, 3, 5, 1.2, 0)  # type: ignore[call-overload]  # OpenCV's stubs omit that flow may be None (it allocates one)
         changed = np.hypot(flow[..., 0], flow[..., 1]) > config.flow_threshold
     return 100.0 * float(np.count_nonzero(changed)) / changed.size
 

@@ -200,7 +200,7 @@ class Vision(ModelComponent):
         self._close_writer()
         path = path or self._media_path("video", "mp4")
         h, w = self._frame.shape[:2]
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), self.config.video_fps, (w, h))
+        writer = cv2.VideoWriter(path, cv2.VideoWriter.fourcc(*"mp4v"), self.config.video_fps, (w, h))
         if not writer.isOpened():
             raise OSError(f"{self._label()}: opencv cannot write mp4 to {path!r}")
         self._writer, self._record_until, self._video_size = writer, time.monotonic() + float(seconds), (w, h)

@@ -65,9 +65,9 @@ from embagents.components.joint_limits import Clipper, merge_limits
 from embagents.config import (
     BaseComponentConfig,
     ConfigError,
-    int_at_least,
     one_of,
     positive_float,
+    positive_int,
     to_bool,
 )
 from embagents.events import Event
@@ -91,6 +91,14 @@ def _weight(value: object) -> float:
     if not 0.0 < w <= 1.0:
         raise ConfigError(f"merge_weight is the new chunk's weight in (0, 1], got {value!r}")
     return w
+
+
+def _chunk_merge(value: object) -> str:
+    return one_of("chunk_merge", "newest", "average")(value)
+
+
+def _action_type(value: object) -> str:
+    return one_of("action_type", "position", "velocity")(value)
 
 
 @define(kw_only=True)
@@ -117,15 +125,15 @@ class VLAConfig(BaseComponentConfig):
     joint_names_map: dict[str, str] = field(factory=dict, converter=_str_map)
     camera_inputs_map: dict[str, str] = field(factory=dict, converter=_str_map)
     observation_rate_hz: float = field(default=10.0, converter=positive_float)
-    actions_per_chunk: int = field(default=10, converter=int_at_least(1))
-    chunk_merge: str = field(default="newest", converter=one_of("chunk_merge", "newest", "average"))
+    actions_per_chunk: int = field(default=10, converter=positive_int)
+    chunk_merge: str = field(default="newest", converter=_chunk_merge)
     merge_weight: float = field(default=0.5, converter=_weight)
-    action_type: str = field(default="position", converter=one_of("action_type", "position", "velocity"))
+    action_type: str = field(default="position", converter=_action_type)
     input_timeout_s: float = field(default=0.5, converter=positive_float)
     policy_timeout_s: float = field(default=0.2, converter=positive_float)
     urdf: str | None = None
     joint_limits: dict[str, dict[str, float]] = field(factory=dict)
-    max_steps: int = field(default=500, converter=int_at_least(1))
+    max_steps: int = field(default=500, converter=positive_int)
     realtime: bool = field(default=False, converter=to_bool)
     async_inference: bool = field(default=False, converter=to_bool)
 

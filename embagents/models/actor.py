@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import OrderedDict, deque
-from typing import Any
+from typing import Any, cast
 
 import zmq
 
@@ -109,7 +109,7 @@ class ModelActor(Actor):
         """Take every frame waiting on the socket (requests queue, cancels apply at once)."""
         sock = self.sock
         # EVENTS, not a NOBLOCK recv that raises Again: an exception per drain is a cost on every request.
-        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+        while cast(int, sock.getsockopt(zmq.EVENTS)) & zmq.POLLIN:  # EVENTS is an int option
             frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
             parts = [f.bytes for f in frames]
             ident = parts[0]
@@ -220,7 +220,7 @@ class ModelActor(Actor):
         # Wait (bounded) only for clients that were active lately and are not in the batch yet.
         while len(batch) < min(self.max_batch, self._active_clients()):
             left = deadline - time.monotonic()
-            if left <= 0 or not self.sock.poll(left * 1000):
+            if left <= 0 or not self.sock.poll(int(left * 1000)):  # what pyzmq does with a float
                 break
             self._drain()
             self._take_batch(batch)

@@ -22,7 +22,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, cast
 
 import zmq
 from zmq.utils.monitor import recv_monitor_message
@@ -203,7 +203,7 @@ class LocalModelClient:
 
     def _drain_monitor(self, conn: _Conn) -> None:
         # Events from before this request (an old incarnation's exit) say nothing about it.
-        while conn.monitor.getsockopt(zmq.EVENTS) & zmq.POLLIN:  # type: ignore[operator]  # no poll per request
+        while cast(int, conn.monitor.getsockopt(zmq.EVENTS)) & zmq.POLLIN:  # EVENTS is an int option; no poll per request
             self._on_event(conn, recv_monitor_message(conn.monitor)["event"], before=True)
 
     def _on_event(self, conn: _Conn, event: int, before: bool = False) -> bool:
@@ -215,7 +215,7 @@ class LocalModelClient:
         while True:
             # Waits in steps of at most 1 s (beats between them); a sub-second timeout is kept to the ms.
             left = deadline - time.monotonic()
-            ready = dict(conn.poller.poll(min(1.0, max(0.0, left)) * 1000)) if left > 0 else {}
+            ready = dict(conn.poller.poll(int(min(1.0, max(0.0, left)) * 1000))) if left > 0 else {}
             if conn.monitor in ready:
                 event = recv_monitor_message(conn.monitor)
                 if self._on_event(conn, event["event"]):

@@ -26,6 +26,8 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Sequence
+from functools import partial
 from typing import Any
 
 from actors import Actor, ActorRef
@@ -67,7 +69,7 @@ _AVAILABLE = {state: tuple(i for i, (_, start) in _TRANSITIONS.items() if start 
 _LIFECYCLE_METHODS = ("_ros_get_state", "_ros_change_state", "_ros_get_available_transitions")
 
 
-def lifecycle_services(components: list[str]) -> list[Any]:
+def lifecycle_services(components: Sequence[str]) -> list[Any]:
     """The ``lifecycle_msgs`` services that make each component a ROS managed node (see RosLifecycle)."""
 
     out = []
@@ -182,11 +184,11 @@ class RosBridgeActor(Actor):
         self.dds_files = mapped_fastdds_files()
         ctx.changed()
         for o in outs:
-            ctx.subscribe(o.topic, lambda msg, t=o.topic: self._to_ros(t, msg), queue_size=o.qos.depth, keep="all")
+            ctx.subscribe(o.topic, partial(self._to_ros, o.topic), queue_size=o.qos.depth, keep="all")
         for a in actions:
-            ctx.subscribe(a.goal, lambda msg, t=a.goal: self._send_goal(t, msg), queue_size=10, keep="all")
+            ctx.subscribe(a.goal, partial(self._send_goal, a.goal), queue_size=10, keep="all")
             if a.cancel:
-                ctx.subscribe(a.cancel, lambda _msg, t=a.goal: self.core.cancel_goals(t), queue_size=10, keep="all")
+                ctx.subscribe(a.cancel, partial(self._cancel_goals, a.goal), queue_size=10, keep="all")
         if expected:
             ctx.call_later(REDISCOVER_AFTER, lambda: self._rediscover(expected, 1))
 
@@ -321,6 +323,9 @@ class RosBridgeActor(Actor):
             self.core.publish_ros(f"/{component}/transition_event", event)
         except Exception:  # noqa: BLE001 - the transition happened; a lost event is only logged
             log.exception("transition_event of %s not published", component)
+
+    def _cancel_goals(self, goal_topic: str, _msg: Any) -> None:
+        self.core.cancel_goals(goal_topic)
 
     def _send_goal(self, goal_topic: str, msg: Any) -> None:
         try:

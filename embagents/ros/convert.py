@@ -160,10 +160,10 @@ def _put_buffer(ros_msg: Any, field: str, buf: np.ndarray, typecode: str) -> Non
     """Set a byte-sized primitive-sequence field from a C-contiguous array with the fewest copies."""
     flat = buf.reshape(-1).view(np.uint8)  # a view: buf is contiguous
     if _slot_path_works():
-        setattr(ros_msg, "_" + field, memoryview(flat))
+        setattr(ros_msg, "_" + field, flat.data)  # a memoryview of flat
         return
     a = array.array(typecode)
-    a.frombytes(flat)
+    a.frombytes(flat.data)
     setattr(ros_msg, field, a)
 
 

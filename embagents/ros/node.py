@@ -114,7 +114,8 @@ class _ServedElsewhere(ReentrantCallbackGroup):
     """The group of our services: the executor leaves them to :meth:`RosBridgeCore._serve`,
     whose thread may wait for a component's answer without holding up topics."""
 
-    def can_execute(self, entity: Any) -> bool:
+    # rclpy annotates the Reentrant group's can_execute as Literal[True]; this subclass refuses services.
+    def can_execute(self, entity: Any) -> bool:  # type: ignore[override]
         return not isinstance(entity, Service)
 
 
@@ -201,7 +202,8 @@ class RosBridgeCore:
             node = executor = None
             try:
                 node = Node(node_name, namespace=namespace, context=context, start_parameter_services=False)
-                self.counts = {d.topic: _Counts() for d in [*self.inputs, *self.outputs]}
+                declared: list[RosInput | RosOutput] = [*self.inputs, *self.outputs]
+                self.counts = {d.topic: _Counts() for d in declared}
                 subscriptions = {
                     inp.ros_topic: node.create_subscription(
                         ros_msg_class(inp.ros_type),
@@ -219,14 +221,14 @@ class RosBridgeCore:
                 }
                 executor = SingleThreadedExecutor(context=context)
                 executor.add_node(node)
-                stopping = Future()
+                stopping: Future[None] = Future()
                 thread = threading.Thread(
                     target=self._spin, args=(executor, context, stopping), name=f"ros-spin-{node_name}", daemon=True
                 )
                 self._run = _Running(context, node, executor, thread, stopping, publishers, subscriptions, on_matched)
                 self._run.on_message = on_message
                 for a in self.actions:
-                    client = ActionClient(node, ros_interface_class(a.action_type), a.ros_name)
+                    client: ActionClient[Any, Any, Any] = ActionClient(node, ros_interface_class(a.action_type), a.ros_name)
                     self._run.actions[a.goal] = (a, client, {})
                 if self.services:
                     group = _ServedElsewhere()
@@ -282,8 +284,10 @@ class RosBridgeCore:
         """Take requests of our services and answer each with ``on_request`` (in this thread)."""
         assert self.on_request is not None
         try:
-            with context.handle:
-                wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(served), 0, context.handle)
+            handle = context.handle
+            assert handle is not None  # rclpy.init ran on this context
+            with handle:
+                wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(served), 0, handle)
             while not stopping.done() and context.ok():
                 wait_set.clear_entities()
                 for _, srv in served:
@@ -313,7 +317,7 @@ class RosBridgeCore:
         server, or a server of another type), ValueError for request fields
         the type lacks, RuntimeError when not started.
         """
-        srv_cls = ros_interface_class(normalize_ros_type(srv_type, "srv"))
+        srv_cls: Any = ros_interface_class(normalize_ros_type(srv_type, "srv"))  # generated: Request, Response
         request = generic_to_ros(fields, srv_cls.Request)
         with self._lock:
             run = self._run
@@ -420,7 +424,8 @@ class RosBridgeCore:
             raise RuntimeError(f"cannot send a goal from {goal_topic!r}: RosBridgeCore is not started")
         decl, client, goals = run.actions[goal_topic]
         fields = msg.fields if isinstance(msg, RosMessage) else msg
-        goal = generic_to_ros(fields, ros_interface_class(decl.action_type).Goal)  # a bad field raises here
+        action_cls: Any = ros_interface_class(decl.action_type)  # generated: Goal, Result, Feedback
+        goal = generic_to_ros(fields, action_cls.Goal)  # a bad field raises here
         on_message = run.on_message
         assert on_message is not None
 
@@ -561,6 +566,7 @@ def _matched(topic: str, on_matched: OnMatched | None) -> Callable[[Any], None] 
 
 
 def _create_publisher(node: Node, out: RosOutput, on_matched: OnMatched | None) -> Any:
+    assert out.ros_type is not None  # the callers resolve it first
     events = PublisherEventCallbacks(matched=_matched(out.ros_topic, on_matched))
     return node.create_publisher(ros_msg_class(out.ros_type), out.ros_topic, qos_profile(out.qos), event_callbacks=events)
 

@@ -80,7 +80,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import re
-from typing import Any
+from typing import Any, TypeVar
 
 import attrs
 
@@ -305,7 +305,7 @@ class RosInput:
 
     ros_topic: str
     ros_type: str = attrs.field(converter=normalize_ros_type)
-    topic: str | None = None
+    topic: str = attrs.field(default=None)  # None: ros_topic without its leading slash (__attrs_post_init__)
     qos: QoS = attrs.field(factory=QoS, validator=lambda _i, _a, v: _qos(v))
 
     def __attrs_post_init__(self) -> None:
@@ -334,7 +334,7 @@ class RosOutput:
     """
 
     topic: str
-    ros_topic: str | None = None
+    ros_topic: str = attrs.field(default=None)  # None: "/" + topic (__attrs_post_init__)
     ros_type: str | None = attrs.field(
         default=None, converter=lambda v: None if v is None else normalize_ros_type(v)
     )
@@ -412,7 +412,10 @@ class RosService:
                 raise ValueError(f"RosService({self.ros_name!r}): {what} must be a non-empty name, got {v!r}")
 
 
-def _topic_name(_inst: object, attr: Any, value: object) -> None:
+_S = TypeVar("_S")  # the type of the field a validator checks
+
+
+def _topic_name(_inst: object, attr: attrs.Attribute[_S], value: _S) -> None:
     if value is not None and (not isinstance(value, str) or not value):
         raise ValueError(f"RosAction {attr.name} must be a non-empty internal topic name, got {value!r}")
 
@@ -553,7 +556,8 @@ def check_bridge(inputs: list[RosInput], outputs: list[RosOutput], services: lis
         if (i.ros_topic, i.topic) in seen_in:
             raise ValueError(f"{i} is declared twice")
         seen_in.add((i.ros_topic, i.topic))
-    for d in [*inputs, *outputs]:
+    declared: list[RosInput | RosOutput] = [*inputs, *outputs]
+    for d in declared:
         if d.ros_type is None:
             continue
         key = "/" + d.ros_topic.lstrip("/")
@@ -569,8 +573,8 @@ def check_bridge(inputs: list[RosInput], outputs: list[RosOutput], services: lis
             raise ValueError(f"ROS service {key!r} is declared twice: {names[key]} and {sv}")
         names[key] = sv
     for i in inputs:
-        o = seen_out.get(i.topic)
-        if o is not None and o.ros_topic.lstrip("/") == i.ros_topic.lstrip("/"):
+        out = seen_out.get(i.topic)
+        if out is not None and out.ros_topic.lstrip("/") == i.ros_topic.lstrip("/"):
             raise ValueError(
                 f"ROS topic {i.ros_topic!r} <-> internal topic {i.topic!r} is both a RosInput and a "
                 "RosOutput: each message would be echoed back forever; use different names"

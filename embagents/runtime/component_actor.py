@@ -12,13 +12,17 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
+from functools import partial
+from typing import TYPE_CHECKING, Any, cast
 
 from actors import Actor
 from actors.errors import UnknownMessage
 from embagents.realtime import next_deadline
 from embagents.requests import Call, ChangeModelClient, HealthQuery, Reconfigure
 from embagents.system import loaded_system
+
+if TYPE_CHECKING:
+    from embagents.components.model_component import ModelComponent
 
 __all__ = ["ComponentActor"]
 
@@ -46,7 +50,7 @@ class ComponentActor(Actor):
         for t in comp.subscriptions:
             ctx.subscribe(
                 t.name,
-                lambda msg, name=t.name: self._on_message(name, msg),
+                partial(self._on_message, t.name),
                 queue_size=getattr(t, "queue_size", 10),
                 keep=getattr(t, "keep", "latest"),
                 msg_type=t.msg_type if isinstance(t.msg_type, type) else None,
@@ -138,7 +142,8 @@ class ComponentActor(Actor):
             comp.reconfigure(message.overrides)
             return None
         if isinstance(message, ChangeModelClient):
-            return comp.change_model_client(message.client)
+            # Another component has no change_model_client: the AttributeError goes back to the caller.
+            return cast("ModelComponent", comp).change_model_client(message.client)
         raise UnknownMessage(f"component {self.component_name!r}", message, "send one of embagents.requests: "
                              "Call, HealthQuery, Reconfigure, ChangeModelClient")
 

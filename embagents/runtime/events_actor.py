@@ -29,6 +29,7 @@ from __future__ import annotations
 import copy
 import logging
 from collections import defaultdict
+from functools import partial
 from typing import Any
 
 from actors import Actor, ActorNotFound
@@ -72,7 +73,7 @@ class EventsActor(Actor):
             for t in event.topics:
                 by_topic[t.name].append((event, actions))
         for name, pairs in by_topic.items():
-            self.context.subscribe(name, lambda msg, n=name, p=pairs: self._on_message(n, p, msg), queue_size=100, keep="all")
+            self.context.subscribe(name, partial(self._on_message, name, pairs), queue_size=100, keep="all")
         self.context.subscribe(HEALTH_TOPIC, self._on_health, queue_size=100, keep="all")
 
     def _on_message(self, topic: str, pairs: list[tuple[Any, Any]], msg: Any) -> None:

@@ -234,7 +234,7 @@ def layout_system(system: System, measure: Callable[[str], float] | None = None)
             rank[n.id] = i
     heights = [sum(n.h for n in col) + _ROW_GAP * (len(col) - 1) for col in columns]
     main_h = max(heights, default=0)
-    x = _MARGIN
+    x: float = _MARGIN
     for col, col_h in zip(columns, heights, strict=True):
         col_w = max((n.w for n in col), default=0)
         y = _MARGIN + (main_h - col_h) / 2
@@ -250,7 +250,7 @@ def layout_system(system: System, measure: Callable[[str], float] | None = None)
             near = [nodes[e.dst if e.src == n.id else e.src].x for e in edges if n.id in (e.src, e.dst)]
             n.x = sum(near) / len(near) if near else _MARGIN + n.w / 2
         row_h = max(n.h for n in events)
-        right = _MARGIN
+        right: float = _MARGIN
         for n in sorted(events, key=lambda n: n.x):
             n.x = max(n.x, right + n.w / 2)  # no overlaps: push right
             n.y = height + row_h / 2
@@ -408,9 +408,9 @@ def render_png(system: System, path: str, scale: float = 2.0) -> None:
             for color, thick in ((fill, -1), (stroke, max(1, int(s)))):
                 cv2.ellipse(img, p(n.x, n.y), (int(n.w / 2 * s), int(n.h / 2 * s)), 0, 0, 360, color, thick, aa)
         elif n.kind == "event":
-            pts = np.array([p(n.x, n.y - n.h / 2), p(n.x + n.w / 2, n.y), p(n.x, n.y + n.h / 2), p(n.x - n.w / 2, n.y)])
-            cv2.fillPoly(img, [pts], fill, aa)
-            cv2.polylines(img, [pts], True, stroke, max(1, int(s)), aa)
+            diamond = np.array([p(n.x, n.y - n.h / 2), p(n.x + n.w / 2, n.y), p(n.x, n.y + n.h / 2), p(n.x - n.w / 2, n.y)])
+            cv2.fillPoly(img, [diamond], fill, aa)
+            cv2.polylines(img, [diamond], True, stroke, max(1, int(s)), aa)
         else:
             a, b = p(n.x - n.w / 2, n.y - n.h / 2), p(n.x + n.w / 2, n.y + n.h / 2)
             cv2.rectangle(img, a, b, fill, -1)

@@ -173,15 +173,15 @@ def kind_of(cls: type | None) -> Kind:
 
     name = message_name(cls).replace("/", ".")  # "embagents/String" -> "embagents.String"; a user's "demo.Point"
     props = {n: _json_schema(t) for n, t in field_types(cls).items()}
-    schema = {"title": name, "type": "object", "properties": props}
-    return Kind(name, "jsonschema", json.dumps(schema).encode(), "json", _json_encoder(cls))
+    json_schema = {"title": name, "type": "object", "properties": props}
+    return Kind(name, "jsonschema", json.dumps(json_schema).encode(), "json", _json_encoder(cls))
 
 
 def _array_field(cls: type, name: str, value: Any) -> np.ndarray:
     if isinstance(value, dict):
         return np.frombuffer(base64.b64decode(value["base64"]), dtype=value["dtype"]).reshape(value["shape"]).copy()
     default = attrs.fields_dict(cls)[name].default
-    dtype = default.factory().dtype if isinstance(default, attrs.Factory) else None  # type: ignore[union-attr]
+    dtype = default.factory().dtype if isinstance(default, attrs.Factory) else None  # type: ignore[arg-type,union-attr]  # attrs' stubs declare Factory a function; it is a class
     return np.asarray(value, dtype=dtype)
 
 

@@ -26,7 +26,8 @@ import logging
 import os
 import re
 import time
-from typing import Any
+from functools import partial
+from typing import IO, Any, cast
 
 from actors import Actor
 from actors.codec import message_class
@@ -155,7 +156,8 @@ class _File:
         self.path = path
         self.fd = lock_file(path)
         self.stream = _Through(self.fd)
-        self.writer = Writer(self.stream, chunk_size=chunk_bytes, compression=CompressionType[compression.upper()])
+        # The Writer's annotation says IO; it calls only write, tell, flush and close, which _Through has.
+        self.writer = Writer(cast(IO[bytes], self.stream), chunk_size=chunk_bytes, compression=CompressionType[compression.upper()])
         self.writer.start(profile="", library="embagents")
         self.channels: dict[str, int] = {}
         self.schemas: dict[str, int] = {}
@@ -200,7 +202,7 @@ class RecorderActor(Actor):
         self._open()
         for name, wire, keep, queue in self.topics:
             cls = message_class(wire) if wire else None
-            self.context.subscribe(name, lambda msg, n=name, c=cls: self._write(n, c, msg),
+            self.context.subscribe(name, partial(self._write, name, cls),
                                    keep=keep, queue_size=max(int(queue), 100 if keep == "all" else 30),
                                    msg_type=cls)  # another type on the topic is counted as bad, not written
         log.info("recording %d topics to %s", len(self.topics), self.file.path if self.file else self.base)

@@ -174,7 +174,7 @@ class Import:
 
     key: str = attrs.field(validator=lambda _i, _a, v: _key("Import key", v))
     msg_type: Any = attrs.field(default=None, converter=lambda v: _msg_type(v))
-    topic: str | None = None
+    topic: str = attrs.field(default=None)  # None: the key without its first chunk (__attrs_post_init__)
     keep: str = attrs.field(default="all", validator=lambda _i, _a, v: _keep(v))
 
     def __attrs_post_init__(self) -> None:
