@@ -79,21 +79,25 @@ def _array(dtype: str, ndim: int | None = None):  # noqa: ANN202 - attrs convert
     return conv
 
 
-# Named converters: mypy's attrs plugin types a field through a named function, not a factory's result.
+# Named converters: mypy's attrs plugin types a field through a named function, not a factory's result;
+# each calls a converter built once (a message's construction is a hot path).
+_INT8_2D, _FLOAT64_1D, _FLOAT64_2D, _UINT8_3D = _array("int8", 2), _array("float64", 1), _array("float64", 2), _array("uint8", 3)
+
+
 def _int8_2d(v: object) -> np.ndarray:
-    return _array("int8", 2)(v)
+    return _INT8_2D(v)
 
 
 def _float64_1d(v: object) -> np.ndarray:
-    return _array("float64", 1)(v)
+    return _FLOAT64_1D(v)
 
 
 def _float64_2d(v: object) -> np.ndarray:
-    return _array("float64", 2)(v)
+    return _FLOAT64_2D(v)
 
 
 def _uint8_3d(v: object) -> np.ndarray:
-    return _array("uint8", 3)(v)
+    return _UINT8_3D(v)
 
 
 @message("embagents/String")
