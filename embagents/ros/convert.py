@@ -79,6 +79,7 @@ from embagents.ros.spec import (
 
 __all__ = [
     "ENCODINGS",
+    "converter_from_ros",
     "from_ros",
     "ros_msg_class",
     "stamp_to_time",
@@ -658,5 +659,19 @@ def from_ros(ros_msg: Any, ros_type: str) -> Any:
     cls = ros_msg_class(full)
     if not isinstance(ros_msg, cls):
         raise TypeError(f"expected a {full} message, got {type(ros_msg).__module__}.{type(ros_msg).__name__}")
+    return converter_from_ros(full)(ros_msg)
+
+
+def converter_from_ros(ros_type: str) -> Callable[[Any], Any]:
+    """:func:`from_ros` for messages known to be of ``ros_type``, looked up once (a subscription's, per message).
+
+    >>> from std_msgs.msg import String as RosString
+    >>> converter_from_ros("std_msgs/String")(RosString(data="hi"))
+    String(data='hi')
+    """
+    full = normalize_ros_type(ros_type)
     fn = _FROM.get(full)
-    return fn(ros_msg) if fn is not None else generic_from_ros(ros_msg, full)
+    if fn is not None:
+        return fn
+    ros_msg_class(full)  # an uninstalled package: the error that names its wheel, now
+    return lambda ros_msg: generic_from_ros(ros_msg, full)

@@ -8,8 +8,12 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
+from typing import Any
 
 import pytest
+
+from actors import Actor, ActorSystem
 
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 pytest.importorskip("std_srvs", reason="needs the std_srvs wheel: pip install ros-std-srvs")
@@ -168,3 +172,89 @@ def test_an_invalid_transition_gets_ros_failure_result(session: str) -> None:
 def test_a_server_that_takes_the_request_and_goes_silent_is_a_timeout_saying_so(session: str) -> None:
     assert "TimeoutError: ROS service /arm/stuck did not answer within 1.0 s: its server took the request and went " \
            "silent" in session, session
+
+
+# A plain rclpy peer: a /slow Trigger that sleeps (in its own callback group: /echo is still read meanwhile),
+# /ticks published every 20 ms from a thread; prints when the slow call ran and when each /echo arrived.
+SLOW_PEER = r"""
+import json, sys, threading, time, rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+run_for, sleep_for = float(sys.argv[1]), float(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node("slow_peer")
+call, echoes = [], []
+def slow(request, response):
+    call.append(time.monotonic())
+    time.sleep(sleep_for)
+    call.append(time.monotonic())
+    response.success, response.message = True, "slow done"
+    return response
+node.create_service(Trigger, "/slow", slow, callback_group=MutuallyExclusiveCallbackGroup())
+node.create_subscription(String, "/echo", lambda m: echoes.append(time.monotonic()), 100,
+                         callback_group=MutuallyExclusiveCallbackGroup())
+pub = node.create_publisher(String, "/ticks", 100)
+stop = threading.Event()
+def tick():
+    while not stop.wait(0.02):
+        pub.publish(String(data="tick"))
+threading.Thread(target=tick, daemon=True).start()
+executor = MultiThreadedExecutor(num_threads=3)
+executor.add_node(node)
+end = time.time() + run_for
+while time.time() < end:
+    executor.spin_once(timeout_sec=0.1)
+stop.set()
+print(json.dumps({"call": call, "echoes": echoes}), flush=True)
+"""
+
+
+class Relay(Actor):
+    """Sends each message of internal topic ``ticks`` on to ``echo`` (bound for ROS)."""
+
+    def on_start(self) -> None:
+        self.context.subscribe("ticks", lambda m: self.context.publish("echo", m), queue_size=100, keep="all")
+
+    def on_receive(self, message: Any) -> Any:
+        return None
+
+
+def test_topics_flow_both_ways_while_a_called_service_is_slow(monkeypatch: pytest.MonkeyPatch) -> None:
+    from embagents.ros.bridge_actor import RosBridgeActor
+    from embagents.ros.spec import RosCall
+
+    domain = str(DOMAIN_ID + 1)
+    env = {**os.environ, "ROS_DOMAIN_ID": domain, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    monkeypatch.setenv("ROS_DOMAIN_ID", domain)
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    with ActorSystem() as asys:
+        asys.spawn(Relay, "relay")
+        bridge = asys.spawn(
+            RosBridgeActor, "slow_call_bridge", None, "slow_call_bridge",
+            [{"ros_topic": "/ticks", "ros_type": "std_msgs/String", "topic": "ticks", "qos": {"depth": 100}}],
+            [{"topic": "echo", "ros_topic": "/echo", "ros_type": "std_msgs/String", "qos": {"depth": 100}}],
+            wait=60,
+        )
+        peer = subprocess.Popen([sys.executable, "-c", SLOW_PEER, "14", "3"], stdout=subprocess.PIPE, text=True,
+                                env=env)
+        try:
+            deadline = time.monotonic() + 8  # the round trip is up: ticks go in and echoes out
+            while time.monotonic() < deadline and not all(bridge.ask("stats", timeout=5).get()[k] for k in ("in", "out")):
+                time.sleep(0.1)
+            reply = bridge.ask(RosCall("/slow", "std_srvs/srv/Trigger", {}, 10.0), timeout=15)
+            time.sleep(1.0)  # the slow service is sleeping now
+            stats = bridge.ask("stats", timeout=1).get()  # the bridge answers other asks meanwhile
+            answer = reply.get()
+            out, _ = peer.communicate(timeout=30)
+        finally:
+            peer.kill()
+            peer.wait()
+    assert answer.success and answer.message == "slow done", answer
+    assert stats["in"] > 0 and stats["out"] > 0, stats
+    got = json.loads(out)
+    start, end = got["call"]
+    during = [t for t in got["echoes"] if start < t < end]
+    # ~150 ticks went out during the 3 s call: each came back from ROS through the bridge and back to ROS.
+    assert len(during) >= 10, f"{len(during)} echoes during the slow call ({len(got['echoes'])} in all)"
