@@ -1,9 +1,19 @@
-"""The rclpy side of the ROS 2 bridge: one node, its own Context, one spin thread.
+"""The rclpy side of the ROS 2 bridge: one node, its own Context, a few threads.
 
 :class:`RosBridgeCore` knows nothing of actors: the bridge actor creates it
 in its process, hands it an ``on_message`` callback that forwards incoming
 messages onto internal topics, and calls :meth:`RosBridgeCore.publish` for
 internal messages bound for ROS. Importing this module imports rclpy.
+
+Threads: the subscriptions' (a wait set of their own: each message is taken
+and handed to ``on_message`` without a turn of rclpy's executor; an ``Imu``
+is read straight from its CDR bytes), the services' (requests we serve), and
+the executor's spin (service calls, actions, publishers' events). Measured
+with ``embagents bench --only ros_generic`` (Imu at 200 Hz, p50, one way
+into a subscriber actor; per stage, 2 busy cores): rclpy's executor turn and
+Python message (~55 us warm) made the take as slow as a plain rclpy
+subscriber's whole path; a hand-over to the actor's loop thread cost one
+more wake-up (70-200 us).
 
 Example::
 
@@ -42,6 +52,7 @@ from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rclpy.service import Service
 from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
@@ -49,7 +60,7 @@ from rclpy.task import Future
 
 from actors import private_file
 from embagents.msgs import RosMessage, StreamingString
-from embagents.ros.convert import converter_from_ros, ros_msg_class, to_ros
+from embagents.ros.convert import converter_from_cdr, converter_from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
 from embagents.ros.generic import generic_from_ros, generic_to_ros
 from embagents.ros.spec import (
@@ -137,8 +148,10 @@ class _TakenElsewhere(ReentrantCallbackGroup):
 class RosBridgeCore:
     """ROS 2 node mapping ROS topics to internal topics and back.
 
-    ``start`` calls ``on_message(internal_topic, our_msg)`` from its spin
-    thread for each incoming ROS message; ``publish`` may be called from any
+    ``start`` calls ``on_message(internal_topic, our_msg)`` for each incoming
+    ROS message: from its subscription thread (always the same one while it
+    runs) for the RosInputs, from its spin thread for actions' feedback and
+    results. ``publish`` may be called from any
     thread. Each ``start`` uses a fresh rclpy Context, so a core can be
     stopped and started again, and several can coexist in one process.
     """
@@ -195,7 +208,7 @@ class RosBridgeCore:
         :func:`clean_zombie_fastdds_segments`. ``shm_segment_mb`` calls
         :func:`configure_fastdds_shm` first (needed for publishing large
         images; only effective before this process's first start).
-        ``on_matched(ros_topic, count)`` is called from the spin thread
+        ``on_matched(ros_topic, count)`` is called from the subscription or spin thread
         whenever the number of ROS peers matched on a declared ROS topic
         changes (publishers of an input, subscriptions of an output).
 
@@ -226,6 +239,7 @@ class RosBridgeCore:
                         self._callback(inp, on_message),
                         qos_profile(inp.qos),
                         callback_group=group,
+                        raw=converter_from_cdr(inp.ros_type) is not None,  # the CDR bytes: see _callback
                         event_callbacks=SubscriptionEventCallbacks(matched=_matched(inp.ros_topic, on_matched)),
                     )
                     for inp in self.inputs
@@ -282,6 +296,13 @@ class RosBridgeCore:
         topic, ros_type = inp.topic, inp.ros_type
         counts = self.counts[topic]
         convert = converter_from_ros(ros_type)
+        from_cdr = converter_from_cdr(ros_type)
+        if from_cdr is not None:  # a raw subscription: reading its CDR skips rclpy's Python message (~55 us)
+            typed, cls = convert, ros_msg_class(ros_type)
+
+            def convert(data: bytes) -> Any:
+                msg = from_cdr(data)
+                return msg if msg is not None else typed(deserialize_message(data, cls))
 
         def cb(ros_msg: Any) -> None:
             # Never let one bad message (or a failing consumer) stop the subscription thread.
@@ -613,7 +634,7 @@ class RosBridgeCore:
     def stop(self, timeout: float = 5.0) -> None:
         """Stop spinning, destroy the node and shut the Context down (idempotent).
 
-        Called from inside ``on_message`` (the spin thread), it returns at
+        Called from inside ``on_message`` (one of the core's threads), it returns at
         once and a short-lived thread finishes the teardown after the
         callback returns.
         """

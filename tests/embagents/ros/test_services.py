@@ -8,12 +8,9 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
-from typing import Any
+from pathlib import Path
 
 import pytest
-
-from actors import Actor, ActorSystem
 
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 pytest.importorskip("std_srvs", reason="needs the std_srvs wheel: pip install ros-std-srvs")
@@ -174,87 +171,99 @@ def test_a_server_that_takes_the_request_and_goes_silent_is_a_timeout_saying_so(
            "silent" in session, session
 
 
-# A plain rclpy peer: a /slow Trigger that sleeps (in its own callback group: /echo is still read meanwhile),
-# /ticks published every 20 ms from a thread; prints when the slow call ran and when each /echo arrived.
+# Ticks from ROS go through the bridge to a relay component and back to ROS as echoes; a component
+# calls the peer's slow service when /call comes, and sends its answer back on /called.
+SLOW_SYSTEM = '''
+from embagents import Component, String, System, Topic
+from embagents.ros import RosInput, RosOutput, ros_call
+
+ticks, echo, call, called = Topic("ticks", String), Topic("echo", String), Topic("call", String), Topic("called", String)
+
+
+class Relay(Component):
+    allowed_inputs = {"Required": [String]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        self.publish(echo, String(data="echo"))
+
+
+class Caller(Component):
+    allowed_inputs = {"Required": [String]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        reply = ros_call("/slow", "std_srvs/Trigger", timeout=10)
+        self.publish(called, String(data=f"{reply.success}:{reply.message}"))
+
+
+system = System(
+    [Relay(name="relay", inputs=[ticks], outputs=[echo], trigger=ticks),
+     Caller(name="caller", inputs=[call], outputs=[called], trigger=call)],
+    ros=[RosInput("/ticks", "std_msgs/String"), RosOutput("echo", ros_type="std_msgs/String"),
+         RosInput("/call", "std_msgs/String"), RosOutput("called", ros_type="std_msgs/String")],
+)
+'''
+
+# A plain rclpy peer: /ticks every 20 ms (a thread); once echoes come back, /call until its /slow Trigger
+# is called: that call sleeps 3 s (its own callback group: /echo is read meanwhile). Prints when the call
+# ran, when each echo arrived and the answer.
 SLOW_PEER = r"""
 import json, sys, threading, time, rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-run_for, sleep_for = float(sys.argv[1]), float(sys.argv[2])
+deadline = time.time() + float(sys.argv[1])
 rclpy.init()
 node = rclpy.create_node("slow_peer")
-call, echoes = [], []
+window, echoes, answers = [], [], []
 def slow(request, response):
-    call.append(time.monotonic())
-    time.sleep(sleep_for)
-    call.append(time.monotonic())
+    if not window:
+        window.append(time.monotonic())
+        time.sleep(3)
+        window.append(time.monotonic())
     response.success, response.message = True, "slow done"
     return response
 node.create_service(Trigger, "/slow", slow, callback_group=MutuallyExclusiveCallbackGroup())
 node.create_subscription(String, "/echo", lambda m: echoes.append(time.monotonic()), 100,
                          callback_group=MutuallyExclusiveCallbackGroup())
-pub = node.create_publisher(String, "/ticks", 100)
+node.create_subscription(String, "/called", lambda m: answers.append(m.data), 10,
+                         callback_group=MutuallyExclusiveCallbackGroup())
+ticks, calls = node.create_publisher(String, "/ticks", 100), node.create_publisher(String, "/call", 10)
 stop = threading.Event()
 def tick():
+    n = 0
     while not stop.wait(0.02):
-        pub.publish(String(data="tick"))
+        ticks.publish(String(data="tick"))
+        n += 1
+        if echoes and not window and n % 25 == 0:
+            calls.publish(String(data="call"))
 threading.Thread(target=tick, daemon=True).start()
 executor = MultiThreadedExecutor(num_threads=3)
 executor.add_node(node)
-end = time.time() + run_for
-while time.time() < end:
+while not answers and time.time() < deadline:
     executor.spin_once(timeout_sec=0.1)
 stop.set()
-print(json.dumps({"call": call, "echoes": echoes}), flush=True)
+print(json.dumps({"window": window, "echoes": echoes, "answers": answers}), flush=True)
 """
 
 
-class Relay(Actor):
-    """Sends each message of internal topic ``ticks`` on to ``echo`` (bound for ROS)."""
-
-    def on_start(self) -> None:
-        self.context.subscribe("ticks", lambda m: self.context.publish("echo", m), queue_size=100, keep="all")
-
-    def on_receive(self, message: Any) -> Any:
-        return None
-
-
-def test_topics_flow_both_ways_while_a_called_service_is_slow(monkeypatch: pytest.MonkeyPatch) -> None:
-    from embagents.ros.bridge_actor import RosBridgeActor
-    from embagents.ros.spec import RosCall
-
-    domain = str(DOMAIN_ID + 1)
-    env = {**os.environ, "ROS_DOMAIN_ID": domain, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    monkeypatch.setenv("ROS_DOMAIN_ID", domain)
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    with ActorSystem() as asys:
-        asys.spawn(Relay, "relay")
-        bridge = asys.spawn(
-            RosBridgeActor, "slow_call_bridge", None, "slow_call_bridge",
-            [{"ros_topic": "/ticks", "ros_type": "std_msgs/String", "topic": "ticks", "qos": {"depth": 100}}],
-            [{"topic": "echo", "ros_topic": "/echo", "ros_type": "std_msgs/String", "qos": {"depth": 100}}],
-            wait=60,
-        )
-        peer = subprocess.Popen([sys.executable, "-c", SLOW_PEER, "14", "3"], stdout=subprocess.PIPE, text=True,
-                                env=env)
-        try:
-            deadline = time.monotonic() + 8  # the round trip is up: ticks go in and echoes out
-            while time.monotonic() < deadline and not all(bridge.ask("stats", timeout=5).get()[k] for k in ("in", "out")):
-                time.sleep(0.1)
-            reply = bridge.ask(RosCall("/slow", "std_srvs/srv/Trigger", {}, 10.0), timeout=15)
-            time.sleep(1.0)  # the slow service is sleeping now
-            stats = bridge.ask("stats", timeout=1).get()  # the bridge answers other asks meanwhile
-            answer = reply.get()
-            out, _ = peer.communicate(timeout=30)
-        finally:
-            peer.kill()
-            peer.wait()
-    assert answer.success and answer.message == "slow done", answer
-    assert stats["in"] > 0 and stats["out"] > 0, stats
-    got = json.loads(out)
-    start, end = got["call"]
+def test_topics_flow_both_ways_while_a_called_service_is_slow(tmp_path: Path) -> None:
+    env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN_ID + 1), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(SLOW_SYSTEM))
+    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        out = subprocess.run([sys.executable, "-c", SLOW_PEER, "60"], capture_output=True, text=True, env=env,
+                             timeout=120)
+    finally:
+        sup.send_signal(signal.SIGTERM)
+        log, _ = sup.communicate(timeout=30)
+    got = json.loads(out.stdout or "{}") if out.returncode == 0 else {}
+    assert got.get("answers") == ["True:slow done"], out.stdout + out.stderr + log
+    start, end = got["window"]
     during = [t for t in got["echoes"] if start < t < end]
-    # ~150 ticks went out during the 3 s call: each came back from ROS through the bridge and back to ROS.
-    assert len(during) >= 10, f"{len(during)} echoes during the slow call ({len(got['echoes'])} in all)"
+    # ~150 ticks went out during the 3 s call; each came through the bridge, the relay and the bridge again.
+    assert len(during) >= 10, f"{len(during)} echoes during the slow call ({len(got['echoes'])} in all)\n{log}"
