@@ -77,8 +77,9 @@ class ActorHost:
             poison_limit=poison_limit, dead_letter=self._dead_letter,
             seen_path=os.path.join(rt.run_dir, f"{name}.seen"),
         )
-        self.mailbox.loop = loop  # type: ignore[attr-defined]
+        self.mailbox.loop = loop
         self.publishers: dict[str, Publisher] = {}
+        self.thread_publishers: list[tuple[str, Publisher]] = []  # see thread_publisher
         self.subscriptions: list[Subscription] = []
         self.ctrl_handlers: dict[str, Callable[..., Any]] = {
             "ping": lambda: "pong",
@@ -173,7 +174,7 @@ class ActorHost:
             "dead_lettered": mb.dead_lettered,
             "busy_for": time.monotonic() - mb.busy_since if mb.busy_since else 0.0,
             "subscriptions": [sub.stats() for sub in self.subscriptions],
-            "stalled": {t: p.stalled for t, p in self.publishers.items() if p.stalled},
+            "stalled": {t: p.stalled for t, p in [*self.publishers.items(), *self.thread_publishers] if p.stalled},
             "detail": getattr(self.actor, "status_detail", lambda: None)(),
         }
 
@@ -182,6 +183,12 @@ class ActorHost:
         pub = self.publishers.get(topic)
         if pub is None:
             pub = self.publishers[topic] = Publisher(self.rt, topic)
+        return pub
+
+    def thread_publisher(self, topic: str) -> Publisher:
+        """A new publisher of ``topic`` for one other thread of this actor (closed with the actor)."""
+        pub = Publisher(self.rt, topic)
+        self.thread_publishers.append((topic, pub))
         return pub
 
     def subscribe(self, topic: str, callback: Callable[[Any], None], **kw: Any) -> Subscription:
@@ -219,7 +226,7 @@ class ActorHost:
     def close(self) -> None:
         for sub in self.subscriptions:
             sub.close()
-        for pub in self.publishers.values():
+        for pub in [*self.publishers.values(), *(p for _, p in self.thread_publishers)]:
             pub.close()
         self.loop.remove(self.mailbox.sock)
         self.mailbox.close()

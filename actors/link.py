@@ -113,6 +113,9 @@ class Link:
         self.epoch = 0
         self.seq = 0
         self.unacked: OrderedDict[int, _Out] = OrderedDict()
+        # Asks the actor has handled (a later ACK or REPLY covered them) whose answer comes later:
+        # it returned a Deferred (see actors.mailbox.Deferred).
+        self.awaiting: dict[int, _Out] = {}
         self.releases: list[str] = []
         self.closed = False
         self.sent_count = 0
@@ -188,6 +191,9 @@ class Link:
                 self.rt.pool.acked(out.segments)
                 if out.pending is not None:
                     out.pending.resolve(False, ActorCrashed(self.name, "its process exited"))
+        awaiting, self.awaiting = self.awaiting, {}
+        for out in awaiting.values():
+            out.pending.resolve(False, ActorCrashed(self.name, "its process exited"))  # type: ignore[union-attr]
 
     def on_readable(self) -> None:
         sock = self.sock
@@ -228,6 +234,8 @@ class Link:
             if kind == REPLY:  # the ask path first: it is the one someone waits on
                 _, seq, ok, value = msg
                 out = self.unacked.pop(seq, None)
+                if out is None and self.awaiting:
+                    out = self.awaiting.pop(seq, None)
                 if self.unacked:
                     self._ack(seq)
                 if out is not None:
@@ -266,6 +274,9 @@ class Link:
                 return
             out = self.unacked.popitem(last=False)[1]
             self.rt.pool.acked(out.segments)
+            if out.pending is not None:  # an ask without its reply yet: a Deferred answer, still to come
+                out.segments = []
+                self.awaiting[seq] = out
 
     @property
     def backlog(self) -> int:
@@ -279,7 +290,10 @@ class Link:
             self.rt.pool.acked(out.segments)
             if out.pending is not None:
                 out.pending.resolve(False, ActorCrashed(self.name, "the link was closed"))
+        for out in self.awaiting.values():
+            out.pending.resolve(False, ActorCrashed(self.name, "the link was closed"))  # type: ignore[union-attr]
         self.unacked.clear()
+        self.awaiting.clear()
         self.sock.disable_monitor()
         self.monitor.close(0)
         self.sock.close(0)

@@ -21,6 +21,7 @@ import functools
 import logging
 import os
 import struct
+import threading
 import time
 import traceback
 from collections import deque
@@ -37,9 +38,10 @@ from actors.wire import ASK, CTRL, RELEASE, TELL
 
 if TYPE_CHECKING:
     from actors.journal import Journal
+    from actors.loop import Loop
     from actors.runtime import Runtime
 
-__all__ = ["Mailbox"]
+__all__ = ["Deferred", "Mailbox"]
 
 log = logging.getLogger("actors.mailbox")
 
@@ -48,6 +50,52 @@ Handler = Callable[[int, Any], Any]
 # Plain ints: zmq's constants are IntFlags, and `int & IntFlag` costs ~1 us in enum code.
 _POLLIN, _EVENTS, _NOBLOCK, _SNDMORE = int(zmq.POLLIN), int(zmq.EVENTS), int(zmq.NOBLOCK), int(zmq.SNDMORE)
 _KINDS = frozenset((TELL, ASK, CTRL))
+
+
+class Deferred:
+    """An ask's answer that comes later: ``on_receive`` returns one and the actor goes on.
+
+    ``resolve(value)`` or ``fail(exc)`` it later, from any thread (a driver's
+    callback): the reply goes out from the actor's thread. The asker waits as
+    for any answer, within its own timeout; if the actor dies first, the ask
+    fails with ActorCrashed as for any answer. Only the first outcome counts.
+    A ``tell`` that returns one has nobody to answer: the outcome is dropped.
+
+    Example::
+
+        def on_receive(self, message):
+            answer = Deferred()
+            self.driver.start(message, on_done=answer.resolve)  # answers when the driver is done
+            return answer
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._sink: Callable[[bool, Any], None] | None = None
+        self._outcome: tuple[bool, Any] | None = None
+
+    def resolve(self, value: Any) -> None:
+        """Answer with ``value``."""
+        self._settle(True, value)
+
+    def fail(self, exc: BaseException) -> None:
+        """Answer with the error ``exc`` (the asker gets a RemoteError of its type and message)."""
+        self._settle(False, [type(exc).__name__, _bounded(str(exc)), ""])
+
+    def _settle(self, ok: bool, value: Any) -> None:
+        with self._lock:
+            if self._outcome is not None:
+                return
+            self._outcome = (ok, value)
+            sink = self._sink
+        if sink is not None:
+            sink(ok, value)
+
+    def _bind(self, sink: Callable[[bool, Any], None]) -> None:
+        with self._lock:
+            self._sink, outcome = sink, self._outcome
+        if outcome is not None:
+            sink(*outcome)
 
 
 class Mailbox:
@@ -94,6 +142,7 @@ class Mailbox:
         self.dead_lettered = 0
         self.busy_since = 0.0
         self.stopping = False
+        self.loop: Loop | None = None  # set by the host: Deferred answers are sent from its thread
 
     @property
     def depth(self) -> int:
@@ -209,6 +258,10 @@ class Mailbox:
             self.to_ack[ident] = seq
         else:
             self.to_ack.pop(ident, None)
+            if ok and isinstance(result, Deferred) and self.loop is not None:
+                call_soon = self.loop.call_soon_threadsafe
+                result._bind(lambda ok_, value: call_soon(lambda: self._reply(ident, seq, ok_, value)))
+                return
             self._reply(ident, seq, ok, result)
 
     def _drop(self, early: int, what: str, ident: bytes, why: object) -> None:

@@ -346,7 +346,8 @@ class Publisher:
     @property
     def stalled(self) -> list[str]:
         """The ``keep="all"`` subscriptions this publisher is dropping for (see the class doc)."""
-        return [r.sub_id for r in self._reliable.values() if r.stalled]
+        # A copy first (one step under the GIL): a thread publisher's stats are read from the actor's thread.
+        return [r.sub_id for r in list(self._reliable.values()) if r.stalled]
 
     @property
     def dropped(self) -> int:

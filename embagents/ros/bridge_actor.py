@@ -4,8 +4,10 @@ It serves the ``RosInput`` / ``RosOutput`` declarations of a System:
 incoming ROS messages are converted and published on internal topics (an
 image's pixels are viewed in place on the ROS buffer and written once into
 shared memory); internal topics declared as outputs are converted and
-published to ROS. rclpy's executor runs in its own thread and hands each
-message to the actor's loop thread. Supervised like any actor: if it
+published to ROS. A thread of the ROS core takes the subscriptions' messages
+and publishes them on the internal topics itself; rclpy's executor (services
+called, actions, events) runs in another and hands its messages to the
+actor's loop thread. Supervised like any actor: if it
 crashes, its next incarnation creates its node, publishers and
 subscriptions again, and the rest of the system never notices rclpy.
 
@@ -30,7 +32,7 @@ from collections.abc import Sequence
 from functools import partial
 from typing import Any
 
-from actors import Actor, ActorRef
+from actors import Actor, ActorRef, Deferred
 from actors.errors import UnknownMessage
 from embagents.msgs import RosMessage
 from embagents.requests import Call
@@ -168,8 +170,20 @@ class RosBridgeActor(Actor):
         ctx = self.context
         expected, self.peers = set(self.peer_ros_topics), set(self.peer_ros_topics)
 
+        # RosInputs' messages come from the core's subscription thread, which publishes them itself with
+        # publishers of its own: a hand-over to our loop thread costs a wake-up (70-200 us under load,
+        # a third of the Imu's latency). Any other thread's (action feedback and results) hands over.
+        in_topics = {d.topic for d in ins}
+        thread_pubs: dict[str, Any] = {}  # kept across core restarts: one taking thread at a time
+
         def from_ros(topic: str, msg: Any) -> None:
-            # rclpy's executor thread: hand over to our loop thread, which owns the sockets.
+            if topic in in_topics:
+                pub = thread_pubs.get(topic)
+                if pub is None:
+                    pub = thread_pubs[topic] = ctx.thread_publisher(topic)
+                pub.publish(msg)
+                self._count_in(topic)
+                return
             ctx.call_soon_threadsafe(lambda: self._publish_in(topic, msg))
 
         # A fresh DDS participant id per incarnation (see configure_fastdds_shm): rediscovery at once.
@@ -227,6 +241,9 @@ class RosBridgeActor(Actor):
 
     def _publish_in(self, topic: str, msg: Any) -> None:
         self.context.publish(topic, msg)
+        self._count_in(topic)
+
+    def _count_in(self, topic: str) -> None:
         self.forwarded_in += 1
         if self.forwarded_in == 1:
             log.info("first message from ROS on %s", topic)
@@ -334,14 +351,31 @@ class RosBridgeActor(Actor):
             log.error("goal on %s not sent: %s", goal_topic, exc)
 
     def on_receive(self, message: Any) -> Any:
-
         if isinstance(message, RosCall):
-            from embagents.ros.generic import generic_from_ros  # lazy: heavy (rosidl_parser)
-
-            return generic_from_ros(self.core.call(message.ros_name, message.srv_type, message.fields, message.timeout))
+            return self._call(message)
         if message == "stats":
             return {"in": self.forwarded_in, "out": self.forwarded_out, "served": self.served}
         raise UnknownMessage("the ROS bridge", message, "it answers 'stats' and RosCall")
+
+    def _call(self, message: Any) -> Deferred:
+        """A RosCall, answered when the ROS service answers: meanwhile this actor goes on (topics, asks)."""
+        from embagents.ros.generic import generic_from_ros  # lazy: heavy (rosidl_parser)
+
+        answer = Deferred()
+
+        def done(future: Any) -> None:  # the core's threads
+            exc = future.exception()
+            if exc is not None:
+                answer.fail(exc)
+                return
+            try:
+                answer.resolve(generic_from_ros(future.result()))
+            except Exception as conv:  # noqa: BLE001 - a response we cannot carry: the caller's error
+                answer.fail(conv)
+
+        # Bad input (fields, a type mismatch) raises here: the ask's answer at once.
+        self.core.call_async(message.ros_name, message.srv_type, message.fields, message.timeout).add_done_callback(done)
+        return answer
 
     def on_stop(self) -> None:
         self.core.stop()

@@ -1,9 +1,19 @@
-"""The rclpy side of the ROS 2 bridge: one node, its own Context, one spin thread.
+"""The rclpy side of the ROS 2 bridge: one node, its own Context, a few threads.
 
 :class:`RosBridgeCore` knows nothing of actors: the bridge actor creates it
 in its process, hands it an ``on_message`` callback that forwards incoming
 messages onto internal topics, and calls :meth:`RosBridgeCore.publish` for
 internal messages bound for ROS. Importing this module imports rclpy.
+
+Threads: the subscriptions' (a wait set of their own: each message is taken
+and handed to ``on_message`` without a turn of rclpy's executor; an ``Imu``
+is read straight from its CDR bytes), the services' (requests we serve), and
+the executor's spin (service calls, actions, publishers' events). Measured
+with ``embagents bench --only ros_generic`` (Imu at 200 Hz, p50, one way
+into a subscriber actor; per stage, 2 busy cores): rclpy's executor turn and
+Python message (~55 us warm) made the take as slow as a plain rclpy
+subscriber's whole path; a hand-over to the actor's loop thread cost one
+more wake-up (70-200 us).
 
 Example::
 
@@ -27,6 +37,8 @@ import os
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future as Future_
+from concurrent.futures import InvalidStateError
 from typing import Any
 
 import attrs
@@ -34,19 +46,21 @@ import rclpy
 from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.context import Context
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.event_handler import EventHandler, PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rclpy.service import Service
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
 from rclpy.task import Future
 
 from actors import private_file
 from embagents.msgs import RosMessage, StreamingString
-from embagents.ros.convert import from_ros, ros_msg_class, to_ros
+from embagents.ros.convert import converter_from_cdr, converter_from_ros, ros_msg_class, to_ros
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments
 from embagents.ros.generic import generic_from_ros, generic_to_ros
 from embagents.ros.spec import (
@@ -103,6 +117,8 @@ class _Running:
     on_matched: OnMatched | None
     services_thread: threading.Thread | None = None
     wake_services: GuardCondition | None = None
+    topics_thread: threading.Thread | None = None
+    wake_topics: GuardCondition | None = None
     clients: dict[tuple[str, str], Any] = attrs.field(factory=dict)  # (service, type) -> rclpy Client
     raw_publishers: dict[str, Any] = attrs.field(factory=dict)  # ROS topic -> publisher of publish_ros
     # goal topic -> (declaration, ActionClient, running goal handles by id(): they are not hashable)
@@ -110,20 +126,33 @@ class _Running:
     on_message: OnMessage | None = None
 
 
-class _ServedElsewhere(ReentrantCallbackGroup):
-    """The group of our services: the executor leaves them to :meth:`RosBridgeCore._serve`,
-    whose thread may wait for a component's answer without holding up topics."""
+class _TakenElsewhere(ReentrantCallbackGroup):
+    """The group of our services and subscriptions: the executor leaves them to threads of their own.
 
-    # rclpy annotates the Reentrant group's can_execute as Literal[True]; this subclass refuses services.
+    Services go to :meth:`RosBridgeCore._serve`, whose thread may wait for a
+    component's answer without holding up topics. Subscriptions and their
+    event handlers (matched, incompatible QoS) go to
+    :meth:`RosBridgeCore._take_topics`: its wait set takes each message and
+    hands it on with a few microseconds of Python, where a turn of rclpy's
+    executor costs ~100 us (and holds the GIL the actor's loop thread needs to
+    send the message on). The event handlers go with their subscription: with
+    Fast DDS a subscription wakes only the last wait set that waited on it or
+    on its events, so two threads sharing one subscription lose wake-ups
+    (measured: the Imu's p50 from 0.3 to 0.75-1.1 ms).
+    """
+
+    # rclpy annotates the Reentrant group's can_execute as Literal[True]; this subclass refuses ours.
     def can_execute(self, entity: Any) -> bool:  # type: ignore[override]
-        return not isinstance(entity, Service)
+        return not isinstance(entity, (Service, Subscription, EventHandler))
 
 
 class RosBridgeCore:
     """ROS 2 node mapping ROS topics to internal topics and back.
 
-    ``start`` calls ``on_message(internal_topic, our_msg)`` from its spin
-    thread for each incoming ROS message; ``publish`` may be called from any
+    ``start`` calls ``on_message(internal_topic, our_msg)`` for each incoming
+    ROS message: from its subscription thread (always the same one while it
+    runs) for the RosInputs, from its spin thread for actions' feedback and
+    results. ``publish`` may be called from any
     thread. Each ``start`` uses a fresh rclpy Context, so a core can be
     stopped and started again, and several can coexist in one process.
     """
@@ -180,7 +209,7 @@ class RosBridgeCore:
         :func:`clean_zombie_fastdds_segments`. ``shm_segment_mb`` calls
         :func:`configure_fastdds_shm` first (needed for publishing large
         images; only effective before this process's first start).
-        ``on_matched(ros_topic, count)`` is called from the spin thread
+        ``on_matched(ros_topic, count)`` is called from the subscription or spin thread
         whenever the number of ROS peers matched on a declared ROS topic
         changes (publishers of an input, subscriptions of an output).
 
@@ -204,12 +233,15 @@ class RosBridgeCore:
                 node = Node(node_name, namespace=namespace, context=context, start_parameter_services=False)
                 declared: list[RosInput | RosOutput] = [*self.inputs, *self.outputs]
                 self.counts = {d.topic: _Counts() for d in declared}
+                group = _TakenElsewhere()
                 subscriptions = {
                     inp.ros_topic: node.create_subscription(
                         ros_msg_class(inp.ros_type),
                         inp.ros_topic,
                         self._callback(inp, on_message),
                         qos_profile(inp.qos),
+                        callback_group=group,
+                        raw=converter_from_cdr(inp.ros_type) is not None,  # the CDR bytes: see _callback
                         event_callbacks=SubscriptionEventCallbacks(matched=_matched(inp.ros_topic, on_matched)),
                     )
                     for inp in self.inputs
@@ -230,8 +262,13 @@ class RosBridgeCore:
                 for a in self.actions:
                     client: ActionClient[Any, Any, Any] = ActionClient(node, ros_interface_class(a.action_type), a.ros_name)
                     self._run.actions[a.goal] = (a, client, {})
+                if subscriptions:
+                    wake = self._run.wake_topics = GuardCondition(None, None, context=context)
+                    self._run.topics_thread = threading.Thread(
+                        target=self._take_topics, args=(list(subscriptions.values()), context, wake, stopping),
+                        name=f"ros-sub-{node_name}", daemon=True,
+                    )
                 if self.services:
-                    group = _ServedElsewhere()
                     served = [
                         (sv, node.create_service(ros_interface_class(sv.srv_type), sv.ros_name, _never_called,
                                                  callback_group=group))
@@ -248,8 +285,9 @@ class RosBridgeCore:
                     "on_matched": on_matched,
                 }
                 thread.start()
-                if self._run.services_thread is not None:
-                    self._run.services_thread.start()
+                for extra in (self._run.topics_thread, self._run.services_thread):
+                    if extra is not None:
+                        extra.start()
             except BaseException:
                 self._run = None
                 _teardown(context, node, executor)
@@ -259,11 +297,19 @@ class RosBridgeCore:
     def _callback(self, inp: RosInput, on_message: OnMessage) -> Callable[[Any], None]:
         topic, ros_type = inp.topic, inp.ros_type
         counts = self.counts[topic]
+        convert = converter_from_ros(ros_type)
+        from_cdr = converter_from_cdr(ros_type)
+        if from_cdr is not None:  # a raw subscription: reading its CDR skips rclpy's Python message (~55 us)
+            typed, cls = convert, ros_msg_class(ros_type)
+
+            def convert(data: bytes) -> Any:
+                msg = from_cdr(data)
+                return msg if msg is not None else typed(deserialize_message(data, cls))
 
         def cb(ros_msg: Any) -> None:
-            # Never let one bad message (or a failing consumer) stop the spin thread.
+            # Never let one bad message (or a failing consumer) stop the subscription thread.
             try:
-                msg = from_ros(ros_msg, ros_type)
+                msg = convert(ros_msg)
             except Exception:
                 counts.errors += 1
                 if _worth_logging(counts.errors):
@@ -278,6 +324,43 @@ class RosBridgeCore:
                     log.exception("on_message failed for internal topic %r (error #%d)", topic, counts.errors)
 
         return cb
+
+    @staticmethod
+    def _take_topics(subs: list[Subscription], context: Context, wake: GuardCondition, stopping: Future) -> None:
+        """Take the messages (and events) of our subscriptions and call their callbacks, in this thread."""
+        events = [h for sub in subs for h in sub.event_handlers]
+        try:
+            handle = context.handle
+            assert handle is not None  # a started context
+            with handle:
+                wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, len(events), handle)
+            while not stopping.done() and context.ok():
+                wait_set.clear_entities()
+                for sub in subs:
+                    wait_set.add_subscription(sub.handle)
+                for h in events:
+                    h.add_to_wait_set(wait_set)
+                wait_set.add_guard_condition(wake.handle)
+                wait_set.wait(-1)  # releases the GIL
+                if stopping.done():
+                    break
+                ready = wait_set.get_ready_entities("subscription")
+                for sub in subs:
+                    if sub.handle.pointer not in ready:
+                        continue
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    if taken is not None:
+                        callback: Callable[[Any], None] = sub.callback  # type: ignore[assignment]  # rclpy types it loosely
+                        callback(taken[0])  # never raises: see _callback
+                for h in events:
+                    if h.is_ready(wait_set):
+                        data = h.take_data()
+                        if data:
+                            h.callback(data)
+        except Exception:
+            if not stopping.done() and context.ok():
+                log.exception("ROS subscription thread failed; topics from ROS stop")
 
     def _serve(self, served: list[tuple[RosService, Any]], context: Context, wake: GuardCondition,
                stopping: Future) -> None:
@@ -317,6 +400,18 @@ class RosBridgeCore:
         server, or a server of another type), ValueError for request fields
         the type lacks, RuntimeError when not started.
         """
+        return self.call_async(ros_name, srv_type, fields, timeout).result()
+
+    def call_async(self, ros_name: str, srv_type: str, fields: dict[str, Any], timeout: float) -> Future_[Any]:
+        """Start a call of ROS service ``ros_name``; the returned future gets its ROS response.
+
+        Returns at once (the bridge's loop goes on forwarding topics): a
+        short-lived thread waits for the server to be matched, sends the
+        request with rclpy's ``call_async``, and fails the future with
+        TimeoutError at ``timeout`` (as :meth:`call` raises). Bad input raises
+        here: ValueError for request fields the type lacks or a service known
+        by another type, RuntimeError when not started.
+        """
         srv_cls: Any = ros_interface_class(normalize_ros_type(srv_type, "srv"))  # generated: Request, Response
         request = generic_to_ros(fields, srv_cls.Request)
         with self._lock:
@@ -330,23 +425,48 @@ class RosBridgeCore:
                 if mismatch:
                     raise ValueError(f"ROS service {ros_name} is a {mismatch}, not a {srv_type} (a type mismatch)")
                 client = run.clients[key] = run.node.create_client(srv_cls, ros_name)
-        deadline = time.monotonic() + timeout
-        # A request sent before the server is matched is lost. rclpy has no event for that match
-        # (its own wait_for_service sleeps 0.25 s steps, rclpy issue 58): check every 20 ms, only
-        # until the first match of this client (clients are kept).
-        while not client.service_is_ready() and time.monotonic() < deadline and run.context.ok():
-            time.sleep(0.02)
-        done = threading.Event()
-        future = client.call_async(request)
-        future.add_done_callback(lambda _f: done.set())
-        run.executor.wake()
-        if not done.wait(max(0.0, deadline - time.monotonic())):
-            future.cancel()
-            client.remove_pending_request(future)
-            raise TimeoutError(self._no_answer(run.node, client, ros_name, srv_type, timeout))
-        if future.exception() is not None:
-            raise RuntimeError(f"ROS service {ros_name}: {future.exception()}")
-        return future.result()
+        out: Future_[Any] = Future_()
+
+        def settle(result: Any = None, error: BaseException | None = None) -> None:
+            try:
+                if error is not None:
+                    out.set_exception(error)
+                else:
+                    out.set_result(result)
+            except InvalidStateError:  # the answer and the timeout crossed: the first one counts
+                pass
+
+        def on_reply(future: Future) -> None:
+            if future.cancelled():
+                return
+            exc = future.exception()
+            if exc is not None:
+                settle(error=RuntimeError(f"ROS service {ros_name}: {exc}"))
+            else:
+                settle(future.result())
+
+        def send() -> None:
+            try:
+                deadline = time.monotonic() + timeout
+                # A request sent before the server is matched is lost. rclpy has no event for that match
+                # (its own wait_for_service sleeps 0.25 s steps, rclpy issue 58): check every 20 ms, only
+                # until the first match of this client (clients are kept).
+                while not client.service_is_ready() and time.monotonic() < deadline and run.context.ok():
+                    time.sleep(0.02)
+                future = client.call_async(request)
+                future.add_done_callback(on_reply)
+                run.executor.wake()
+                try:
+                    out.exception(max(0.0, deadline - time.monotonic()))  # waits for the answer
+                except TimeoutError:
+                    future.cancel()
+                    client.remove_pending_request(future)
+                    settle(error=TimeoutError(self._no_answer(run.node, client, ros_name, srv_type, timeout)))
+            except Exception as exc:  # noqa: BLE001 - the core stopped meanwhile, say: the caller's answer
+                settle(error=RuntimeError(f"ROS service {ros_name}: {exc}"))
+
+        threading.Thread(target=send, name=f"ros-call-{ros_name}", daemon=True).start()
+        return out
 
     @staticmethod
     def _other_types(node: Node, ros_name: str, srv_type: str) -> str:
@@ -522,7 +642,7 @@ class RosBridgeCore:
     def stop(self, timeout: float = 5.0) -> None:
         """Stop spinning, destroy the node and shut the Context down (idempotent).
 
-        Called from inside ``on_message`` (the spin thread), it returns at
+        Called from inside ``on_message`` (one of the core's threads), it returns at
         once and a short-lived thread finishes the teardown after the
         callback returns.
         """
@@ -532,17 +652,19 @@ class RosBridgeCore:
             return
         run.stopping.set_result(None)
         run.executor.wake()
-        if run.wake_services is not None:
-            run.wake_services.trigger()
-        if threading.current_thread() is run.thread:
+        for wake in (run.wake_topics, run.wake_services):
+            if wake is not None:
+                wake.trigger()
+        if threading.current_thread() in (run.thread, run.topics_thread, run.services_thread):
             threading.Thread(target=self._finish, args=(run, timeout), name="ros-teardown").start()
         else:
             self._finish(run, timeout)
 
     @staticmethod
     def _finish(run: _Running, timeout: float) -> None:
-        if run.services_thread is not None and run.services_thread is not threading.current_thread():
-            run.services_thread.join(timeout)
+        for extra in (run.topics_thread, run.services_thread):
+            if extra is not None and extra is not threading.current_thread():
+                extra.join(timeout)
         run.thread.join(timeout)
         if run.thread.is_alive():
             # A callback is stuck in on_message; shutting the context down ends

@@ -508,10 +508,11 @@ def ros_call(ros_name: str, srv_type: str, timeout: float = 5.0, **fields: Any) 
     server, a server that vanished mid-call), ValueError for a type mismatch
     or a field the request type lacks, RuntimeError without a bridge.
 
-    The bridge waits for the answer in its loop thread (an actor answers an
-    ask when its handler returns): meanwhile ROS messages for the system
-    queue in the bridge and go on when the call returns. Keep ``timeout``
-    short; a long-running ROS request is an action (:class:`RosAction`).
+    The bridge does not wait for the answer: it sends the request with
+    rclpy's ``call_async`` and answers this ask when the response (or the
+    timeout) comes, forwarding topics and serving other calls meanwhile. The
+    caller waits up to ``timeout``; a long-running ROS request with progress
+    is an action (:class:`RosAction`).
 
     Example (in a component)::
 

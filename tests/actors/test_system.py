@@ -20,7 +20,7 @@ from actors import (
     wire,
 )
 from tests.actors.conftest import shm_names
-from tests.actors.workers import Counter, Echo, Forwarder, Holder
+from tests.actors.workers import Counter, Deferrer, Echo, Forwarder, Holder
 
 
 def test_ask_and_tell_reach_another_process(system: ActorSystem) -> None:
@@ -88,6 +88,28 @@ def test_ask_to_an_actor_that_dies_fails_fast_with_actor_crashed(system: ActorSy
     with pytest.raises(ActorCrashed, match="'c' died before answering"):
         fut.get()
     assert time.monotonic() - t0 < 5
+
+
+def test_a_deferred_answer_comes_later_while_the_actor_answers_other_asks(system: ActorSystem) -> None:
+    d = system.spawn(Deferrer, "d")
+    first, second = d.ask("hold", timeout=10), d.ask("hold", timeout=10)
+    assert d.ask("later", timeout=10).get() == "from a thread"  # resolved by another thread of the actor
+    assert d.ask("held?", timeout=5).get() == 2  # answered while both wait
+    assert d.ask(["release", {"x": 1}], timeout=5).get() == 0
+    assert first.get() == {"x": 1} and second.get() == {"x": 1}
+    failing = d.ask("hold", timeout=10)
+    assert d.ask("fail", timeout=5).get() == 0
+    with pytest.raises(RemoteError, match="no luck"):
+        failing.get()
+
+
+def test_an_ask_awaiting_a_deferred_answer_fails_when_the_actor_dies(system: ActorSystem) -> None:
+    d = system.spawn(Deferrer, "d")
+    held = d.ask("hold", timeout=30)
+    assert d.ask("held?", timeout=5).get() == 1  # answered after "hold": that ask is acknowledged
+    system.signal("d", signal.SIGKILL)
+    with pytest.raises(ActorCrashed):
+        held.get()
 
 
 def test_ask_timeout_is_pykka_timeout(system: ActorSystem) -> None:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from typing import Any
 
 import numpy as np
 
-from actors import Actor
+from actors import Actor, Deferred
 
 
 class Echo(Actor):
@@ -18,6 +19,32 @@ class Echo(Actor):
         if isinstance(message, str) and message == "pid":
             return os.getpid()
         return message
+
+
+class Deferrer(Actor):
+    """Answers "hold" later, when ["release", value] or "fail" comes; "later" from a thread of its own.
+
+    Anything else: how many answers it holds."""
+
+    def on_start(self) -> None:
+        self.held: list[Deferred] = []
+
+    def on_receive(self, message: Any) -> Any:
+        if message == "hold":
+            self.held.append(Deferred())
+            return self.held[-1]
+        if message == "later":
+            answer = Deferred()
+            threading.Timer(0.2, answer.resolve, ["from a thread"]).start()
+            return answer
+        if message == "fail" or (isinstance(message, list) and message[0] == "release"):
+            held, self.held = self.held, []
+            for answer in held:
+                if message == "fail":
+                    answer.fail(ValueError("no luck"))
+                else:
+                    answer.resolve(message[1])
+        return len(self.held)
 
 
 class Counter(Actor):

@@ -41,6 +41,7 @@ from embagents.msgs import (  # noqa: E402
 from embagents.ros import SUPPORTED, ros_type_for  # noqa: E402
 from embagents.ros.convert import (  # noqa: E402
     ENCODINGS,
+    converter_from_cdr,
     from_ros,
     ros_msg_class,
     stamp_to_time,
@@ -370,6 +371,23 @@ def test_imu():
         np.testing.assert_array_equal(back.linear_acceleration_covariance, -np.eye(3))
         assert (back.frame_id, back.stamp) == ("imu", 3.5)
     assert list(to_ros(imu).orientation_covariance) == list(range(9))  # row-major, as ROS documents
+
+
+def test_an_imu_read_from_its_cdr_bytes_equals_rclpys_deserialization():
+    read = converter_from_cdr("sensor_msgs/Imu")
+    for frame_id in ("", "i", "imu", "imu_lin", "imu_link", "a_longer_frame_ñ"):  # every alignment of the doubles
+        ros = to_ros(Imu(orientation=(0.1, 0.2, 0.3, 0.9), angular_velocity=(1, 2, 3), linear_acceleration=(4, 5, 6),
+                         orientation_covariance=np.arange(9.0).reshape(3, 3), angular_velocity_covariance=-np.eye(3),
+                         linear_acceleration_covariance=np.full((3, 3), 0.5), frame_id=frame_id, stamp=12.25))
+        data = serialize_message(ros)
+        ours, rclpys = read(data), from_ros(deserialize_message(data, type(ros)), "sensor_msgs/Imu")
+        for name in ("orientation", "angular_velocity", "linear_acceleration", "frame_id", "stamp"):
+            assert getattr(ours, name) == getattr(rclpys, name), (frame_id, name)
+        for name in ("orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"):
+            np.testing.assert_array_equal(getattr(ours, name), getattr(rclpys, name))
+    assert read(b"\x00\x00" + data[2:]) is None  # big endian: left to rclpy
+    assert read(data[:40]) is None  # cut short
+    assert converter_from_cdr("std_msgs/String") is None
 
 
 def test_laser_scan():

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -168,3 +169,101 @@ def test_an_invalid_transition_gets_ros_failure_result(session: str) -> None:
 def test_a_server_that_takes_the_request_and_goes_silent_is_a_timeout_saying_so(session: str) -> None:
     assert "TimeoutError: ROS service /arm/stuck did not answer within 1.0 s: its server took the request and went " \
            "silent" in session, session
+
+
+# Ticks from ROS go through the bridge to a relay component and back to ROS as echoes; a component
+# calls the peer's slow service when /call comes, and sends its answer back on /called.
+SLOW_SYSTEM = '''
+from embagents import Component, String, System, Topic
+from embagents.ros import RosInput, RosOutput, ros_call
+
+ticks, echo, call, called = Topic("ticks", String), Topic("echo", String), Topic("call", String), Topic("called", String)
+
+
+class Relay(Component):
+    allowed_inputs = {"Required": [String]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        self.publish(echo, String(data="echo"))
+
+
+class Caller(Component):
+    allowed_inputs = {"Required": [String]}
+    allowed_outputs = {"Required": [String]}
+
+    def _execution_step(self, **inputs):
+        reply = ros_call("/slow", "std_srvs/Trigger", timeout=10)
+        self.publish(called, String(data=f"{reply.success}:{reply.message}"))
+
+
+system = System(
+    [Relay(name="relay", inputs=[ticks], outputs=[echo], trigger=ticks),
+     Caller(name="caller", inputs=[call], outputs=[called], trigger=call)],
+    ros=[RosInput("/ticks", "std_msgs/String"), RosOutput("echo", ros_type="std_msgs/String"),
+         RosInput("/call", "std_msgs/String"), RosOutput("called", ros_type="std_msgs/String")],
+)
+'''
+
+# A plain rclpy peer: /ticks every 20 ms (a thread); once echoes come back, /call until its /slow Trigger
+# is called: that call sleeps 3 s (its own callback group: /echo is read meanwhile). Prints when the call
+# ran, when each echo arrived and the answer.
+SLOW_PEER = r"""
+import json, sys, threading, time, rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+deadline = time.time() + float(sys.argv[1])
+rclpy.init()
+node = rclpy.create_node("slow_peer")
+window, echoes, answers = [], [], []
+def slow(request, response):
+    if not window:
+        window.append(time.monotonic())
+        time.sleep(3)
+        window.append(time.monotonic())
+    response.success, response.message = True, "slow done"
+    return response
+node.create_service(Trigger, "/slow", slow, callback_group=MutuallyExclusiveCallbackGroup())
+node.create_subscription(String, "/echo", lambda m: echoes.append(time.monotonic()), 100,
+                         callback_group=MutuallyExclusiveCallbackGroup())
+node.create_subscription(String, "/called", lambda m: answers.append(m.data), 10,
+                         callback_group=MutuallyExclusiveCallbackGroup())
+ticks, calls = node.create_publisher(String, "/ticks", 100), node.create_publisher(String, "/call", 10)
+stop = threading.Event()
+def tick():
+    n = 0
+    while not stop.wait(0.02):
+        ticks.publish(String(data="tick"))
+        n += 1
+        if echoes and not window and n % 25 == 0:
+            calls.publish(String(data="call"))
+threading.Thread(target=tick, daemon=True).start()
+executor = MultiThreadedExecutor(num_threads=3)
+executor.add_node(node)
+while not answers and time.time() < deadline:
+    executor.spin_once(timeout_sec=0.1)
+stop.set()
+print(json.dumps({"window": window, "echoes": echoes, "answers": answers}), flush=True)
+"""
+
+
+def test_topics_flow_both_ways_while_a_called_service_is_slow(tmp_path: Path) -> None:
+    env = {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN_ID + 1), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(SLOW_SYSTEM))
+    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        out = subprocess.run([sys.executable, "-c", SLOW_PEER, "60"], capture_output=True, text=True, env=env,
+                             timeout=120)
+    finally:
+        sup.send_signal(signal.SIGTERM)
+        log, _ = sup.communicate(timeout=30)
+    got = json.loads(out.stdout or "{}") if out.returncode == 0 else {}
+    assert got.get("answers") == ["True:slow done"], out.stdout + out.stderr + log
+    start, end = got["window"]
+    during = [t for t in got["echoes"] if start < t < end]
+    # ~150 ticks went out during the 3 s call; each came through the bridge, the relay and the bridge again.
+    assert len(during) >= 10, f"{len(during)} echoes during the slow call ({len(got['echoes'])} in all)\n{log}"
