@@ -46,7 +46,14 @@ from embagents.models import models_of
 from embagents.models.files.wheels import WheelFileError
 from embagents.requests import SUPERVISOR_REQUESTS, SupervisorRequest
 from embagents.supervision import build_spec, wiring
-from embagents.system import SYSTEM_STOP, SystemFileError, counted, load_system, remember_system
+from embagents.system import (
+    SYSTEM_STOP,
+    System,
+    SystemFileError,
+    counted,
+    load_system,
+    remember_system,
+)
 from embagents.tools.call import call_command
 from embagents.tools.dashboard import Dashboard, DashboardError
 from embagents.tools.publish import publish_command
@@ -227,7 +234,7 @@ class Activation:
     start does.
     """
 
-    def __init__(self, sup: Any, system: Any, waits: dict[str, dict[str, tuple[str, ...]]], timeout: float,
+    def __init__(self, sup: Any, system: System, waits: dict[str, dict[str, tuple[str, ...]]], timeout: float,
                  on_ready: Callable[[], None]) -> None:
         self.sup, self.asys, self.waits, self.timeout, self.on_ready = sup, sup.system, waits, timeout, on_ready
         self.components = {str(c.name) for c in system.components}
@@ -343,7 +350,7 @@ def _reach(edges: dict[str, set[str]]) -> dict[str, set[str]]:
     return out
 
 
-def _start_dashboard(sup: Any, control: Any, system: Any, topics: Any, where: tuple[str, int]) -> Any:
+def _start_dashboard(sup: Any, control: Any, system: System, topics: Any, where: tuple[str, int]) -> Any:
     """The running dashboard, or None (said on stderr) if it cannot start: the system runs on without it."""
 
     try:

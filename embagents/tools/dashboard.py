@@ -56,6 +56,7 @@ from urllib.parse import parse_qs, urlsplit
 from actors.errors import RemoteError
 from actors.topics import Subscription
 from embagents.components.imaging import annotate, image_rgb
+from embagents.system import System
 from embagents.tools.webguard import host_allowed, new_token, same_token
 from supervisor import lifecycle
 
@@ -134,7 +135,7 @@ def _jpeg(msg: Any, detections: list[Any]) -> bytes:
 class Dashboard:
     """The dashboard of one run: ``start(host, port)``, ``state()``, ``stop()``."""
 
-    def __init__(self, sup: Any, control: Any, system: Any, topics: Any) -> None:
+    def __init__(self, sup: Any, control: Any, system: System, topics: Any) -> None:
         self.sup, self.control, self.system, self.topics = sup, control, system, topics
         self.latest = _Latest()
         self._loop: asyncio.AbstractEventLoop | None = None
