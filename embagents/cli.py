@@ -25,6 +25,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
@@ -221,6 +222,8 @@ def _control(cmd: str) -> Command:
     def run(args: argparse.Namespace) -> int:
         from supervisor.client import control
 
+        if cmd == "status":
+            return _status(args)
         return control(cmd, run=args.run, timeout=args.timeout, as_json=getattr(args, "json", False),
                        name=getattr(args, "name", None), wait_ready_s=getattr(args, "wait_ready", None))
 
@@ -230,6 +233,46 @@ def _control(cmd: str) -> Command:
         "stop": "stop the running system cleanly (reverse start order)",
     }
     return Command(add, run, helps[cmd])
+
+
+def _status(args: argparse.Namespace) -> int:
+    """`embagents status`: the supervisor's table, then the voice stages of the run's VoiceStage topics."""
+    import json
+
+    from actors import UnsafeFolder
+    from embagents.tools.root import voice_lines
+    from supervisor.client import ControlError, control, pick_run, request, wait_ready
+
+    if args.json:  # one JSON object: the status with its "voice" key
+        try:
+            picked = (wait_ready(args.run, args.wait_ready) if args.wait_ready is not None else pick_run(args.run))
+            reply = request(picked["run_dir"], {"cmd": "status"}, args.timeout)
+            reply["voice"] = _voice_stages(picked["run_dir"], args.timeout)
+        except (ControlError, UnsafeFolder) as exc:
+            print(json.dumps({"ok": False, "error": str(exc)}))
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        print(json.dumps(reply, indent=2))
+        return 0
+    rc = control("status", run=args.run, timeout=args.timeout, wait_ready_s=args.wait_ready)
+    if rc == 0:
+        with contextlib.suppress(ControlError):
+            for line in voice_lines(_voice_stages(pick_run(args.run)["run_dir"], args.timeout) or {}):
+                print(line)
+    return rc
+
+
+def _voice_stages(run_dir: str, timeout: float) -> dict[str, Any] | None:
+    """The run's ``voice_stages`` answer; None from a run that does not serve it."""
+    from supervisor.client import ControlError, request
+
+    try:
+        reply = request(run_dir, {"cmd": "voice_stages"}, timeout)
+        return {k: reply.get(k) for k in ("topics", "turns", "latest", "p50")}
+    except ControlError as exc:
+        if "unknown command" in str(exc):
+            return None
+        raise
 
 
 def _publish_arguments(parser: argparse.ArgumentParser) -> None:

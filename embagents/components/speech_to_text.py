@@ -50,8 +50,9 @@ from attrs import define, field
 from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
+from embagents.components.voice_stages import publish_stage
 from embagents.config import BaseComponentConfig, ConfigError, int_at_least, positive_float, to_bool
-from embagents.msgs import Audio, BargeIn, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String, VoiceStage
 from embagents.topic import Topic
 
 __all__ = ["BACKCHANNELS", "SpeechToText", "SpeechToTextConfig", "is_backchannel", "strip_wake_phrase"]
@@ -207,7 +208,7 @@ class SpeechToText(ModelComponent):
     """Transcribes speech with a speech-to-text model (see the module docstring)."""
 
     allowed_inputs = {"Required": [Audio], "Optional": [Audio]}  # the microphone; the Speaker's played stream
-    allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn]}
+    allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn, VoiceStage]}
     config_class = SpeechToTextConfig
 
     def __init__(self, *, name: str, turn_model_client: Any = None, **kw: Any) -> None:
@@ -219,6 +220,7 @@ class SpeechToText(ModelComponent):
         self.last_eou_delay: float | None = None
         #: The last utterance's transcription delay (s): end of turn -> final transcript.
         self.last_transcription_delay: float | None = None
+        self._turn_ended: float | None = None  # wall time the turn in progress was decided finished
         self._vad: Any = None
         self._wake_word: Any = None
         self._formats_seen: set[tuple[int, int]] = set()
@@ -342,6 +344,7 @@ class SpeechToText(ModelComponent):
         for utterance in self._vad.feed(samples):
             self.turns["silence"] += 1
             self.last_eou_delay = self.config.min_silence_ms / 1000
+            self._turn_ended = time.time()
             self._finish(utterance)
         if self._turn_vad is not None:
             self._end_of_turn(samples)
@@ -374,6 +377,7 @@ class SpeechToText(ModelComponent):
             return
         self.turns["model"] += 1
         self.last_eou_delay = pause_s + time.monotonic() - began
+        self._turn_ended = time.time()
         for utterance in self._vad.flush():
             self._finish(utterance)
 
@@ -488,9 +492,19 @@ class SpeechToText(ModelComponent):
             self.publish(t, StreamingString(data=text, done=True, stream_id=stream_id))
         if passed:
             self.logger.info("%s: heard %r", self._label(), passed)
+            self._publish_stages()
             for t in self.outputs:
                 if t.msg_type is String:
                     self.publish(t, String(data=passed))
+
+    def _publish_stages(self) -> None:
+        """The turn's stages on the VoiceStage outputs: end of speech, end of turn (its decision), transcript."""
+        now = time.time()
+        ended = self._turn_ended if self._turn_ended is not None else now - (self.last_transcription_delay or 0.0)
+        self._turn_ended = None
+        publish_stage(self, "end_of_speech", ended - (self.last_eou_delay or 0.0))
+        publish_stage(self, "end_of_turn", ended)
+        publish_stage(self, "transcript", now)
 
     def _gate(self, text: str) -> str | None:
         cfg = self.config
@@ -539,6 +553,7 @@ class SpeechToText(ModelComponent):
             return 0
         ended = self._vad.flush()
         for utterance in ended:
+            self.last_eou_delay, self._turn_ended = 0.0, time.time()  # the stream's end ends the turn, now
             self._finish(utterance)
         return len(ended)
 
