@@ -492,10 +492,10 @@ class SpeechToText(ModelComponent):
             self.publish(t, StreamingString(data=text, done=True, stream_id=stream_id))
         if passed:
             self.logger.info("%s: heard %r", self._label(), passed)
-            self._publish_stages()
             for t in self.outputs:
                 if t.msg_type is String:
                     self.publish(t, String(data=passed))
+            self._publish_stages()
 
     def _publish_stages(self) -> None:
         """The turn's stages on the VoiceStage outputs: end of speech, end of turn (its decision), transcript."""
