@@ -102,3 +102,19 @@ def test_a_turn_publishes_its_stages_on_a_voice_stage_output_as_its_stats_say(ac
     stats = comp.stats()
     assert (stages[1].stamp - stages[0].stamp) * 1000 == pytest.approx(stats["eou_delay"], abs=0.2)
     assert (stages[2].stamp - stages[1].stamp) * 1000 >= stats["transcription_delay"] - 0.2
+
+
+def test_a_turn_threshold_above_the_models_probability_leaves_a_finished_question_to_the_silence_fallback(
+        actors: tuple[str, str]) -> None:
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(2 * RATE, np.int16)])
+    comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                        model_client=LocalModelClient(actors[0]), turn_model_client=LocalModelClient(actors[1]),
+                        config=SpeechToTextConfig(min_silence_ms=1000.0, turn_threshold=0.9999))
+    comp.on_configure()
+    heard, _ = turn_run(comp, clip, time.time())
+    p = comp.stats()["turn_probability"]
+    assert heard == 1 and 0.5 < p < 0.9999, "the model says finished, at a probability under the threshold"
+    assert comp.turns["not_yet"] >= 1 and comp.turns["model"] == 0 and comp.turns["silence"] == 1
+    with pytest.raises(ValueError, match=r"threshold .* must be in \(0, 1\), got 1.5"):
+        SpeechToTextConfig(turn_threshold=1.5)
