@@ -94,9 +94,11 @@ class VoiceTurns:
     def p50(self) -> dict[str, float | None]:
         """Each delay's median over the turns that reached both its stages."""
         every = [self.delays(t) for t in self.turns]
-        names = [name for name, _, _ in DELAYS] + ["total"]
-        return {n: round(statistics.median(v), 1) if (v := [d[n] for d in every if d[n] is not None]) else None
-                for n in names}
+        out: dict[str, float | None] = {}
+        for n in [name for name, _, _ in DELAYS] + ["total"]:
+            values = [v for d in every if (v := d[n]) is not None]
+            out[n] = round(statistics.median(values), 1) if values else None
+        return out
 
     def summary(self) -> dict[str, Any]:
         """``{"turns", "latest", "p50"}`` (what ``embagents status`` shows)."""

@@ -213,10 +213,12 @@ def voice_lines(reply: dict[str, Any]) -> list[str]:
         return "-" if v is None else f"{v:.0f} ms"
 
     names = list(reply["p50"])
+    widths = [max(len(n), 8) + 2 for n in names]
     lines = [f"voice stages ({reply['turns']} turn{'s' if reply['turns'] != 1 else ''}, on {', '.join(reply['topics'])}):",
-             "  " + f"{'':8}" + "".join(f"{n:>21}" for n in names)]
+             "  " + f"{'':8}" + "".join(f"{n:>{w}}" for n, w in zip(names, widths, strict=True))]
     for label in ("latest", "p50"):
-        lines.append("  " + f"{label:8}" + "".join(f"{cell(reply[label].get(n)):>21}" for n in names))
+        lines.append("  " + f"{label:8}" + "".join(f"{cell(reply[label].get(n)):>{w}}"
+                                                   for n, w in zip(names, widths, strict=True)))
     return lines
 
 
