@@ -51,6 +51,7 @@ __all__ = [
     "Trackings",
     "Twist",
     "Video",
+    "VoiceStage",
 ]
 
 Vec3 = tuple[float, float, float]
@@ -318,6 +319,21 @@ class BargeIn:
     action: str = ""
     text: str = ""
     stamp: float = 0.0
+
+
+@message("embagents/VoiceStage")
+@attrs.define
+class VoiceStage:
+    """A voice turn reached a stage (a metrics topic; see :mod:`embagents.components.voice_stages`).
+
+    ``stage``: ``end_of_speech``, ``end_of_turn``, ``transcript`` (SpeechToText), ``llm_first_token`` (LLM),
+    ``tts_first_audio`` (TextToSpeech), ``speaker_start`` (Speaker); ``stamp``: when (wall time);
+    ``source``: the component that published it.
+    """
+
+    stage: str = ""
+    stamp: float = 0.0
+    source: str = ""
 
 
 class HealthStatus(enum.IntEnum):
@@ -591,6 +607,6 @@ MESSAGE_TYPES: dict[str, type] = {
     for cls in (
         String, StreamingString, Image, CompressedImage, Audio, Detections, Trackings, Video, Twist, Odometry,
         OccupancyGrid, JointState, JointTrajectory, TaskFeedback, Health, Point, Quaternion, Pose, PoseStamped,
-        Imu, LaserScan, PointCloud2, RosMessage, BargeIn,
+        Imu, LaserScan, PointCloud2, RosMessage, BargeIn, VoiceStage,
     )
 }

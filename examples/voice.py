@@ -11,8 +11,10 @@ VAD, then the ``whisper`` model actor) hears it; ``llm`` (SmolLM2, the
 (TextToSpeech, the ``joe`` model actor: a Piper voice on sherpa-onnx) speaks
 each sentence as soon as it is written; ``speaker_file`` writes the spoken
 answer to a WAV file (``EMBAGENTS_VOICE_OUT``, default ``voice_out/``).
-``report`` prints ``heard: ...``, ``said: ...`` and the WAV's path, then
-stops the system.
+``report`` prints ``heard: ...``, ``said: ...``, the turn's latency per stage
+(``stages: ...``: the ``voice_stages`` topic every voice component publishes
+on; ``embagents status`` shows the same while the system runs) and the WAV's
+path, then stops the system.
 
 Live: with ``EMBAGENTS_KEEP_RUNNING=1`` and a microphone that PortAudio finds,
 ``mic`` is a :class:`~embagents.components.Microphone` and a ``speaker``
@@ -48,8 +50,9 @@ from embagents.components import (
     WavFileSourceConfig,
 )
 from embagents.components.audio_devices import input_device_present
+from embagents.components.voice_stages import VoiceTurns
 from embagents.models import LlamaModel, LocalModelClient, SpeechToTextModel, TextToSpeechModel
-from embagents.msgs import Audio, BargeIn, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String, VoiceStage
 from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
@@ -69,12 +72,13 @@ def question_wav() -> str:
 class Report(Component):
     """Prints what was heard and said and where the answer's WAV is; stops the system after one answer."""
 
-    allowed_inputs = {"Required": [String], "Optional": [StreamingString, String]}
+    allowed_inputs = {"Required": [String], "Optional": [StreamingString, String, VoiceStage]}
     allowed_outputs = {"Required": [String]}
 
     def __init__(self, **kw: Any) -> None:
         self.received: list[tuple[str, Any]] = []
         self.said: dict[str, str] = {}
+        self.turns = VoiceTurns()
         self.started = time.monotonic()
         super().__init__(**kw)
 
@@ -97,7 +101,11 @@ class Report(Component):
                 self.said[msg.stream_id] = self.said.get(msg.stream_id, "") + msg.data
                 if msg.done:
                     print(f"said: {self.said[msg.stream_id].strip()}", flush=True)
+            elif topic == stages.name:
+                self.turns.feed(msg)
             elif topic == written.name:
+                shown = {k: v for k, v in self.turns.latest().items() if v is not None}
+                print("stages: " + ", ".join(f"{k} {v:.0f} ms" for k, v in shown.items()), flush=True)
                 print(f"answer audio: {msg.data}", flush=True)
                 if not os.environ.get("EMBAGENTS_KEEP_RUNNING"):
                     self.publish(stop, String(data="answered"))
@@ -113,6 +121,7 @@ speaker = Topic("speaker", Audio, queue_size=1000, keep="all")
 written = Topic("answer_wav", String, keep="all")
 played = Topic("played", Audio, queue_size=1000, keep="all")  # what the speaker plays: the echo reference
 barge = Topic("barge", BargeIn, queue_size=100, keep="all")  # the user speaks over the robot
+stages = Topic("voice_stages", VoiceStage, queue_size=100, keep="all")  # each turn's latency per stage
 stop = Topic(SYSTEM_STOP, String)
 
 whisper = SpeechToTextModel(name="whisper")  # Whisper tiny.en, prepared once from PyPI (a few seconds)
@@ -125,7 +134,7 @@ live = bool(os.environ.get("EMBAGENTS_KEEP_RUNNING")) and input_device_present(M
 if live:
     ears_in: list[Component] = [
         Microphone(name="mic", inputs=[played], outputs=[mic], config=MicrophoneConfig(device=mic_device, chunk_ms=20)),
-        Speaker(name="speaker", inputs=[speaker, barge], outputs=[played],
+        Speaker(name="speaker", inputs=[speaker, barge], outputs=[played, stages],
                 config=SpeakerConfig(device=os.environ.get("EMBAGENTS_SPEAKER_DEVICE") or None)),
     ]
     ears_topics, barge_in = ([mic, played], [barge])
@@ -139,14 +148,15 @@ else:
 system = System(
     [
         *ears_in,
-        SpeechToText(name="ears", inputs=ears_topics, outputs=[heard, *barge_in], model_client=LocalModelClient(whisper),
+        SpeechToText(name="ears", inputs=ears_topics, outputs=[heard, *barge_in, stages],
+                     model_client=LocalModelClient(whisper),
                      config=SpeechToTextConfig(min_silence_ms=300, playback_input="played" if live else None)),
-        LLM(name="llm", inputs=[heard, *barge_in], outputs=[answer], model_client=LocalModelClient(smollm2), trigger=heard,
+        LLM(name="llm", inputs=[heard, *barge_in], outputs=[answer, stages], model_client=LocalModelClient(smollm2), trigger=heard,
             config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=48, system_prompt=SYSTEM_PROMPT)),
-        TextToSpeech(name="voice", inputs=[answer, *barge_in], outputs=[speaker], model_client=LocalModelClient(joe)),
+        TextToSpeech(name="voice", inputs=[answer, *barge_in], outputs=[speaker, stages], model_client=LocalModelClient(joe)),
         WavFileSink(name="speaker_file", inputs=[speaker], outputs=[written],
                     config=WavFileSinkConfig(folder=os.environ.get("EMBAGENTS_VOICE_OUT", "voice_out"), prefix="answer")),
-        Report(name="report", inputs=[heard, answer, written], outputs=[stop]),
+        Report(name="report", inputs=[heard, answer, written, stages], outputs=[stop]),
     ],
     models=[whisper, smollm2, joe],
     name="voice",

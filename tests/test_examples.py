@@ -135,6 +135,12 @@ def test_voice_example_hears_the_question_and_speaks_an_answer_a_recognizer_hear
     assert "Paris" in said, out.stdout
     wav = tmp_path / "answer-1.wav"
     assert lines[-1] == f"answer audio: {wav}", out.stdout
+    # The turn's latency per stage, from the voice_stages topic (offline: no speaker, the total ends at first audio).
+    stages = dict(x.rsplit(" ", 2)[:2] for x in lines[-2][len("stages: "):].split(", "))
+    assert lines[-2].startswith("stages: ") and list(stages) == ["eou_delay", "transcription_delay", "ttft", "ttfb",
+                                                                "total"], out.stdout
+    assert sum(float(stages[k]) for k in ("eou_delay", "transcription_delay", "ttft", "ttfb")) == pytest.approx(
+        float(stages["total"]), abs=3), out.stdout
     # The answer's audio, heard by the real recognizer, says what the LLM wrote.
     from embagents.components import read_wav
     from embagents.components.audio_format import to_mono_16k

@@ -45,15 +45,16 @@ from embagents.components import (
     read_wav,
 )
 from embagents.components.audio_io import spoken_clip_path
-from embagents.models import LlamaModel, LocalModelClient
+from embagents.components.voice_stages import VoiceTurns
+from embagents.models import LlamaModel, LocalModelClient, TurnDetectorModel
 from embagents.models.actor import ModelActor
 from embagents.models.files.speech import piper_joe_dir, silero_vad_path, whisper_tiny_en_dir
-from embagents.msgs import Audio, StreamingString, String
+from embagents.msgs import Audio, StreamingString, String, VoiceStage
 from embagents.topic import Topic
 
 __all__ = ["VoiceHost"]  # the actor class the fork server imports by name
 
-TTS_MODEL, STT_MODEL, LLM_MODEL = "bench_joe", "bench_whisper_v", "bench_smollm2_v"
+TTS_MODEL, STT_MODEL, LLM_MODEL, TURN_MODEL = "bench_joe", "bench_whisper_v", "bench_smollm2_v", "bench_turn_v"
 THREADS = 1
 CHUNK = 1600  # 100 ms at 16 kHz
 SENTENCE = "The red cup is on the kitchen table."
@@ -71,28 +72,33 @@ def question() -> np.ndarray:
 
 
 class VoiceHost(Actor):
-    """Hosts one component of the voice loop: ``kind`` is "stt", "llm" or "tts"."""
+    """Hosts one component of the voice loop: ``kind`` is "stt", "stt_turn" (with the turn model), "llm" or "tts".
 
-    def __init__(self, kind: str, inputs: list[str], output: str) -> None:
-        self.kind, self.input_names, self.output_name = kind, inputs, output
+    ``stages``: a VoiceStage topic the component publishes its stage of each turn on.
+    """
+    def __init__(self, kind: str, inputs: list[str], output: str, stages: str | None = None) -> None:
+        self.kind, self.input_names, self.output_name, self.stages = kind, inputs, output, stages
 
     def on_start(self) -> None:
 
         ctx = self.context
-        if self.kind == "stt":
+        stages = [Topic(self.stages, VoiceStage, keep="all")] if self.stages else []
+        if self.kind in ("stt", "stt_turn"):
+            turn = self.kind == "stt_turn"
             self.comp: Any = SpeechToText(
                 name=self.name, inputs=[Topic(self.input_names[0], Audio, keep="all")],
-                outputs=[Topic(self.output_name, String, keep="all")], model_client=LocalModelClient(STT_MODEL),
-                config=SpeechToTextConfig(min_silence_ms=300, log_level="warning"))
+                outputs=[Topic(self.output_name, String, keep="all"), *stages], model_client=LocalModelClient(STT_MODEL),
+                turn_model_client=LocalModelClient(TURN_MODEL) if turn else None,
+                config=SpeechToTextConfig(min_silence_ms=1000 if turn else 300, log_level="warning"))
         elif self.kind == "llm":
             self.comp = LLM(name=self.name, inputs=[Topic(self.input_names[0], String, keep="all")],
-                            outputs=[Topic(self.output_name, StreamingString, keep="all")],
+                            outputs=[Topic(self.output_name, StreamingString, keep="all"), *stages],
                             model_client=LocalModelClient(LLM_MODEL),
                             config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=MAX_TOKENS,
                                              system_prompt=SYSTEM_PROMPT, log_level="warning"))
         else:
             self.comp = TextToSpeech(name=self.name, inputs=[Topic(self.input_names[0], StreamingString, keep="all")],
-                                     outputs=[Topic(self.output_name, Audio, keep="all")],
+                                     outputs=[Topic(self.output_name, Audio, keep="all"), *stages],
                                      model_client=LocalModelClient(TTS_MODEL),
                                      config=TextToSpeechConfig(log_level="warning"))
         self.comp.attach(lambda topic, msg: ctx.publish(topic, msg), None, ctx.call_later)
@@ -220,15 +226,18 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
                 f"{p50 * 1e3:.1f} ms vs {b50 * 1e3:.1f} ms in-process ({rounds} rounds); bar: ratio <= 1.10",
     }
 
-
-@case("voice_loop", transport="embagents", kind="speech", needs="sherpa_onnx")
-def voice_loop(opts: BenchOptions) -> dict[str, Any]:
-
     rounds = 1 if opts.quick else 5
     samples = question()
     chunks = [samples[i:i + CHUNK] for i in range(0, len(samples), CHUNK)]
+    # The end of speech in the last chunk (the question is trimmed to its speech, give or take a fade).
+    loud = np.flatnonzero(np.abs(samples) > 300)
+    tail_s = (len(samples) - 1 - int(loud[-1])) / 16000 if loud.size else 0.0
+    silence = np.zeros(CHUNK, np.int16)
     ours: list[float] = []
     base: list[float] = []
+    turned: list[float] = []  # with the turn model: end of speech (no marker) -> first answer audio
+    turn_stages: dict[str, list[float]] = {"eou_delay": [], "transcription_delay": [], "ttft": [], "ttfb": []}
+    turn = TurnDetectorModel(name=TURN_MODEL)
     answers: set[str] = set()
     silero_vad_path()
     llm_path = LlamaModel(name="smollm2").resolve()
@@ -237,9 +246,18 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
                    heartbeat=None)
         asys.spawn(ModelActor, LLM_MODEL, "llama", llm_path, {}, True, wait=300, heartbeat=None)
         asys.spawn(ModelActor, TTS_MODEL, "tts", piper_joe_dir(), {"threads": THREADS}, True, wait=120, heartbeat=None)
+        asys.spawn(ModelActor, TURN_MODEL, "turn", turn.resolve(), turn.options(), True, wait=120, heartbeat=None)
         hosts = [asys.spawn(VoiceHost, "bench_v_stt", "stt", ["bench_mic"], "bench_heard", wait=120, heartbeat=None),
-                 asys.spawn(VoiceHost, "bench_v_llm", "llm", ["bench_heard"], "bench_answer", wait=120, heartbeat=None),
-                 asys.spawn(VoiceHost, "bench_v_tts", "tts", ["bench_answer"], "bench_said", wait=120, heartbeat=None)]
+                 asys.spawn(VoiceHost, "bench_v_sttt", "stt_turn", ["bench_mic_t"], "bench_heard", "bench_stages",
+                            wait=120, heartbeat=None),
+                 asys.spawn(VoiceHost, "bench_v_llm", "llm", ["bench_heard"], "bench_answer", "bench_stages", wait=120,
+                            heartbeat=None),
+                 asys.spawn(VoiceHost, "bench_v_tts", "tts", ["bench_answer"], "bench_said", "bench_stages", wait=120,
+                            heartbeat=None)]
+        staged: queue.Queue[Any] = queue.Queue()
+        asys.rt.on_client(lambda: Subscription(asys.rt, asys.loop, "bench_stages", staged.put, queue_size=1000,
+                                               keep="all"))
+        pub_t = asys.rt.on_client(lambda: Publisher(asys.rt, "bench_mic_t"))
         got = _first_audio(asys, "bench_said")
         transcripts, tokens = _arrivals(asys, "bench_heard"), _arrivals(asys, "bench_answer")
         stages: dict[str, list[float]] = {"transcription_delay": [], "ttft": [], "ttfb": []}
@@ -255,6 +273,24 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
             _drain(got, 2.0)
             heard_at = _first_after(transcripts, t0 - 1.0, 5)  # VAD may end the utterance before the marker
             token_at = _first_after(tokens, heard_at, 5)
+            # The same question with the turn model deciding when it ends: no end-of-stream marker, the
+            # microphone goes on with silence until the answer's first audio.
+            for c in chunks:
+                asys.rt.on_client(partial(pub_t.publish, Audio(data=c)))
+                time.sleep(0.1)
+            t0t = time.monotonic() - tail_s  # the speech ended tail_s before the end of the last chunk
+            t1t = None
+            for _ in range(200):
+                asys.rt.on_client(lambda: pub_t.publish(Audio(data=silence)))
+                try:
+                    t1t = _first_after(got, t0t, 0.1)
+                    break
+                except queue.Empty:
+                    continue
+            _drain(got, 2.0)
+            turns = VoiceTurns()
+            while not staged.empty():
+                turns.feed(staged.get())
             took, answer = json.loads(baseline.ask())
             answers.add(answer)
             if r:
@@ -264,17 +300,31 @@ def voice_loop(opts: BenchOptions) -> dict[str, Any]:
                 stages["transcription_delay"].append(heard_at - t0)
                 stages["ttft"].append(token_at - heard_at)
                 stages["ttfb"].append(t1 - token_at)
+                if t1t is not None:
+                    turned.append(t1t - t0t)
+                latest = turns.latest()
+                for k, v in turn_stages.items():
+                    if latest.get(k) is not None:
+                        v.append(float(latest[k]))  # type: ignore[arg-type]
         del hosts
     p50, b50 = statistics.median(ours), statistics.median(base)
+    t50 = statistics.median(turned) if turned else float("nan")
+    med = {k: round(statistics.median(v), 1) if v else None for k, v in turn_stages.items()}
     return {
         "p50_us": p50 * 1e6, "p99_us": max(ours) * 1e6, "msgs_per_s": None,
         "p50_ms": p50 * 1e3, "sequential_p50_ms": b50 * 1e3, "ratio": p50 / b50,
         **{f"{k}_p50_ms": round(statistics.median(v) * 1e3, 1) for k, v in stages.items()},
         "total_p50_ms": round(p50 * 1e3, 1),
+        "turn_p50_ms": round(t50 * 1e3, 1), "turn_ratio": t50 / b50, "turn_rounds": len(turned),
+        **{f"turn_{k}_p50_ms": v for k, v in med.items()},
         "note": f"spoken '{QUESTION}' -> VAD + Whisper -> SmolLM2 streaming -> Piper voice, end of question to "
                 f"first answer audio: {p50 * 1e3:.0f} ms vs {b50 * 1e3:.0f} ms sequential in one process "
                 f"(stages p50: transcript {statistics.median(stages['transcription_delay']) * 1e3:.0f} ms, "
                 f"ttft {statistics.median(stages['ttft']) * 1e3:.0f} ms, "
                 f"ttfb {statistics.median(stages['ttfb']) * 1e3:.0f} ms) "
-                f"({rounds} rounds; answer {sorted(answers)[0][:60]!r}...); bar: p50 <= 0.7 x sequential",
+                f"({rounds} rounds; answer {sorted(answers)[0][:60]!r}...); with Smart Turn v3 deciding the end "
+                f"(no marker; fallback 1 s of silence): {t50 * 1e3:.0f} ms, {t50 / b50:.2f}x sequential (stages "
+                f"p50 from the VoiceStage topic: eou_delay {med['eou_delay']} ms, transcription_delay "
+                f"{med['transcription_delay']} ms, ttft {med['ttft']} ms, ttfb {med['ttfb']} ms, {len(turned)} "
+                "rounds); bars: p50 <= 0.7 x sequential, with turn detection too",
     }

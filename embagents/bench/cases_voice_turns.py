@@ -344,6 +344,23 @@ def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
     return clips
 
 
+#: The higher turn threshold the bench runs beside the default (0.5, Pipecat's).
+STRICT = 0.9
+
+
+class _Asked:
+    """The turn model's client, keeping each probability it answered (the bench reports the first per clip)."""
+
+    def __init__(self, client: Any) -> None:
+        self.client = client
+        self.probabilities: list[float] = []
+
+    def end_of_turn(self, audio: Any) -> dict[str, Any]:
+        got = dict(self.client.end_of_turn(audio))
+        self.probabilities.append(float(got["probability"]))
+        return got
+
+
 def turn_run(ears: Any, clip: np.ndarray, t0: float) -> tuple[int, float | None]:
     """Feed ``clip`` in 20 ms chunks; ``(utterances heard, end of turn delay in s of the first)``."""
 
@@ -372,31 +389,42 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         asys.spawn(ModelActor, "bench_whisper_t", "stt", whisper_tiny_en_dir(), {"threads": 1}, True, wait=120,
                    heartbeat=None)
         asys.spawn(ModelActor, "bench_turn", "turn", turn.resolve(), turn.options(), True, wait=120, heartbeat=None)
-        for label, client, silence in (("model", LocalModelClient("bench_turn"), 1000.0), ("silence", None, 500.0)):
-            cutoffs, delays = 0, []
+        configs = (("model", LocalModelClient("bench_turn"), 1000.0, 0.5),
+                   ("strict", LocalModelClient("bench_turn"), 1000.0, STRICT),
+                   ("silence", None, 500.0, 0.5))
+        for label, client, silence, threshold in configs:
+            cutoffs, delays, halves = 0, [], []
             t0 = time.time()
             for clip, _, split in clips:
+                asked = _Asked(client)
                 ears = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")],
                                     outputs=[Topic("heard", String)], model_client=LocalModelClient("bench_whisper_t"),
-                                    turn_model_client=client,
-                                    config=SpeechToTextConfig(min_silence_ms=silence, log_level="warning"))
+                                    turn_model_client=asked if client is not None else None,
+                                    config=SpeechToTextConfig(min_silence_ms=silence, turn_threshold=threshold,
+                                                              log_level="warning"))
                 ears.on_configure()
                 heard, delay = turn_run(ears, clip, t0)
                 t0 += 100.0
                 if split:
                     cutoffs += heard > 1
+                    halves.append(asked.probabilities[0] if asked.probabilities else None)
                 elif delay is not None:
                     delays.append(delay * 1000)
             results[label] = {"cutoffs": cutoffs, "eou_p50_ms": float(np.percentile(delays, 50)) if delays else None,
-                              "eou_max_ms": max(delays, default=None)}
-    m, s = results["model"], results["silence"]
+                              "eou_max_ms": max(delays, default=None), "halves": halves}
+    m, st, s = results["model"], results["strict"], results["silence"]
+    said_done = sum(p is not None and p >= 0.5 for p in m["halves"])
     return {
         "p50_us": (m["eou_p50_ms"] or 0) * 1e3, "p99_us": (m["eou_max_ms"] or 0) * 1e3, "msgs_per_s": None,
         "cutoffs": m["cutoffs"], "eou_p50_ms": m["eou_p50_ms"], "clips": 2 * n,
+        "strict_threshold": STRICT, "strict_cutoffs": st["cutoffs"], "strict_eou_p50_ms": st["eou_p50_ms"],
         "silence_cutoffs": s["cutoffs"], "silence_eou_p50_ms": s["eou_p50_ms"],
+        "half_sentence_probabilities": [None if p is None else round(p, 2) for p in m["halves"]],
         "note": f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice): Smart "
                 f"Turn v3 after {SpeechToTextConfig().turn_silence_ms:g} ms of pause (fallback: 1 s of silence) cut "
                 f"{m['cutoffs']}/{n} off, end of turn {m['eou_p50_ms']:.0f} ms after the question (p50); silence "
-                f"endpointing at 500 ms cut {s['cutoffs']}/{n} off, {s['eou_p50_ms']:.0f} ms; bars: cutoffs <= 2, "
+                f"endpointing at 500 ms cut {s['cutoffs']}/{n} off, {s['eou_p50_ms']:.0f} ms; at threshold {STRICT} "
+                f"the model cut {st['cutoffs']}/{n} off, {st['eou_p50_ms']:.0f} ms; at the first pause the model "
+                f"said finished (p >= 0.5) on {said_done}/{n} half sentences; bars: cutoffs <= 2, "
                 "eou_p50_ms <= 300",
     }

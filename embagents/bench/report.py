@@ -116,6 +116,8 @@ def evaluate(rows: list[Row], *, grade: bool = True) -> list[dict[str, Any]]:
         ("tts_first_audio", "TTS first audio after a sentence ends: runtime / in-process", "ratio", "<=", 1.10, "x", 1.0),
         ("voice_loop", "voice loop, question end to first answer audio: streamed / sequential", "ratio", "<=", 0.7, "x",
          1.0),
+        ("voice_loop", "voice loop with turn detection (Smart Turn v3): question end to first audio / sequential",
+         "turn_ratio", "<=", 0.7, "x", 1.0),
         ("aec", "echo cancellation: ERLE on the robot's own voice through simulated rooms", "erle_db", ">=", 20.0,
          "dB", 1.0),
         ("aec", "echo cancellation: VAD firing on 20 echo-only answers", "vad_echo_triggers", "<=", 0, "segments", 1.0),

@@ -25,7 +25,7 @@ the process and the system keep running.
 
 Example::
 
-    >>> from embagents.msgs import Audio, BargeIn
+    >>> from embagents.msgs import Audio, BargeIn, VoiceStage
     >>> from embagents.topic import Topic
     >>> mic = Microphone(name="mic", outputs=[Topic("mic", Audio, keep="all")],
     ...                  config=MicrophoneConfig(device="USB", chunk_ms=50))
@@ -50,6 +50,7 @@ from embagents.components.audio_io import AudioSink, non_negative_float
 from embagents.components.component import Component
 from embagents.components.device_retry import DeviceRetry
 from embagents.components.echo_cancel import EchoCancelling
+from embagents.components.voice_stages import publish_stage
 from embagents.config import (
     BaseComponentConfig,
     ConfigError,
@@ -59,7 +60,7 @@ from embagents.config import (
     positive_int,
     to_bool,
 )
-from embagents.msgs import Audio, BargeIn
+from embagents.msgs import Audio, BargeIn, VoiceStage
 
 __all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
 
@@ -375,7 +376,7 @@ class Speaker(_SoundDevice, AudioSink):
     """
 
     allowed_inputs = {"Required": [Audio], "Optional": [BargeIn]}
-    allowed_outputs = {"Optional": [Audio]}
+    allowed_outputs = {"Optional": [Audio, VoiceStage]}
     config_class = SpeakerConfig
     kind = "output"
 
@@ -388,6 +389,7 @@ class Speaker(_SoundDevice, AudioSink):
         self._play_clock = 0.0  # wall time the device will be done with what it was given
         self._recent: collections.deque[np.ndarray] = collections.deque()  # written lately: re-queued by pause()
         self._paused = False
+        self._started = False  # the utterance in progress has reached the device (its speaker_start is out)
         self.played_s = 0.0
         self.dropped_s = 0.0
         self.utterances = 0
@@ -471,6 +473,7 @@ class Speaker(_SoundDevice, AudioSink):
             while self._queue and self._queue[0] is None:
                 self._queue.popleft()
                 self.utterances += 1
+                self._started = False
             if self._queue:
                 if not stream.active:
                     stream.start()
@@ -480,6 +483,7 @@ class Speaker(_SoundDevice, AudioSink):
                     if frames is None:
                         self._queue.popleft()
                         self.utterances += 1
+                        self._started = False
                         continue
                     n = min(room, len(frames))
                     stream.write(frames[:n])  # never blocks: there is room for n frames
@@ -510,10 +514,13 @@ class Speaker(_SoundDevice, AudioSink):
             self._play_clock = now + float(getattr(stream, "latency", 0.0) or 0.0)
         stamp = self._play_clock
         self._play_clock += len(frames) / self._rate
+        if not self._started:
+            self._started = True
+            publish_stage(self, "speaker_start", stamp)  # when the utterance's first sound will be heard
         self._recent.append(frames)
         while len(self._recent) > 1 and sum(len(f) for f in self._recent) - len(self._recent[0]) > self._rate:
             self._recent.popleft()  # a second is more than any device buffer holds
-        for t in self.outputs:
+        for t in self._audio_outputs:
             self.publish(t, Audio(data=np.ascontiguousarray(frames).reshape(-1), sample_rate=self._rate,
                                   channels=self._channels, stamp=stamp))
 
@@ -522,9 +529,13 @@ class Speaker(_SoundDevice, AudioSink):
         now = time.time()
         self._play_clock = 0.0
         self._recent.clear()
-        for t in self.outputs:
+        for t in self._audio_outputs:
             self.publish(t, Audio(data=np.zeros(0, np.int16), sample_rate=self._rate or 16000,
                                   channels=self._channels or 1, stamp=now))
+
+    @property
+    def _audio_outputs(self) -> list[Any]:
+        return [t for t in self.outputs if t.msg_type is Audio]
 
     def pause(self) -> float:
         """Stop the sound at once but keep what was not heard yet, to :meth:`resume` where it stopped.

@@ -48,6 +48,7 @@ from attrs import define, field
 
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
+from embagents.components.voice_stages import publish_stage
 from embagents.config import (
     BaseComponentConfig,
     ConfigError,
@@ -57,7 +58,7 @@ from embagents.config import (
     to_bool,
 )
 from embagents.models.chat import chat_chunks, openai_tool_call, tool_calls_from_text
-from embagents.msgs import BargeIn, StreamingString, String
+from embagents.msgs import BargeIn, StreamingString, String, VoiceStage
 from embagents.topic import Topic
 
 __all__ = ["LLM", "LLMConfig", "template_fields", "tool_schema"]
@@ -267,7 +268,7 @@ class LLM(ModelComponent):
     """
 
     allowed_inputs = {"Required": [String], "Optional": [String, BargeIn]}
-    allowed_outputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString]}
+    allowed_outputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString, VoiceStage]}
     config_class = LLMConfig
 
     def __init__(self, *, name: str, output_converters: Mapping[Topic | str, Callable[[str], Any]] | None = None,
@@ -536,6 +537,7 @@ class LLM(ModelComponent):
         cfg = self.config
         specs = self.tool_specs() or None
         rounds = 0
+        first = True  # the answer's first token: a stage of a voice turn (ttft)
         while True:
             # Tools are offered in the first round, and in later ones only with tool_choice="auto" (the model
             # may chain calls) until max_tool_rounds. The reply after a tool result otherwise is the answer:
@@ -556,6 +558,9 @@ class LLM(ModelComponent):
                 for chunk in stream:
                     delta = chunk.get("delta")
                     if delta:
+                        if first:
+                            first = False
+                            publish_stage(self, "llm_first_token")
                         parts.append(delta)
                         said.append(delta)
                         for t in shown:

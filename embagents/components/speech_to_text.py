@@ -51,9 +51,16 @@ from embagents.components.audio_format import AudioFormatError, to_mono_16k
 from embagents.components.component import ComponentProblem
 from embagents.components.model_component import ModelComponent
 from embagents.components.vad import SpeechOnset, SpeechSegmenter
-from embagents.config import BaseComponentConfig, ConfigError, positive_float, positive_int, to_bool
+from embagents.components.voice_stages import publish_stage
+from embagents.config import (
+    BaseComponentConfig,
+    ConfigError,
+    positive_float,
+    positive_int,
+    to_bool,
+)
 from embagents.models.protocol import ModelError, ModelUnavailable
-from embagents.msgs import Audio, BargeIn, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String, VoiceStage
 from embagents.topic import Topic
 
 __all__ = ["BACKCHANNELS", "SpeechToText", "SpeechToTextConfig", "is_backchannel", "strip_wake_phrase"]
@@ -70,7 +77,7 @@ _ECHO_TAIL_S = 0.25  # after the robot's last sound: its reverberation, a device
 def _unit(value: object) -> float:
     out = positive_float(value)
     if not out < 1.0:
-        raise ConfigError(f"vad_threshold must be in (0, 1), got {value!r}")
+        raise ConfigError(f"a threshold (a probability) must be in (0, 1), got {value!r}")
     return out
 
 
@@ -160,7 +167,10 @@ class SpeechToTextConfig(BaseComponentConfig):
       :class:`~embagents.models.TurnDetectorModel`), the pause after which it is
       asked whether the user has finished: yes ends the utterance there; no
       waits, and ``min_silence_ms`` (raise it, e.g. to 1000) stays the fallback
-      and ``max_utterance_ms`` the hard maximum.
+      and ``max_utterance_ms`` the hard maximum. ``turn_threshold``: the model's
+      probability at or above which the turn is finished (0.5, Pipecat's; a
+      higher one cuts fewer users off mid-sentence and leaves more turns to the
+      silence fallback: see ``embagents bench --only turn_detection``).
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -186,6 +196,7 @@ class SpeechToTextConfig(BaseComponentConfig):
     backchannels: tuple[str, ...] = field(default=BACKCHANNELS, converter=_phrases)
     false_interruption_s: float = field(default=2.0, converter=positive_float)
     turn_silence_ms: float = field(default=150.0, converter=positive_float)
+    turn_threshold: float = field(default=0.5, converter=_unit)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -209,7 +220,7 @@ class SpeechToText(ModelComponent):
     """Transcribes speech with a speech-to-text model (see the module docstring)."""
 
     allowed_inputs = {"Required": [Audio], "Optional": [Audio]}  # the microphone; the Speaker's played stream
-    allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn]}
+    allowed_outputs = {"Required": [String], "Optional": [StreamingString, BargeIn, VoiceStage]}
     config_class = SpeechToTextConfig
     client_methods = ("transcribe",)
     client_task = "transcribe"
@@ -224,6 +235,9 @@ class SpeechToText(ModelComponent):
         self.last_eou_delay: float | None = None
         #: The last utterance's transcription delay (s): end of turn -> final transcript.
         self.last_transcription_delay: float | None = None
+        self._turn_ended: float | None = None  # wall time the turn in progress was decided finished
+        #: The turn model's last probability that the user had finished (None: not asked yet).
+        self.last_turn_probability: float | None = None
         self._vad: Any = None
         self._wake_word: Any = None
         self._formats_seen: set[tuple[int, int]] = set()
@@ -335,6 +349,7 @@ class SpeechToText(ModelComponent):
         for utterance in self._vad.feed(samples):
             self.turns["silence"] += 1
             self.last_eou_delay = self.config.min_silence_ms / 1000
+            self._turn_ended = time.time()
             self._finish(utterance)
         if self._turn_vad is not None:
             self._end_of_turn(samples)
@@ -357,15 +372,18 @@ class SpeechToText(ModelComponent):
         self._turn_asked = True
         began = time.monotonic()
         try:
-            complete = bool(self.turn_client.end_of_turn(self._vad.current()).get("complete"))
+            verdict = self.turn_client.end_of_turn(self._vad.current())
         except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
             self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
             return
-        if not complete:
+        p = verdict.get("probability")
+        self.last_turn_probability = None if p is None else float(p)
+        if not (bool(verdict.get("complete")) if p is None else float(p) >= self.config.turn_threshold):
             self.turns["not_yet"] += 1
             return
         self.turns["model"] += 1
         self.last_eou_delay = pause_s + time.monotonic() - began
+        self._turn_ended = time.time()
         for utterance in self._vad.flush():
             self._finish(utterance)
 
@@ -482,6 +500,16 @@ class SpeechToText(ModelComponent):
             for t in self.outputs:
                 if t.msg_type is String:
                     self.publish(t, String(data=passed))
+            self._publish_stages()
+
+    def _publish_stages(self) -> None:
+        """The turn's stages on the VoiceStage outputs: end of speech, end of turn (its decision), transcript."""
+        now = time.time()
+        ended = self._turn_ended if self._turn_ended is not None else now - (self.last_transcription_delay or 0.0)
+        self._turn_ended = None
+        publish_stage(self, "end_of_speech", ended - (self.last_eou_delay or 0.0))
+        publish_stage(self, "end_of_turn", ended)
+        publish_stage(self, "transcript", now)
 
     def _gate(self, text: str) -> str | None:
         cfg = self.config
@@ -514,7 +542,8 @@ class SpeechToText(ModelComponent):
         """The last turn's stage times (LiveKit's names, in ms) and counts (``embagents call ears stats``).
 
         ``eou_delay``: end of speech -> end-of-turn decision (the model's, or the silence's);
-        ``transcription_delay``: that decision -> the final transcript; ``turns``: how turns ended
+        ``transcription_delay``: that decision -> the final transcript; ``turn_probability``: the turn
+        model's last answer (how likely the user had finished); ``turns``: how turns ended
         (``model``, ``silence``; ``not_yet``: the model said the user goes on); ``barge_ins``: pauses,
         resumes and interruptions published.
         """
@@ -522,7 +551,7 @@ class SpeechToText(ModelComponent):
             return None if s is None else round(s * 1000, 1)
 
         return {"eou_delay": ms(self.last_eou_delay), "transcription_delay": ms(self.last_transcription_delay),
-                "utterances": self._utterances, "turns": dict(self.turns), "barge_ins": dict(self.barge_ins)}
+                "turn_probability": self.last_turn_probability, "utterances": self._utterances, "turns": dict(self.turns), "barge_ins": dict(self.barge_ins)}
 
     def flush(self) -> int:
         """Transcribe the utterance in progress now (the end of a stream); returns how many ended."""
@@ -530,6 +559,7 @@ class SpeechToText(ModelComponent):
             return 0
         ended = self._vad.flush()
         for utterance in ended:
+            self.last_eou_delay, self._turn_ended = 0.0, time.time()  # the stream's end ends the turn, now
             self._finish(utterance)
         return len(ended)
 

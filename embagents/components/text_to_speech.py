@@ -44,10 +44,12 @@ import numpy as np
 from attrs import define, field
 
 from embagents.components.model_component import ModelComponent
+from embagents.components.voice_stages import publish_stage
 from embagents.config import BaseComponentConfig, ConfigError
 from embagents.models.protocol import ModelError, ModelUnavailable
 from embagents.models.sentences import speakable
-from embagents.msgs import Audio, BargeIn, StreamingString, String
+from embagents.msgs import Audio, BargeIn, StreamingString, String, VoiceStage
+from embagents.topic import Topic
 
 __all__ = ["TextToSpeech", "TextToSpeechConfig", "take_sentences"]
 
@@ -97,7 +99,7 @@ class TextToSpeech(ModelComponent):
     """Speaks text with a text-to-speech model (see the module docstring)."""
 
     allowed_inputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString, BargeIn]}
-    allowed_outputs = {"Required": [Audio]}
+    allowed_outputs = {"Required": [Audio], "Optional": [VoiceStage]}
     config_class = TextToSpeechConfig
     client_methods = ("speak",)
     client_task = "speak"
@@ -113,6 +115,10 @@ class TextToSpeech(ModelComponent):
         self.spoken = 0  # sentences spoken (for tests and status)
         super().__init__(name=name, **kw)
 
+    @property
+    def _audio_outputs(self) -> list[Topic]:
+        return [t for t in self.outputs if t.msg_type is Audio]
+
     def default_trigger(self) -> list[Any]:
         return list(self.inputs)  # a message on any input is text to speak
 
@@ -124,7 +130,7 @@ class TextToSpeech(ModelComponent):
             pass
 
     def on_configure(self) -> None:
-        for t in self.outputs:
+        for t in self._audio_outputs:
             if t.keep != "all":  # a dropped chunk is a hole in a word
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: sentences may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
@@ -207,8 +213,10 @@ class TextToSpeech(ModelComponent):
             for chunk in self.model_client.speak(sentence, **options):
                 audio = chunk.get("audio")
                 if isinstance(audio, np.ndarray) and audio.size:
+                    if not self._in_utterance:
+                        publish_stage(self, "tts_first_audio")
                     self._in_utterance = True
-                    for t in self.outputs:
+                    for t in self._audio_outputs:
                         self.publish(t, Audio(data=np.ascontiguousarray(audio, np.float32),
                                               sample_rate=int(chunk["sample_rate"]), stamp=time.time()))
         except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
@@ -220,7 +228,7 @@ class TextToSpeech(ModelComponent):
 
     def _end_utterance(self) -> None:
         self._in_utterance = False
-        for t in self.outputs:
+        for t in self._audio_outputs:
             self.publish(t, Audio(data=np.zeros(0, np.float32), sample_rate=22050, stamp=time.time()))
 
     # --- actions ----------------------------------------------------------------------------

@@ -14,6 +14,10 @@
   recorded, or an existing file without ``overwrite``.
 - ``{"cmd": "record_stop", "path"}`` -> stops that recorder (its files are
   finished) and answers ``{"ok", "files"}``.
+- ``{"cmd": "voice_stages"}`` -> ``{"ok", "topics", "turns", "latest", "p50"}``:
+  the voice turns heard on the system's :class:`~embagents.msgs.VoiceStage`
+  topics (:class:`~embagents.components.voice_stages.VoiceTurns`; ``topics``
+  empty when it has none), what ``embagents status`` shows under its table.
 
 Example::
 
@@ -29,14 +33,14 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from actors.codec import message_name
-from actors.topics import topic_dir
+from actors.topics import Subscription, topic_dir
 from embagents.tools.recorder import RecorderActor, rotation_files
 from supervisor import ChildSpec
 
 if TYPE_CHECKING:  # for the annotation only: embagents.system imports most of the package
     from embagents.system import System
 
-__all__ = ["EVENTS_TOPIC", "install", "topic_rows"]
+__all__ = ["EVENTS_TOPIC", "install", "topic_rows", "voice_lines"]
 
 #: The supervisor's events topic (dicts; see supervisor.events).
 EVENTS_TOPIC = "_supervisor.events"
@@ -169,8 +173,59 @@ class _Recorders:
         return {"ok": True, "files": rotation_files(str(path))}
 
 
+class _VoiceStages:
+    """``voice_stages``: the turns of the system's VoiceStage topics, from subscriptions in the root."""
+
+    def __init__(self, sup: Any, system: System) -> None:
+        from embagents.components.voice_stages import VoiceTurns
+        from embagents.msgs import VoiceStage
+
+        topics = {n: t for n, t in system.topics.items() if t.msg_type is VoiceStage}
+        self.names = sorted(topics)
+        self.turns = {n: VoiceTurns() for n in self.names}
+        self.lock = threading.Lock()  # fed on the root's IO thread, read on a control thread
+        asys = sup.system
+        for name, t in topics.items():
+            asys.rt.on_client(lambda name=name, t=t: Subscription(
+                asys.rt, asys.loop, name, self._feeder(name), queue_size=t.queue_size, keep=t.keep,
+                msg_type=VoiceStage))
+
+    def _feeder(self, name: str) -> Any:
+        def feed(msg: Any) -> None:
+            with self.lock:
+                self.turns[name].feed(msg)
+
+        return feed
+
+    def __call__(self, req: dict[str, Any]) -> dict[str, Any]:
+        with self.lock:
+            found = {n: self.turns[n].summary() for n in self.names}
+        best = max(found.values(), key=lambda s: s["turns"], default={"turns": 0, "latest": {}, "p50": {}})
+        return {"ok": True, "topics": self.names, **best}
+
+
+def voice_lines(reply: dict[str, Any]) -> list[str]:
+    """``embagents status``'s lines on the voice stages of a ``voice_stages`` reply (none before a turn)."""
+    if not reply.get("turns"):
+        return []
+
+    def cell(v: Any) -> str:
+        return "-" if v is None else f"{v:.0f} ms"
+
+    names = list(reply["p50"])
+    widths = [max(len(n), 8) + 2 for n in names]
+    lines = [f"voice stages ({reply['turns']} turn{'s' if reply['turns'] != 1 else ''}, on {', '.join(reply['topics'])}):",
+             "  " + f"{'':8}" + "".join(f"{n:>{w}}" for n, w in zip(names, widths, strict=True))]
+    for label in ("latest", "p50"):
+        lines.append("  " + f"{label:8}" + "".join(f"{cell(reply[label].get(n)):>{w}}"
+                                                   for n, w in zip(names, widths, strict=True)))
+    return lines
+
+
 def install(sup: Any, control: Any, system: System) -> _Topics:
-    """Serve ``topics``, ``record_start`` and ``record_stop`` on ``control`` for ``system``; returns the topics table."""
+    """Serve ``topics``, ``record_start``, ``record_stop`` and ``voice_stages`` on ``control`` for ``system``;
+    returns the topics table."""
+    control.add_command("voice_stages", _VoiceStages(sup, system))
     topics = _Topics(control, system)
     control.add_command("topics", topics)
     recorders = _Recorders(sup, control, system)

@@ -255,9 +255,12 @@ def test_the_speaker_publishes_what_it_plays_stamped_and_a_pause_holds_the_rest_
         path = str(devices / "system.py")
         Path(path).write_text(textwrap.dedent(SYSTEM).replace("SPEAKER", repr("robotspeaker")).replace(
             'Speaker(name="speaker", inputs=[said],',
-            'Speaker(name="speaker", inputs=[said], outputs=[Topic("played", Audio, queue_size=1000, keep="all")],'))
+            'Speaker(name="speaker", inputs=[said], outputs=[Topic("played", Audio, queue_size=1000, keep="all"), '
+            'Topic("stages", VoiceStage, keep="all")],').replace(
+            "from embagents.msgs import Audio, String", "from embagents.msgs import Audio, String, VoiceStage"))
         remember_system(path, load_system(path))
         got = collect(asys, "played")
+        stages = collect(asys, "stages")
         asys.spawn(ComponentActor, "speaker", path, "speaker", wait=30)
         pub = asys.rt.on_client(lambda: Publisher(asys.rt, "said"))
 
@@ -283,6 +286,10 @@ def test_the_speaker_publishes_what_it_plays_stamped_and_a_pause_holds_the_rest_
         stamps = [c.stamp for c in sound]
         assert stamps == sorted(stamps) and before <= stamps[0] < before + 5
         assert np.array_equal(np.concatenate([c.data for c in sound]), sent[:sum(c.data.size for c in sound)])
+        # The voice stage: the utterance's first sound given to the device, stamped with when it is heard (once).
+        start = stages.get(timeout=5)
+        assert (start.stage, start.source, start.stamp) == ("speaker_start", "speaker", stamps[0])
         # (ALSA's null device does not pace: what was written counts as held, as the device's buffer would)
         assert 0 < asys.ref("speaker").ask(Call("resume"), timeout=5).get() <= held
         wait_until(lambda: played(devices).size >= size + 16000, 30, "the rest played after resume")
+        assert stages.empty(), "a resume plays on the same utterance: no second speaker_start"

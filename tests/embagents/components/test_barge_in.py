@@ -25,8 +25,8 @@ from embagents.bench.cases_voice_turns import BargeTrial, barge_ears, cough  # n
 from embagents.bench.echo_room import ROBOT_LINES, robot_says, room_impulse_response  # noqa: E402
 from embagents.components import LLM, LLMConfig  # noqa: E402
 from embagents.components.speech_to_text import is_backchannel  # noqa: E402
-from embagents.models.actor import ModelActor  # noqa: E402
-from embagents.msgs import BargeIn, StreamingString, String  # noqa: E402
+from embagents.models.actor import ModelActor
+from embagents.msgs import BargeIn, StreamingString, String, VoiceStage
 from embagents.topic import Topic  # noqa: E402
 
 RATE = 16000
@@ -152,3 +152,20 @@ def test_an_interrupt_after_the_answer_was_written_marks_it_while_it_is_still_sp
     assert llm.history[-1]["interrupted"] is True
     llm.on_message("barge", BargeIn(action="pause"))  # a pause is the Speaker's business, not the LLM's
     assert llm.interrupted == 1
+
+
+def test_an_answer_publishes_its_first_token_once_on_a_voice_stage_output() -> None:
+    llm = LLM(name="llm", inputs=[Topic("heard", String), Topic("barge", BargeIn)],
+              outputs=[Topic("answer", StreamingString), Topic("stages", VoiceStage)], model_client=EndlessClient(),
+              config=LLMConfig(stream=True))
+    sent: list[tuple[str, Any]] = []
+    later: list[Callable[[], None]] = []
+    llm.attach(lambda topic, msg: sent.append((topic, msg)), None, lambda delay, fn: later.append(fn))
+    before = time.time()
+    assert llm.on_message("heard", String("Tell me about Paris.")) and llm.execute()
+    for _ in range(3):
+        later.pop(0)()
+    stages = [m for t, m in sent if t == "stages"]
+    assert [(m.stage, m.source) for m in stages] == [("llm_first_token", "llm")] and stages[0].stamp >= before
+    assert [t for t, _ in sent].index("stages") == 0, "stamped as the first token goes out"
+    assert all(isinstance(m, StreamingString) for t, m in sent if t == "answer")

@@ -18,7 +18,7 @@ from embagents.components.audio_format import to_mono_16k  # noqa: E402
 from embagents.models import LocalModelClient, TextToSpeechModel  # noqa: E402
 from embagents.models.actor import ModelActor  # noqa: E402
 from embagents.models.protocol import BadRequest  # noqa: E402
-from embagents.msgs import Audio, StreamingString, String  # noqa: E402
+from embagents.msgs import Audio, StreamingString, String, VoiceStage
 from embagents.topic import Topic  # noqa: E402
 
 
@@ -183,3 +183,24 @@ def test_a_kokoro_voice_speaks_from_its_own_model_actor(system: ActorSystem, tin
         assert sent[-1].data.size == 0 and comp.spoken == 2
     finally:
         system.stop("kokoro")
+
+
+def test_each_answer_publishes_its_first_audio_once_on_a_voice_stage_output_and_audio_only_on_audio(
+        system: ActorSystem) -> None:
+    comp = TextToSpeech(name="voice", inputs=[Topic("answer", String)],
+                        outputs=[Topic("speaker", Audio, keep="all"), Topic("stages", VoiceStage, keep="all")],
+                        model_client=LocalModelClient("joe"))
+    sent: list[tuple[str, Any]] = []
+    loop = Loop()
+    comp.attach(lambda topic, msg: sent.append((topic, msg)), None, loop.call_later)
+    comp.on_configure()
+    for text in ("The door is open. The lamp is green.", "Hello there."):
+        assert comp.on_message("answer", String(data=text)) and comp.execute()
+        loop.run()
+    topics = [t for t, _ in sent]
+    assert all(isinstance(m, Audio) for t, m in sent if t == "speaker")
+    stages = [m for t, m in sent if t == "stages"]
+    assert [(m.stage, m.source) for m in stages] == [("tts_first_audio", "voice")] * 2, "one per answer, not per sentence"
+    first_audio = [i for i, (t, m) in enumerate(sent) if t == "speaker" and m.data.size]
+    ends = [i for i, (t, m) in enumerate(sent) if t == "speaker" and not m.data.size]
+    assert topics.index("stages") < first_audio[0] and ends[0] < len(topics) - 1 - topics[::-1].index("stages")

@@ -16,8 +16,8 @@ from embagents.bench.cases_voice_turns import turn_run  # noqa: E402
 from embagents.bench.echo_room import robot_says  # noqa: E402
 from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, TurnDetectorModel  # noqa: E402
-from embagents.models.actor import ModelActor  # noqa: E402
-from embagents.msgs import Audio, String  # noqa: E402
+from embagents.models.actor import ModelActor
+from embagents.msgs import Audio, String, VoiceStage
 from embagents.topic import Topic  # noqa: E402
 
 RATE = 16000
@@ -79,3 +79,42 @@ def test_a_finished_question_ends_the_turn_at_the_models_word_before_the_silence
     stats = comp.stats()  # what `embagents call ears stats` shows
     assert stats["eou_delay"] == pytest.approx(delay * 1000, abs=0.1) and stats["transcription_delay"] > 0
     assert stats["turns"]["model"] == 1 and stats["turns"]["silence"] == 0
+
+
+def test_a_turn_publishes_its_stages_on_a_voice_stage_output_as_its_stats_say(actors: tuple[str, str]) -> None:
+    comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")],
+                        outputs=[Topic("heard", String), Topic("stages", VoiceStage, keep="all")],
+                        model_client=LocalModelClient(actors[0]), turn_model_client=LocalModelClient(actors[1]),
+                        config=SpeechToTextConfig(min_silence_ms=1500.0))
+    comp.on_configure()
+    sent: list[tuple[str, object]] = []
+    comp.attach(lambda topic, msg: sent.append((topic, msg)))
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(RATE, np.int16)])
+    for i in range(0, len(clip), 320):
+        if comp.on_message("mic", Audio(data=clip[i:i + 320], stamp=time.time())):
+            comp.execute()
+    stages = [m for t, m in sent if t == "stages"]
+    assert [m.stage for m in stages] == ["end_of_speech", "end_of_turn", "transcript"], sent
+    assert all(m.source == "ears" for m in stages)
+    heard_at = next(i for i, (t, _) in enumerate(sent) if t == "heard")
+    assert heard_at < [t for t, _ in sent].index("stages"), "the transcript goes out first: stages do not delay it"
+    stats = comp.stats()
+    assert (stages[1].stamp - stages[0].stamp) * 1000 == pytest.approx(stats["eou_delay"], abs=0.2)
+    assert (stages[2].stamp - stages[1].stamp) * 1000 >= stats["transcription_delay"] - 0.2
+
+
+def test_a_turn_threshold_above_the_models_probability_leaves_a_finished_question_to_the_silence_fallback(
+        actors: tuple[str, str]) -> None:
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(2 * RATE, np.int16)])
+    comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                        model_client=LocalModelClient(actors[0]), turn_model_client=LocalModelClient(actors[1]),
+                        config=SpeechToTextConfig(min_silence_ms=1000.0, turn_threshold=0.9999))
+    comp.on_configure()
+    heard, _ = turn_run(comp, clip, time.time())
+    p = comp.stats()["turn_probability"]
+    assert heard == 1 and 0.5 < p < 0.9999, "the model says finished, at a probability under the threshold"
+    assert comp.turns["not_yet"] >= 1 and comp.turns["model"] == 0 and comp.turns["silence"] == 1
+    with pytest.raises(ValueError, match=r"threshold .* must be in \(0, 1\), got 1.5"):
+        SpeechToTextConfig(turn_threshold=1.5)
