@@ -76,6 +76,7 @@ class VoiceHost(Actor):
 
     ``stages``: a VoiceStage topic the component publishes its stage of each turn on.
     """
+
     def __init__(self, kind: str, inputs: list[str], output: str, stages: str | None = None) -> None:
         self.kind, self.input_names, self.output_name, self.stages = kind, inputs, output, stages
 
@@ -225,6 +226,10 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
         "note": f"'{SENTENCE}' ended in a StreamingString -> TextToSpeech -> Piper voice actor -> first Audio: "
                 f"{p50 * 1e3:.1f} ms vs {b50 * 1e3:.1f} ms in-process ({rounds} rounds); bar: ratio <= 1.10",
     }
+
+
+@case("voice_loop", transport="embagents", kind="speech", needs="sherpa_onnx")
+def voice_loop(opts: BenchOptions) -> dict[str, Any]:
 
     rounds = 1 if opts.quick else 5
     samples = question()

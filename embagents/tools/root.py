@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 from actors.codec import message_name
 from actors.topics import Subscription, topic_dir
+from embagents.components.voice_stages import VoiceTurns
+from embagents.msgs import VoiceStage
 from embagents.tools.recorder import RecorderActor, rotation_files
 from supervisor import ChildSpec
 
@@ -177,8 +179,6 @@ class _VoiceStages:
     """``voice_stages``: the turns of the system's VoiceStage topics, from subscriptions in the root."""
 
     def __init__(self, sup: Any, system: System) -> None:
-        from embagents.components.voice_stages import VoiceTurns
-        from embagents.msgs import VoiceStage
 
         topics = {n: t for n, t in system.topics.items() if t.msg_type is VoiceStage}
         self.names = sorted(topics)
