@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from tests.helpers import wait_until
@@ -22,18 +24,28 @@ system = System([Idle(name="one", trigger=None), Idle(name="two", trigger=None)]
 '''
 
 
+@contextlib.contextmanager
+def _supervised(tmp_path: Path, source: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """``embagents supervise`` of ``source`` as a system file: the process and its run id (its pid); killed after."""
+    path = tmp_path / "system.py"
+    path.write_text(textwrap.dedent(source))
+    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        yield sup, str(sup.pid)
+    finally:
+        if sup.poll() is None:
+            sup.kill()
+        sup.communicate()
+
+
 def _cli(*args: str, run: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "embagents.cli", *args, "--run", run],
                           capture_output=True, text=True, timeout=60)
 
 
 def test_status_restart_stop(tmp_path: Path) -> None:
-    path = tmp_path / "system.py"
-    path.write_text(textwrap.dedent(SYSTEM))
-    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        run = str(sup.pid)
+    with _supervised(tmp_path, SYSTEM) as (sup, run):
 
         def status() -> dict | None:
             out = _cli("status", "--json", run=run)
@@ -57,10 +69,6 @@ def test_status_restart_stop(tmp_path: Path) -> None:
 
         assert _cli("stop", run=run).returncode == 0
         assert sup.wait(timeout=30) == 0
-    finally:
-        if sup.poll() is None:
-            sup.kill()
-        sup.communicate()
     time.sleep(0.2)
     assert not any(f.endswith(".json") and str(sup.pid) in open(os.path.join(d, f)).read()
                    for d in [f"/tmp/embagents-{os.getuid()}/runs"] if os.path.isdir(d) for f in os.listdir(d))
@@ -113,12 +121,7 @@ system = System([Turns(name="turns", outputs=[stages], trigger=20.0)], name="voi
 
 
 def test_status_shows_the_voice_stages_published_on_a_voice_stage_topic(tmp_path: Path) -> None:
-    path = tmp_path / "system.py"
-    path.write_text(textwrap.dedent(VOICE_SYSTEM))
-    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        run = str(sup.pid)
+    with _supervised(tmp_path, VOICE_SYSTEM) as (sup, run):
 
         def voice() -> dict | None:
             out = _cli("status", "--json", run=run)
@@ -142,26 +145,13 @@ def test_status_shows_the_voice_stages_published_on_a_voice_stage_topic(tmp_path
         assert lines[head + 3].split()[:3] == ["p50", "200", "ms"]
         assert _cli("stop", run=run).returncode == 0
         assert sup.wait(timeout=30) == 0
-    finally:
-        if sup.poll() is None:
-            sup.kill()
-        sup.communicate()
 
 
 def test_status_of_a_system_without_voice_stages_shows_no_voice_lines(tmp_path: Path) -> None:
-    path = tmp_path / "system.py"
-    path.write_text(textwrap.dedent(SYSTEM))
-    sup = subprocess.Popen([sys.executable, "-m", "embagents.cli", "supervise", str(path)],
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        run = str(sup.pid)
+    with _supervised(tmp_path, SYSTEM) as (sup, run):
         st = wait_until(lambda: (out := _cli("status", "--json", run=run)).returncode == 0 and json.loads(out.stdout), 60)
         assert st["voice"] == {"topics": [], "turns": 0, "latest": {}, "p50": {}}
         table = _cli("status", run=run).stdout
         assert "NAME" in table and "voice stages" not in table
         assert _cli("stop", run=run).returncode == 0
         assert sup.wait(timeout=30) == 0
-    finally:
-        if sup.poll() is None:
-            sup.kill()
-        sup.communicate()
