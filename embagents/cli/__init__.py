@@ -61,9 +61,10 @@ def _command(module: str, helptext: str, arguments: str = "arguments", run: str 
 COMMANDS: dict[str, Command] = {
     "check": _command("check", "validate a system's wiring without starting anything"),
     "graph": _command("graph", "draw a system as SVG or PNG"),
-    "status": _command("control", "a table of the running system: name, pid, state, restarts, uptime, CPU, memory, mailbox"),
-    "restart": _command("control", "restart one actor of the running system"),
-    "stop": _command("control", "stop the running system cleanly (reverse start order)"),
+    "status": _command("control", "a table of the running system: name, pid, state, restarts, uptime, CPU, memory, mailbox",
+                       "status_arguments"),
+    "restart": _command("control", "restart one actor of the running system", "restart_arguments"),
+    "stop": _command("control", "stop the running system cleanly (reverse start order)", "run_arguments"),
     "publish": _command("topic", "publish a message on a topic of the running system (`topic pub` without the type)",
                         "publish_arguments", "publish_run"),
     "call": _command("call", "run a component's action in the running system "

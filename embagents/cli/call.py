@@ -7,6 +7,7 @@ import json
 import sys
 
 from actors import UnsafeFolder
+from embagents.cli.control import run_arguments
 from embagents.tools.call import call, parse_args
 from supervisor.client import ControlError
 
@@ -14,8 +15,7 @@ __all__ = ["arguments", "run"]
 
 
 def arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-    parser.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the method to return")
+    run_arguments(parser, 120.0, waits_for="the method to return")
     parser.add_argument("component", help="a component of the running system, e.g. vlm")
     parser.add_argument("method", help="its action, e.g. describe")
     parser.add_argument("args", nargs="*", help="arguments: JSON when they parse (3, true, [1, 2]), else strings")

@@ -12,27 +12,30 @@ from actors import UnsafeFolder
 from embagents.tools.root import voice_lines
 from supervisor.client import ControlError, control, pick_run, request, wait_ready
 
-__all__ = ["arguments", "run", "run_arguments"]
+__all__ = ["restart_arguments", "run", "run_arguments", "status_arguments"]
 
-def run_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--run`` and ``--timeout``: which live run, and how long to wait for its answer."""
+
+def run_arguments(parser: argparse.ArgumentParser, timeout: float | None = 5.0,
+                  waits_for: str = "the run to answer") -> None:
+    """``--run`` (which live run) and ``--timeout`` (how long to wait for ``waits_for``; none when ``timeout`` is None)."""
     parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-    parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+    if timeout is not None:
+        parser.add_argument("--timeout", type=float, default=timeout, help=f"seconds to wait for {waits_for}")
 
 
-def arguments(parser: argparse.ArgumentParser) -> None:
-    """The arguments of the control command the parser is for (its ``prog`` ends with the command)."""
-    cmd = parser.prog.split()[-1]
+def status_arguments(parser: argparse.ArgumentParser) -> None:
     run_arguments(parser)
-    if cmd == "status":
-        parser.add_argument("--json", action="store_true", help="print the status as JSON")
-        parser.add_argument(
-            "--wait-ready", nargs="?", type=float, const=60.0, metavar="TIMEOUT",
-            help="first wait until the run is ready, every component active (at most TIMEOUT s, default 60; "
-                 "a run not started yet is waited for too); exit 1 if it is not",
-        )
-    if cmd == "restart":
-        parser.add_argument("name", help="the actor to restart")
+    parser.add_argument("--json", action="store_true", help="print the status as JSON")
+    parser.add_argument(
+        "--wait-ready", nargs="?", type=float, const=60.0, metavar="TIMEOUT",
+        help="first wait until the run is ready, every component active (at most TIMEOUT s, default 60; "
+             "a run not started yet is waited for too); exit 1 if it is not",
+    )
+
+
+def restart_arguments(parser: argparse.ArgumentParser) -> None:
+    run_arguments(parser)
+    parser.add_argument("name", help="the actor to restart")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -22,6 +22,7 @@ from collections import deque
 
 from actors import UnsafeFolder, pid_alive
 from actors.child import LOG_BACKUPS, log_path
+from embagents.cli.control import run_arguments
 from supervisor.client import ControlError, pick_run
 
 __all__ = ["arguments", "run"]
@@ -34,7 +35,7 @@ def arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", help="an actor of the run (or root)")
     parser.add_argument("-f", "--follow", action="store_true", help="keep printing new lines")
     parser.add_argument("-n", "--lines", type=int, help="only the last N lines")
-    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
+    run_arguments(parser, None)
 
 
 def _logs(folder: str) -> list[str]:

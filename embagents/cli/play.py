@@ -30,6 +30,7 @@ from typing import Any, NamedTuple
 
 from actors import UnsafeFolder
 from actors.topics import Publisher
+from embagents.cli.control import run_arguments
 from embagents.tools.attach import Attached, run_topics
 from embagents.tools.mcap_codec import decode
 from supervisor.client import ControlError
@@ -52,8 +53,7 @@ def arguments(parser: argparse.ArgumentParser) -> None:
                         help="play only these topics (any topic named here is played, even system_stop)")
     parser.add_argument("--all", action="store_true",
                         help="also play topics that components of the run publish (default: skipped, and named)")
-    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-    parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+    run_arguments(parser)
 
 
 class Stopped(NamedTuple):

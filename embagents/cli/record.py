@@ -24,6 +24,7 @@ import threading
 from typing import Any
 
 from actors import UnsafeFolder
+from embagents.cli.control import run_arguments
 from embagents.tools.recorder import refusal
 from supervisor.client import ControlError, pick_run, request
 
@@ -43,8 +44,7 @@ def arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds")
     parser.add_argument("--detach", action="store_true", help="start the recorder and return")
     parser.add_argument("--stop", metavar="FILE.mcap", help="stop the recorder writing FILE.mcap")
-    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-    parser.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the run to answer")
+    run_arguments(parser, 10.0)
 
 
 def summary(path: str) -> str:

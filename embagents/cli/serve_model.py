@@ -97,7 +97,6 @@ def arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
     configure_logging("serve-model", logging.DEBUG if args.verbose else logging.INFO)
     try:
         key = os.path.abspath(args.key) if args.key else default_secret_key()

@@ -85,7 +85,6 @@ def arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
     configure_logging("serve-policy", logging.DEBUG if args.verbose else logging.INFO)
     try:
         if bool(args.tls_cert) != bool(args.tls_key):

@@ -155,7 +155,6 @@ def run_system(path: str, dashboard: tuple[str, int] | None = None, *, quiet: bo
         requests = _SupervisorRequests(sup)
 
         def stop_requested(_msg: Any) -> None:
-
             threading.Thread(target=request, args=(asys.run_dir, {"cmd": "stop"}, 10.0), daemon=True).start()
 
         asys.rt.on_client(lambda: (
@@ -246,7 +245,6 @@ class Activation:
         self._thread = threading.Thread(target=self._run, name="embagents-activate", daemon=True)
 
     def start(self) -> Activation:
-
         events = Tree.of(self.asys).events
         on_root(self.asys, lambda: events.listeners.append(self._on_event))
         self._thread.start()
@@ -271,7 +269,6 @@ class Activation:
         return pids, on_root(self.asys, lambda: {n: tree.journal(n).state() for n in names})
 
     def _missing(self, name: str, pids: dict[str, Any], states: dict[str, int]) -> list[str]:
-
         missing = []
         for topic, subscribers in self.waits[name].items():
             there = subscriber_pids(self.asys.run_dir, topic)
@@ -286,7 +283,6 @@ class Activation:
         return list(dict.fromkeys(missing))
 
     def _run(self) -> None:
-
         deadline = time.monotonic() + self.timeout
         try:
             while self.pending and not self.stopped:

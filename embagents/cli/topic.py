@@ -31,6 +31,7 @@ from typing import Any
 
 from actors import UnsafeFolder
 from actors.codec import message_class
+from embagents.cli.control import run_arguments
 from embagents.live import connect, find_topic
 from embagents.tools.attach import Attached, interrupted_by_sigterm, run_topics
 from embagents.tools.plain import field_types, format_text, to_plain
@@ -49,8 +50,7 @@ def arguments(parser: argparse.ArgumentParser) -> None:
         "pub": sub.add_parser("pub", help="publish a message given as YAML/JSON"),
     }
     for p in parsers.values():
-        p.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-        p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+        run_arguments(p)
     parsers["list"].add_argument("--json", action="store_true", help="print the rows as JSON")
     for name in ("echo", "hz", "pub"):
         parsers[name].add_argument("name", help="the topic, e.g. camera/image")
@@ -71,7 +71,6 @@ def arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _list(args: argparse.Namespace) -> int:
-
     found, rows = run_topics(args.run, args.timeout)
     if args.json:
         print(json.dumps(rows, indent=2))
@@ -87,7 +86,6 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _echo(args: argparse.Namespace) -> int:
-
     with connect(args.run, timeout=args.timeout) as live, interrupted_by_sigterm():
         topic = live.topic(args.name)["name"]
         messages = live.echo(topic, count=args.count, timeout=args.duration)
@@ -188,8 +186,7 @@ def _pub(args: argparse.Namespace) -> int:
 
 def publish_arguments(parser: argparse.ArgumentParser) -> None:
     """``embagents publish TOPIC [TEXT] [--fields JSON]``: ``topic pub`` without the type, for text topics."""
-    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-    parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+    run_arguments(parser)
     parser.add_argument("topic", help="a topic of the running system, e.g. text_in")
     parser.add_argument("text", nargs="?", help="the message's `data` field (String, StreamingString)")
     parser.add_argument("--fields", metavar="JSON", help='other fields as a JSON object, e.g. \'{"data": "hi"}\'')

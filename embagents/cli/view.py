@@ -42,6 +42,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from actors import UnsafeFolder
 from actors.codec import message_class
+from embagents.cli.control import run_arguments
 from embagents.msgs import Detections
 from embagents.tools.attach import Attached, run_topics
 from embagents.tools.mcap_codec import _stamp, kind_of
@@ -61,8 +62,7 @@ def arguments(parser: argparse.ArgumentParser) -> None:
                         help="also let pages of this origin connect (e.g. http://localhost:8080; "
                              f"allowed: {', '.join(DEFAULT_ORIGINS)}); repeat for more")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
-    parser.add_argument("--run", help="run id, system name or pid (default: the only live run)")
-    parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the run to answer")
+    run_arguments(parser)
 
 
 def _annotations(det: Any) -> bytes:
@@ -120,7 +120,6 @@ class FoxgloveView:
             self._add(seat, foxglove, r)
 
     def _add(self, seat: Any, foxglove: Any, row: dict[str, Any]) -> None:
-
         cls = message_class(row["wire"]) if row["wire"] else None
         kind = kind_of(cls)
         ch = foxglove.Channel(row["name"], schema=foxglove.Schema(name=kind.schema_name, encoding=kind.schema_encoding,
