@@ -96,7 +96,6 @@ def arm_loop(path: str, seconds: float, model: tuple[Any, ...]) -> tuple[list[fl
 
 @case("vla_control_loop", transport="embagents", kind="arm", needs="pybullet")
 def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
-
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
         policy = write_reach_policy(os.path.join(tmp, "reach.onnx"), TARGET, gain=0.02, chunk=10)
@@ -122,7 +121,6 @@ def vla_control_loop(opts: BenchOptions) -> dict[str, Any]:
 
 @case("gil_isolation", transport="embagents", kind="arm")
 def gil_isolation(opts: BenchOptions) -> dict[str, Any]:
-
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
         path = _system_file(tmp, "gil_system")

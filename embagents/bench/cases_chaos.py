@@ -96,7 +96,6 @@ def chat_system() -> Any:
 
 
 def _spec(workdir: str) -> Any:
-
     system = chat_system()
     key = os.path.join(workdir, "chaos_system.py")  # forked actors find the System in memory under this key
     remember_system(key, system)
@@ -155,7 +154,6 @@ class _Asker(threading.Thread):
         self.results: list[tuple[float, bool, str]] = []  # (time asked, ok, error)
 
     def run(self) -> None:
-
         while not self.stopping.is_set():
             t0 = time.monotonic()
             try:

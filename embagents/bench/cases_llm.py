@@ -36,7 +36,6 @@ class StreamingLLM(Actor):
     """An LLM component (the real class) hosted in an actor, asked to answer one question."""
 
     def on_start(self) -> None:
-
         self.llm = LLM(
             name="bench_llm",
             inputs=[Topic("bench_in", String)],
@@ -98,7 +97,6 @@ def _inprocess(path: str, max_tokens: int) -> tuple[int, float]:
 
 @case("llm_stream_overhead", transport="embagents", kind="llm", needs="llama_cpp")
 def llm_stream_overhead(opts: BenchOptions) -> dict[str, Any]:
-
     path = default_llm_path()
     max_tokens = 24 if opts.quick else 64
     rounds = 1 if opts.quick else 5

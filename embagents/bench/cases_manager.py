@@ -71,7 +71,6 @@ def _supervised(system: Any, key: str) -> Any:
 
 
 def _jitter_run(isolated: bool, ticks: int, out: str, nice: int | None = None) -> list[float]:
-
     agent = Agent("busy", BusyAgent, isolated=isolated, nice=nice)
     if os.path.exists(out):
         os.unlink(out)
@@ -167,7 +166,6 @@ def _mission_system(first_ticks: str) -> Any:
 
 @case("manager_restart_resume", transport="embagents", kind="manager")
 def manager_restart_resume(opts: BenchOptions) -> dict[str, Any]:
-
     kills = 3 if opts.quick else 15
     got: list[tuple[int, str, int, float]] = []
     cond = threading.Condition()

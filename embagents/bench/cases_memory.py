@@ -69,7 +69,6 @@ class RouterHost(Actor):
         self.model = model
 
     def on_start(self) -> None:
-
         routes = [Route(routes_to=Topic(name, String), samples=s) for name, s in ROUTES.items()]
         self.router = SemanticRouter(name=self.name, inputs=[Topic("bench_heard", String)], routes=routes,
                                      embedding_client=LocalModelClient(self.model),
@@ -160,7 +159,6 @@ finally:
 
 @case("router_latency", transport="embagents", kind="router", needs="onnxruntime")
 def router_latency(opts: BenchOptions) -> dict[str, Any]:
-
     folder = prepared_minilm()
     n = 6 if opts.quick else 120
     runtime: list[float] = []
@@ -243,7 +241,6 @@ def _queries(store: Any, rng: np.random.Generator, centers: np.ndarray, n: int,
 
 @case("memory_scale", transport="embagents", kind="memory", needs="apsw")
 def memory_scale(opts: BenchOptions) -> dict[str, Any]:
-
     small, large, queries = (200, 2_000, 20) if opts.quick else (1_000, 100_000, 200)
     rng = np.random.default_rng(0)
     centers = rng.standard_normal((2000, 384)).astype(np.float32)
@@ -296,7 +293,6 @@ system = System([memory], models=[minilm])
 
 @case("memory_crash", transport="embagents", kind="memory", needs="apsw")
 def memory_crash(opts: BenchOptions) -> dict[str, Any]:
-
     total, kill_at = (60, 20) if opts.quick else (600, 200)
     folder = prepared_minilm()
     acked: list[int] = []

@@ -49,7 +49,6 @@ def _server_args(policy: str, port: int, delay_ms: float = 0.0) -> tuple[Any, ..
 
 @case("policy_openpi", transport="embagents", kind="arm", needs="websockets")
 def policy_openpi(opts: BenchOptions) -> dict[str, Any]:
-
     seconds = 1.5 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
         policy = write_reach_policy(os.path.join(tmp, "reach.onnx"), TARGET, gain=0.02, chunk=10)
@@ -80,7 +79,6 @@ def policy_openpi(opts: BenchOptions) -> dict[str, Any]:
 
 @case("policy_openpi_async", transport="embagents", kind="arm", needs="websockets")
 def policy_openpi_async(opts: BenchOptions) -> dict[str, Any]:
-
     seconds = 2.0 if opts.quick else 10.0
     with tempfile.TemporaryDirectory() as tmp:
         policy = write_reach_policy(os.path.join(tmp, "reach50.onnx"), TARGET, gain=0.005, chunk=50)

@@ -93,7 +93,6 @@ def _trimmed(lat: list[int], skip: int) -> np.ndarray:
 
 @case("ros_bridge_image", transport="embagents", payload_bytes=FRAME_1080P, kind="ros_bridge", needs="rclpy")
 def ros_bridge_image(opts: BenchOptions) -> dict[str, Any]:
-
     n = 10 if opts.quick else 40
     period, warm, skip = 0.1, 2.0, 3
     env = {**os.environ, "ROS_DOMAIN_ID": str(150 + os.getpid() % 80), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}

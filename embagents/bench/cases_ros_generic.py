@@ -102,13 +102,11 @@ def _publish(kind: str, n: int, period: float, warm: float, env: dict[str, str])
 
 @case("ros_generic", transport="embagents", payload_bytes=POINTS * 16, kind="ros_bridge", needs="rclpy")
 def ros_generic(opts: BenchOptions) -> dict[str, Any]:
-
     with sweeping_dead_peers():  # the rclpy peer is SIGKILLed: its Fast DDS files stay otherwise
         return _ros_generic(opts)
 
 
 def _ros_generic(opts: BenchOptions) -> dict[str, Any]:
-
     n_imu, n_cloud = (200, 10) if opts.quick else (1000, 40)
     imu_period, cloud_period, warm, skip = 0.005, 0.1, 2.0, 5
     env = {**os.environ, "ROS_DOMAIN_ID": str(150 + (os.getpid() + 7) % 80), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}

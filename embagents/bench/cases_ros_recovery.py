@@ -142,7 +142,6 @@ def _respawned(env: dict[str, str], n: int) -> list[float]:
 
 @case("ros_bridge_recovery", transport="embagents", kind="ros_bridge", needs="rclpy")
 def ros_bridge_recovery(opts: BenchOptions) -> dict[str, Any]:
-
     n = 2 if opts.quick else 12
     env = {**os.environ, "ROS_DOMAIN_ID": str(100 + os.getpid() % 40), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     with sweeping_dead_peers():  # the processes this case SIGKILLs cannot unlink their Fast DDS files

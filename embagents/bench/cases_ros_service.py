@@ -77,13 +77,11 @@ class TriggerTarget(Actor):
 
 @case("ros_service", transport="embagents", payload_bytes=0, kind="ros_bridge", needs="rclpy")
 def ros_service(opts: BenchOptions) -> dict[str, Any]:
-
     with sweeping_dead_peers():  # the rclpy peer is SIGKILLed: its Fast DDS files stay otherwise
         return _ros_service(opts)
 
 
 def _ros_service(opts: BenchOptions) -> dict[str, Any]:
-
     warm, n = (10, 50) if opts.quick else (30, 300)
     env = {**os.environ, "ROS_DOMAIN_ID": str(150 + (os.getpid() + 31) % 80), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     server = subprocess.Popen([sys.executable, "-c", SERVER], stdout=subprocess.PIPE, text=True, env=env)

@@ -55,7 +55,6 @@ class SttHost(Actor):
     """The SpeechToText component, fed by ``bench_audio`` and publishing on ``bench_heard``."""
 
     def on_start(self) -> None:
-
         self.stt = SpeechToText(name=self.name, inputs=[Topic("bench_audio", Audio, keep="all")],
                                 outputs=[Topic("bench_heard", String)], model_client=LocalModelClient(MODEL),
                                 config=SpeechToTextConfig(min_silence_ms=MIN_SILENCE_MS, log_level="warning"))
@@ -89,7 +88,6 @@ for _ in sys.stdin:
 
 @case("stt_overhead", transport="embagents", kind="speech", needs="sherpa_onnx")
 def stt_overhead(opts: BenchOptions) -> dict[str, Any]:
-
     rounds = 1 if opts.quick else 5
     samples = clip()
     duration = len(samples) / 16000

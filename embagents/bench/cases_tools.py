@@ -56,14 +56,12 @@ class SteadyPublisher(Actor):
     """``["run", seconds, image_hz, small_hz]``: publish at those rates; answers the publish-call times."""
 
     def on_start(self) -> None:
-
         h, w = np.indices((1080, 1920), dtype=np.uint16)
         frame = np.stack([(h + w) % 256, h % 256, w % 256], axis=-1).astype(np.uint8)  # a gradient, like a scene
         self.image = Image(data=frame, frame_id="bench")
         self.seq = 0
 
     def on_receive(self, message: Any) -> Any:
-
         _, seconds, image_hz, small_hz = message
         image_ns: list[int] = []
         small_ns: list[int] = []
@@ -115,7 +113,6 @@ def _p50_us(ns: list[int]) -> float:
 
 
 def _recorded_numbers(base: str) -> set[int]:
-
     got: set[int] = set()
     for path in rotation_files(base):
         got.update(int(m.data) for topic, _t, m in read_messages(path, []) if topic == SMALL)
@@ -124,7 +121,6 @@ def _recorded_numbers(base: str) -> set[int]:
 
 @case("record_overhead", transport="embagents", kind="tools", needs="mcap")
 def record_overhead(opts: BenchOptions) -> dict[str, Any]:
-
     # Short phases, many of them: the load of a shared machine drifts, and interleaving finely spreads it
     # over both sides alike (3 x 4 s measured 1.03 and 1.13 back to back on the same code).
     seconds, rounds = (1.0, 1) if opts.quick else (2.0, 6)

@@ -64,7 +64,6 @@ class SteppingVision(Actor):
         self.topic, self.size = topic, (width, height)
 
     def on_start(self) -> None:
-
         inp = Topic(self.topic or "bench_unused", Image)
         self.vision = Vision(name=self.name, inputs=[inp], outputs=[Topic("bench_detections", Detections)],
                              model_client=LocalModelClient(MODEL))
@@ -109,13 +108,11 @@ for _ in sys.stdin:
 
 
 def _serve(asys: ActorSystem, path: str | None = None, options: dict[str, Any] | None = None) -> None:
-
     asys.spawn(ModelActor, MODEL, "detector", path or mtcnn_dir(), options or OPTIONS, True, wait=120, heartbeat=None)
 
 
 @case("vision_pipeline", transport="embagents", kind="vision", needs="onnxruntime")
 def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
-
     frames = 2 if opts.quick else 20
     frame = _frame(1920, 1080)
     runtime: list[float] = []
@@ -147,7 +144,6 @@ def vision_pipeline(opts: BenchOptions) -> dict[str, Any]:
 
 @case("model_actor_batching", transport="embagents", kind="vision", needs="onnx")
 def model_actor_batching(opts: BenchOptions) -> dict[str, Any]:
-
     seconds, rounds = (0.5, 1) if opts.quick else (2.0, 5)
     ones: list[float] = []
     fours: list[float] = []

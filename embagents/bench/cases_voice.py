@@ -81,7 +81,6 @@ class VoiceHost(Actor):
         self.kind, self.input_names, self.output_name, self.stages = kind, inputs, output, stages
 
     def on_start(self) -> None:
-
         ctx = self.context
         stages = [Topic(self.stages, VoiceStage, keep="all")] if self.stages else []
         if self.kind in ("stt", "stt_turn"):
@@ -193,7 +192,6 @@ def _drain(q: queue.Queue[float], quiet_s: float) -> None:
 
 @case("tts_first_audio", transport="embagents", kind="speech", needs="sherpa_onnx")
 def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
-
     rounds = 2 if opts.quick else 15
     path = piper_joe_dir()
     ours: list[float] = []
@@ -230,7 +228,6 @@ def tts_first_audio(opts: BenchOptions) -> dict[str, Any]:
 
 @case("voice_loop", transport="embagents", kind="speech", needs="sherpa_onnx")
 def voice_loop(opts: BenchOptions) -> dict[str, Any]:
-
     rounds = 1 if opts.quick else 5
     samples = question()
     chunks = [samples[i:i + CHUNK] for i in range(0, len(samples), CHUNK)]

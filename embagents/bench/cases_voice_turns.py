@@ -90,7 +90,6 @@ def _cancel(played: list[np.ndarray], mic: list[np.ndarray],
 
 
 def _vad_triggers(segments: list[np.ndarray]) -> int:
-
     vad = SpeechSegmenter(silero_vad_path(), min_silence_ms=500, min_speech_ms=250)
     triggered = 0
     for seg in segments:
@@ -105,7 +104,6 @@ def _vad_triggers(segments: list[np.ndarray]) -> int:
 
 @case("aec", transport="embagents", kind="speech", needs="sherpa_onnx")
 def aec(opts: BenchOptions) -> dict[str, Any]:
-
     n = 5 if opts.quick else 20
     played, mic, _ = _echo_stream(n, noise_db=None)
     took: list[float] = []
@@ -262,7 +260,6 @@ def barge_trials(n: int) -> tuple[list[BargeTrial], list[BargeTrial]]:
 
 @case("barge_in", transport="embagents", kind="speech", needs="sherpa_onnx")
 def barge_in(opts: BenchOptions) -> dict[str, Any]:
-
     n = 2 if opts.quick else 20
     interrupts, backchannels = barge_trials(n)
     stops, stopped, nod_interrupts, nod_pauses, echo_pauses = [], 0, 0, 0, 0
@@ -380,7 +377,6 @@ def turn_run(ears: Any, clip: np.ndarray, t0: float) -> tuple[int, float | None]
 
 @case("turn_detection", transport="embagents", kind="speech", needs="sherpa_onnx")
 def turn_detection(opts: BenchOptions) -> dict[str, Any]:
-
     n = 1 if opts.quick else 20
     clips = turn_clips(n)
     turn = TurnDetectorModel(name="bench_turn")

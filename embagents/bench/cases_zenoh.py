@@ -68,7 +68,6 @@ class _RunB:
     """Run B in this process: a bridge importing ``a/bench_z`` and a recorder; run A as a process."""
 
     def __init__(self, port: int, connect_port: int, keep: str = "all", **send: Any) -> None:
-
         self.asys = ActorSystem()
         self.asys.__enter__()
         try:

@@ -199,7 +199,6 @@ class FrameSource(FaultTarget):
     """Publishes a 640x480 RGB frame at 15 Hz; every pixel is the frame number mod 251."""
 
     def on_start(self) -> None:
-
         self.image = Image
         self.frame = np.empty(FRAME_SHAPE, dtype=np.uint8)
         self.k = 0

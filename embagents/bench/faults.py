@@ -178,7 +178,6 @@ def measure_standby_takeover(kills: int, standby: bool, configure_s: float = 5.0
 
 
 def _kill_and_time(kills: int, standby: bool, configure_s: float, rate_hz: float) -> tuple[list[float], int]:
-
     path = os.path.join(os.path.dirname(__file__), "standby_system.py")
     system_decl = load_system(path)
     remember_system(path, system_decl)

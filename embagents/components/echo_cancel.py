@@ -190,7 +190,6 @@ class EchoCancelling:
                                     "Topic(%r, Audio, keep='all')", t.name, t.name)
 
     def _aec_reference(self, topic_name: str, msg: Any) -> None:
-
         if self._aec is not None and isinstance(msg, Audio) and msg.data.size:
             self._aec.reference(msg.data, msg.sample_rate, msg.stamp, msg.channels)
 

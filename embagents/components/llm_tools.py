@@ -66,7 +66,6 @@ class RemoteTool:
         return f"RemoteTool({self.component!r}, {self.method!r})"
 
     def __call__(self, **kwargs: Any) -> Any:
-
         try:
             return ActorRef(EVENTS_ACTOR).ask(ToolCall(self.component, self.method, kwargs)).get(timeout=self.timeout)
         except ActorError as exc:

@@ -228,5 +228,4 @@ class SemanticRouter(Component):
             self._fire(topic, msg.data)
 
     def _fire(self, topic: str, text: str) -> None:
-
         ActorRef(EVENTS_ACTOR).tell(RouteFired(str(self.name), topic, text))

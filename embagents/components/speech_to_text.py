@@ -465,7 +465,6 @@ class SpeechToText(ModelComponent):
         return f"{self.name}-{self._utterances + 1}"
 
     def _transcribe(self, samples: np.ndarray) -> str | None:
-
         try:
             return str(self.model_client.transcribe(samples).get("text", "")).strip()
         except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:

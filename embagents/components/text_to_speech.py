@@ -178,7 +178,6 @@ class TextToSpeech(ModelComponent):
         self._enqueue(sentences + ([rest.strip()] if rest.strip() else []), ends=True)
 
     def _enqueue(self, sentences: list[str], *, ends: bool) -> None:
-
         said = [s for s in sentences if speakable(s)]
         for s in sentences:
             if not speakable(s):
@@ -207,7 +206,6 @@ class TextToSpeech(ModelComponent):
             self.call_later(0.0, self._pump)
 
     def _speak(self, sentence: str) -> None:
-
         options = {"speed": self.config.speed} if self.config.speed is not None else {}
         try:
             for chunk in self.model_client.speak(sentence, **options):

@@ -212,7 +212,6 @@ class Agent:
         return fut
 
     def _isolated_call(self, method: str, args: Any, kwargs: Any) -> AgentFuture:
-
         rt = runtime.current()
         fut: AgentFuture
 

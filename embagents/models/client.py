@@ -90,7 +90,6 @@ class LocalModelClient:
         return f"LocalModelClient({self.name!r})"
 
     def _conn(self) -> _Conn:
-
         conn: _Conn | None = getattr(self._local, "conn", None)
         if conn is None or conn.pid != os.getpid():
             conn = self._local.conn = self._connect(current())

@@ -186,7 +186,6 @@ class SpeechToTextModel(Model):
         return os.path.abspath(os.path.expanduser(self.local_model_path))
 
     def file_problem(self) -> str | None:
-
         if self.local_model_path is None:
             return None
         try:

@@ -127,7 +127,6 @@ class PolicyServing:
     _NP = {"tensor(float)": np.float32, "tensor(uint8)": np.uint8, "tensor(double)": np.float64}
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-
         self.session = OnnxSession(path, threads=options.get("threads"), providers=options.get("providers"))
         self.realtime = bool(options.get("realtime"))
         self.expected = {i.name: (list(i.shape), self._NP.get(i.type, np.float32)) for i in self.session.inputs}

@@ -61,7 +61,6 @@ class ChatServing:
     batchable = False
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-
         self.backend = LlamaBackend(path, **options)
 
     def load(self) -> None:
@@ -118,7 +117,6 @@ class DetectorServing:
     batchable = True
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-
         self.detector = make_detector(path, **options)
 
     def load(self) -> None:
@@ -146,7 +144,6 @@ class VLMServing(ChatServing):
     """A llama.cpp vision-language model behind the ``chat`` task: ``inputs["images"]`` ride shared memory."""
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-
         self.backend = VLMBackend(path, **options)  # type: ignore[assignment]
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
@@ -162,17 +159,14 @@ class VLMServing(ChatServing):
 
 
 def _stt(path: str, options: dict[str, Any]) -> Any:
-
     return SpeechToTextServing(path, options)
 
 
 def _tts(path: str, options: dict[str, Any]) -> Any:
-
     return TextToSpeechServing(path, options)
 
 
 def _turn(path: str, options: dict[str, Any]) -> Any:
-
     return TurnServing(path, options)
 
 
@@ -194,7 +188,6 @@ class EmbeddingServing:
     batchable = True
 
     def __init__(self, path: str, options: dict[str, Any]) -> None:
-
         self.encoder = SentenceEncoder(path, **options)
 
     def load(self) -> None:

@@ -42,14 +42,12 @@ class SpeechToTextServing:
         self.recognizer: Any = None
 
     def load(self) -> None:
-
         self.recognizer = SherpaRecognizer(self.path, **self.options)
 
     def warmup(self) -> None:
         self.recognizer.transcribe(np.zeros(8000, np.float32))
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-
         if task != "transcribe":
             raise BadRequest(f"a speech-to-text model serves task 'transcribe', not {task!r}")
         unknown = sorted(set(options) - set(TRANSCRIBE_OPTIONS))
@@ -95,7 +93,6 @@ class TextToSpeechServing:
         self.speaker: Any = None
 
     def load(self) -> None:
-
         self.speaker = SherpaSpeaker(self.path, **self.options)
 
     def warmup(self) -> None:
@@ -103,7 +100,6 @@ class TextToSpeechServing:
             pass
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-
         if task != "speak":
             raise BadRequest(f"a text-to-speech model serves task 'speak', not {task!r}")
         unknown = sorted(set(options) - set(SPEAK_OPTIONS))
@@ -146,14 +142,12 @@ class TurnServing:
         self.model: Any = None
 
     def load(self) -> None:
-
         self.model = SmartTurn(self.path, **self.options)
 
     def warmup(self) -> None:
         self.model.probability(np.zeros(16000, np.float32))
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-
         if task != "end_of_turn":
             raise BadRequest(f"a turn model serves task 'end_of_turn', not {task!r}")
         if options:

@@ -85,7 +85,6 @@ def lifecycle_services(components: Sequence[str]) -> list[Any]:
 
 
 def _describe(response: Any, tid: int) -> Any:
-
     d = ros_interface_class("lifecycle_msgs/msg/TransitionDescription")()
     what, start = _TRANSITIONS[tid]
     d.transition.id, d.transition.label = tid, what
@@ -120,7 +119,6 @@ class RosBridgeActor(Actor):
         self.predecessor_dds_files: frozenset[str] = frozenset()  # its Fast DDS files in /dev/shm
 
     def _declarations(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
-
         if self.system_path is not None:
 
             system = loaded_system(self.system_path)
@@ -330,7 +328,6 @@ class RosBridgeActor(Actor):
         return response
 
     def _transition_event(self, component: str, tid: int, start: str, goal: str) -> None:
-
         event = ros_interface_class("lifecycle_msgs/msg/TransitionEvent")()
         event.timestamp = time.time_ns()
         event.transition.id, event.transition.label = tid, _TRANSITIONS[tid][0]

@@ -55,7 +55,6 @@ def _nested_name(t: NamespacedType) -> str:
 
 
 def _nested_class(t: NamespacedType) -> type:
-
     return ros_interface_class(_nested_name(t))
 
 

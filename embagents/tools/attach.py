@@ -54,7 +54,6 @@ class Attached:
     """This process's runtime in the run ``run`` (a :func:`supervisor.client.pick_run` entry)."""
 
     def __init__(self, run: dict[str, Any]) -> None:
-
         self.rt = Runtime(run["run_dir"], run["run_id"])
         self.loop = Loop()
         self.subs: list[Any] = []

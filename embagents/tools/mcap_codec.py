@@ -186,7 +186,6 @@ def _array_field(cls: type, name: str, value: Any) -> np.ndarray:
 
 
 def _from_json(cls: type, data: bytes) -> Any:
-
     values = json.loads(data)
     if cls is RosMessage:
         return RosMessage(values.get("ros_type", ""), _generic_fields(values.get("fields", {})))
@@ -219,7 +218,6 @@ def _seconds(ts: Any) -> float:
 
 
 def _from_proto(schema_name: str, data: bytes) -> Any:
-
     p = _proto_class(schema_name).FromString(data)
     if schema_name == "foxglove.RawImage":
         dtype = np.dtype(_DTYPES.get(p.encoding, "uint8"))

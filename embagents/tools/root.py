@@ -131,7 +131,6 @@ class _Recorders:
         self.seq = 0
 
     def start(self, req: dict[str, Any]) -> dict[str, Any]:
-
         path = req.get("path")
         if not isinstance(path, str) or not os.path.isabs(path) or not path.endswith(".mcap"):
             return {"ok": False, "error": f"record needs an absolute path ending in .mcap, got {path!r}"}
@@ -179,7 +178,6 @@ class _VoiceStages:
     """``voice_stages``: the turns of the system's VoiceStage topics, from subscriptions in the root."""
 
     def __init__(self, sup: Any, system: System) -> None:
-
         topics = {n: t for n, t in system.topics.items() if t.msg_type is VoiceStage}
         self.names = sorted(topics)
         self.turns = {n: VoiceTurns() for n in self.names}

@@ -129,7 +129,6 @@ class Recorder(Actor):
 
 
 def _send(port: int, n: int, size: int, period: float, warm: float, keep: str, window: int) -> None:
-
     bridge = ZenohBridge("a", exports=[Export(TOPIC, keep=keep, window=window)], listen=[f"tcp/127.0.0.1:{port}"])
     with ActorSystem() as asys:
         asys.spawn(ZenohBridgeActor, "_zenoh_bridge", None, bridge.to_dict(), wait=60, heartbeat=None)

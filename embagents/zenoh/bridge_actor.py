@@ -632,7 +632,6 @@ class ZenohBridgeActor(Actor):
                 "health_text": self.health[1], "lines": lines}
 
     def on_receive(self, message: Any) -> Any:
-
         if message == "stats":
             return self.status_detail()
         if isinstance(message, HealthQuery):

@@ -173,7 +173,6 @@ class ChromaClient(_Client):
         return "minilm"
 
     def build(self, role: str, component: str, enable_local_model: bool = False) -> Any:
-
         if getattr(self.db, "embeddings", "") == "ollama":  # ChromaDB(embeddings="ollama"): the server's embeddings
 
             model = OllamaModel(name="chroma_embeddings", checkpoint=self.db.checkpoint)
@@ -190,7 +189,6 @@ class LeRobotClient(_Client):
     default_port = 8080
 
     def build(self, role: str, component: str, enable_local_model: bool = False) -> Any:
-
         m: Any = self.model  # a LeRobotPolicy (checked next), whose fields _Model does not declare
         if m is None or not hasattr(m, "policy_type"):
             raise TypeError(f"LeRobotClient of {component!r}: model must be a LeRobotPolicy, got {m!r}")

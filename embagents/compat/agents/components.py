@@ -203,7 +203,6 @@ class _Rag:
 
     @property
     def path(self) -> str:
-
         return str(cache_dir() / "memory" / f"{self.collection}.db")  # where a Memory of that map_name keeps it
 
     def context(self, question: str) -> str:

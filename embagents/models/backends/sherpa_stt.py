@@ -89,7 +89,6 @@ def _listing(names: list[str]) -> str:
 
 
 def _hint() -> str:
-
     return WHISPER_PREPARE_HINT
 
 
