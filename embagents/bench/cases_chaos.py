@@ -350,6 +350,7 @@ def run_chaos(seconds: float, *, interval: float | None = None, seed: int | None
         "lost_tell": len(nums["lost_tell"]),
         "lost_topic": len(nums["lost_topic"]),
         "lost_ranges": _lost_context(lost, sources, faults, t0)[:50],
+        "dropped_topic": nums["dropped_topic"],
         "duplicated": nums["duplicated_tell"] + nums["duplicated_topic"],
         "duplicated_tell": nums["duplicated_tell"],
         "duplicated_tell_same_incarnation": nums["duplicated_tell_same_incarnation"],

@@ -15,8 +15,14 @@ write, one per process (incarnation). What counts:
 - **keep-all topic** (a stream: what is published while the subscriber is
   down is not delivered): for each pair (sink incarnation, source
   incarnation) the numbers handled must be every number from the first to
-  the last of them. ``lost_topic`` = the gaps inside those spans, i.e.
-  messages published while both sides lived and never handled.
+  the last of them. A gap is a message published while both sides lived and
+  never handled: ``dropped_topic`` if the sink's subscription counted it as
+  dropped (its ``D total`` lines: a publisher drops, counted, for a
+  subscriber that has not read for its stall bound, e.g. one SIGSTOPped
+  until its heartbeat deadline; see :mod:`actors.topics`), ``lost_topic``
+  if nothing counted it. Gaps are matched to the count in the order they
+  open, so an uncounted one is never hidden by a count (when both occur in
+  one incarnation, which numbers are called lost may be off; how many is not).
 
 Example::
 
@@ -24,6 +30,9 @@ Example::
     [2]
     >>> tally_numbers({"sink-1.log": "S 0 9\\nS 2 9\\n"}, acked=-1)["lost_topic"]
     [[1, 9, 1]]
+    >>> t = tally_numbers({"sink-1.log": "S 0 9\\nD 2\\nS 3 9\\nS 6 9\\n"}, acked=-1)
+    >>> t["dropped_topic"], t["lost_topic"]
+    (2, [[4, 9, 1], [5, 9, 1]])
 """
 
 from __future__ import annotations
@@ -65,36 +74,56 @@ def watermark(source_files: dict[str, str]) -> tuple[int, int]:
 
 
 def tally_numbers(sink_files: dict[str, str], acked: int) -> dict[str, Any]:
-    """Lost and duplicated numbers of both channels (see the module docs).
+    """Lost, dropped (counted) and duplicated numbers of both channels (see the module docs).
 
-    ``lost_topic`` lists ``[number, source pid, sink pid]``; files are named ``sink-<pid>.log``.
+    ``lost_topic`` lists ``[number, source pid, sink pid]``; ``dropped_topic`` is a count; files are named
+    ``sink-<pid>.log``.
     """
     tells: Counter[int] = Counter()
     same_inc_dups = 0
     lost_topic: list[list[int]] = []
     dup_topic = 0
+    dropped_topic = 0
     for fname, text in sink_files.items():
         sink_pid = int(fname.rsplit("-", 1)[1].removesuffix(".log"))
         mine: Counter[tuple[int, int]] = Counter()  # (number, source pid)
-        spans: dict[int, list[int]] = defaultdict(list)
+        seen: dict[int, set[int]] = defaultdict(set)  # source pid -> topic numbers handled
+        top: dict[int, int] = {}  # source pid -> the highest of them
+        gaps: list[tuple[int, int, bool]] = []  # (number, source pid, counted as dropped)
+        counted = used = 0  # the subscription's drop count so far; how much of it gaps have taken
         for f in _lines(text):
+            if f[0] == "D":
+                counted = int(f[1])
+                continue
             n, src = int(f[1]), int(f[2])
             if f[0] == "T":
                 mine[n, src] += 1
             elif f[0] == "S":
-                spans[src].append(n)
+                if n in seen[src]:
+                    dup_topic += 1
+                    continue
+                seen[src].add(n)
+                hi = top.setdefault(src, n)
+                for m in range(hi + 1, n):  # a gap opens
+                    gaps.append((m, src, used < counted))
+                    used += used < counted
+                top[src] = max(hi, n)
         same_inc_dups += sum(c - 1 for c in mine.values())
         tells.update(n for (n, _), c in mine.items() for _ in range(c))
-        for src, got in spans.items():
-            seen = set(got)
-            dup_topic += len(got) - len(seen)
-            lost_topic += [[n, src, sink_pid] for n in range(min(seen), max(seen) + 1) if n not in seen]
+        for n, src, ok in gaps:
+            if n in seen[src]:  # it came later after all
+                continue
+            if ok:
+                dropped_topic += 1
+            else:
+                lost_topic.append([n, src, sink_pid])
     return {
         "lost_tell": [n for n in range(acked + 1) if n not in tells],
         "duplicated_tell": sum(c - 1 for c in tells.values()),
         "duplicated_tell_same_incarnation": same_inc_dups,
         "handled_tell": len(tells),
         "lost_topic": lost_topic,
+        "dropped_topic": dropped_topic,
         "duplicated_topic": dup_topic,
         "sink_incarnations": len(sink_files),
     }

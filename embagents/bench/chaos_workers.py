@@ -9,8 +9,9 @@
   resumes at W + 1: a number is never skipped because the source died.
 - :class:`NumberSink` appends each number it handles to a file of its own
   incarnation (``sink-<pid>.log``: ``T n source_pid`` for a tell, ``S n
-  source_pid`` for the topic), written with one ``write`` each, so a SIGKILL
-  loses no record of a handled message.
+  source_pid`` for the topic, preceded by ``D total`` when its subscription's
+  count of dropped messages grew), written with one ``write`` each, so a
+  SIGKILL loses no record of a handled message.
 - :class:`FrameSource` publishes a 640x480 RGB :class:`~embagents.msgs.Image`
   (shared memory) at 15 Hz, every pixel set to its frame number mod 251;
   :class:`FrameSink` (``keep="latest"``) records each frame and whether its
@@ -180,10 +181,17 @@ class NumberSink(FaultTarget):
 
     def on_start(self) -> None:
         self.fd = self.record_file("sink")
-        self.context.subscribe(NUMBERS_TOPIC, self._on_topic, queue_size=100, keep="all")
+        self.sub = self.context.subscribe(NUMBERS_TOPIC, self._on_topic, queue_size=100, keep="all")
+        self.dropped = 0  # the subscription's count of dropped messages, as last recorded
 
     def _on_topic(self, msg: Any) -> None:
-        os.write(self.fd, f"S {msg[0]} {msg[1]}\n".encode())
+        line = f"S {msg[0]} {msg[1]}\n"
+        if self.sub.dropped != self.dropped:
+            # The runtime counts a gap when it reads the frame after it, before that frame's callback: so the
+            # count's D line is written before (and with, in one write) the first number past the gap.
+            self.dropped = self.sub.dropped
+            line = f"D {self.dropped}\n{line}"
+        os.write(self.fd, line.encode())
 
     def on_receive(self, message: Any) -> Any:
         if isinstance(message, list):

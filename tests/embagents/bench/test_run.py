@@ -209,8 +209,8 @@ def test_a_full_run_grades_its_bars_and_a_quick_one_does_not() -> None:
 
 
 CHAOS_FIELDS = {
-    "faults": int, "faults_by_kind": dict, "restarts": int, "lost": int, "duplicated": int, "llm_failed": int,
-    "llm_recovered": int, "root_rss_start": int, "root_rss_end": int, "root_rss_growth": float,
+    "faults": int, "faults_by_kind": dict, "restarts": int, "lost": int, "dropped_topic": int, "duplicated": int,
+    "llm_failed": int, "llm_recovered": int, "root_rss_start": int, "root_rss_end": int, "root_rss_growth": float,
     "root_fds_start": int, "root_fds_end": int, "leftover_processes": int, "leftover_shm": int,
 }
 
