@@ -31,6 +31,7 @@ from embagents.bench.echo_room import (
     rms_db,
     robot_says,
     room_impulse_response,
+    said_with_a_pause,
     to_int16,
 )
 from embagents.bench.registry import BenchOptions, case
@@ -298,7 +299,7 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
     }
 
 
-#: Complete questions, and questions with a pause mid-sentence (the first part trails off).
+#: Complete questions, and the same questions with a pause mid-sentence (after the first part; see turn_clips).
 QUESTIONS = (
     "Can you bring me the red cup from the kitchen?",
     "What is the weather like in Paris today?",
@@ -326,7 +327,13 @@ SPLIT_QUESTIONS = (
 
 
 def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
-    """``(clip, speech_end, split)``: ``n`` complete questions and ``n`` with a 500-800 ms pause mid-sentence."""
+    """``(clip, speech_end, split)``: ``n`` complete questions and ``n`` with a 500-800 ms pause mid-sentence.
+
+    A paused question is the whole question spoken in one go, cut between two
+    words (:func:`~embagents.bench.echo_room.said_with_a_pause`): spoken as two
+    sentences, its first part would end on the voice's final fall, which any
+    turn model hears as a finished utterance.
+    """
 
     clips = []
     for i in range(n):
@@ -334,9 +341,8 @@ def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
         clips.append((np.concatenate([np.zeros(RATE // 2, np.int16), q, np.zeros(2 * RATE, np.int16)]),
                       RATE // 2 + len(q), False))
     for i in range(n):
-        a, b = (robot_says(t) for t in SPLIT_QUESTIONS[i % len(SPLIT_QUESTIONS)])
-        pause = np.zeros(int(RATE * (0.5 + 0.3 * i / max(1, n - 1))), np.int16)
-        speech = np.concatenate([np.zeros(RATE // 2, np.int16), a, pause, b])
+        said, _ = said_with_a_pause(*SPLIT_QUESTIONS[i % len(SPLIT_QUESTIONS)], 0.5 + 0.3 * i / max(1, n - 1))
+        speech = np.concatenate([np.zeros(RATE // 2, np.int16), said])
         clips.append((np.concatenate([speech, np.zeros(2 * RATE, np.int16)]), len(speech), True))
     return clips
 
@@ -389,7 +395,7 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
                    ("strict", LocalModelClient("bench_turn"), 1000.0, STRICT),
                    ("silence", None, 500.0, 0.5))
         for label, client, silence, threshold in configs:
-            cutoffs, delays, halves = 0, [], []
+            cutoffs, delays, halves, wholes = 0, [], [], []
             t0 = time.time()
             for clip, _, split in clips:
                 asked = _Asked(client)
@@ -404,10 +410,12 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
                 if split:
                     cutoffs += heard > 1
                     halves.append(asked.probabilities[0] if asked.probabilities else None)
-                elif delay is not None:
-                    delays.append(delay * 1000)
+                else:
+                    wholes.append(asked.probabilities[0] if asked.probabilities else None)
+                    if delay is not None:
+                        delays.append(delay * 1000)
             results[label] = {"cutoffs": cutoffs, "eou_p50_ms": float(np.percentile(delays, 50)) if delays else None,
-                              "eou_max_ms": max(delays, default=None), "halves": halves}
+                              "eou_max_ms": max(delays, default=None), "halves": halves, "wholes": wholes}
     m, st, s = results["model"], results["strict"], results["silence"]
     said_done = sum(p is not None and p >= 0.5 for p in m["halves"])
     return {
@@ -416,7 +424,9 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         "strict_threshold": STRICT, "strict_cutoffs": st["cutoffs"], "strict_eou_p50_ms": st["eou_p50_ms"],
         "silence_cutoffs": s["cutoffs"], "silence_eou_p50_ms": s["eou_p50_ms"],
         "half_sentence_probabilities": [None if p is None else round(p, 2) for p in m["halves"]],
-        "note": f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice): Smart "
+        "question_probabilities": [None if p is None else round(p, 2) for p in m["wholes"]],
+        "note": f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice; each "
+                "paused one is the question spoken in one go, cut between two words): Smart "
                 f"Turn v3 after {SpeechToTextConfig().turn_silence_ms:g} ms of pause (fallback: 1 s of silence) cut "
                 f"{m['cutoffs']}/{n} off, end of turn {m['eou_p50_ms']:.0f} ms after the question (p50); silence "
                 f"endpointing at 500 ms cut {s['cutoffs']}/{n} off, {s['eou_p50_ms']:.0f} ms; at threshold {STRICT} "

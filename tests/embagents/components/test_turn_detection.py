@@ -12,11 +12,12 @@ pytest.importorskip("sherpa_onnx")
 pytest.importorskip("onnxruntime")
 
 from actors import ActorSystem  # noqa: E402
-from embagents.bench.cases_voice_turns import turn_run  # noqa: E402
-from embagents.bench.echo_room import robot_says  # noqa: E402
+from embagents.bench.cases_voice_turns import QUESTIONS, turn_clips, turn_run  # noqa: E402
+from embagents.bench.echo_room import robot_says, said_with_a_pause  # noqa: E402
 from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, TurnDetectorModel  # noqa: E402
 from embagents.models.actor import ModelActor
+from embagents.models.backends.sherpa_stt import SherpaRecognizer
 from embagents.msgs import Audio, String, VoiceStage
 from embagents.topic import Topic  # noqa: E402
 
@@ -118,3 +119,29 @@ def test_a_turn_threshold_above_the_models_probability_leaves_a_finished_questio
     assert comp.turns["not_yet"] >= 1 and comp.turns["model"] == 0 and comp.turns["silence"] == 1
     with pytest.raises(ValueError, match=r"threshold .* must be in \(0, 1\), got 1.5"):
         SpeechToTextConfig(turn_threshold=1.5)
+
+
+def test_a_bench_question_with_a_pause_is_the_question_spoken_in_one_go_with_the_pause_cut_in() -> None:
+    """Its words before the pause are the whole question's (a level tone), not a sentence of their own (a fall)."""
+    clip, end, split = turn_clips(1)[1]
+    speech, whole = clip[RATE // 2:end], robot_says(QUESTIONS[0])
+    assert split and len(speech) == len(whole) + RATE // 2, "0.5 s of pause in the first paused clip"
+    assert np.array_equal(speech[:RATE // 2], whole[:RATE // 2]), "the start is the whole question's"
+    assert np.array_equal(speech[-RATE // 2:], whole[-RATE // 2:]), "and so is the end"
+
+
+def test_the_pause_is_cut_in_between_the_two_words_it_is_said_to_fall_between(whisper_dir: str) -> None:
+    stt, pad = SherpaRecognizer(whisper_dir), np.zeros(RATE // 4, np.float32)
+
+    def words(text: str) -> list[str]:
+        return "".join(c if c.isalpha() else " " for c in text.lower()).split()
+
+    def heard(x: np.ndarray) -> list[str]:
+        return words(stt.transcribe(np.concatenate([pad, x.astype(np.float32) / 32768.0, pad])))
+
+    for first, rest in (("Go to the door and", "wait for me there."),
+                        ("Is there any milk left in the", "fridge?")):
+        said, cut = said_with_a_pause(first, rest, 0.6)
+        assert not said[cut:cut + int(0.6 * RATE)].any()
+        before, after = heard(said[:cut]), heard(said[cut + int(0.6 * RATE):])
+        assert before[-1] == words(first)[-1] and after[0] == words(rest)[0], (before, after)
