@@ -311,6 +311,16 @@ QUESTIONS = (
     "Go to the door and wait for me there.",
     "Is there any milk left in the fridge?",
     "Remind me to call my mother at six o'clock.",
+    "Can you open the window in the bedroom?",
+    "Please put the blue box on the top shelf.",
+    "How many apples are left in the basket?",
+    "Could you find my glasses near the sofa?",
+    "What did the doctor say about my back?",
+    "Turn on the music in the kitchen please.",
+    "When is the package from my sister arriving?",
+    "Bring the chair from the garden to the porch.",
+    "Can you tell me where the scissors are?",
+    "Tell me the news from this morning.",
 )
 SPLIT_QUESTIONS = (
     ("Can you bring me the", "red cup from the kitchen?"),
@@ -323,6 +333,16 @@ SPLIT_QUESTIONS = (
     ("Go to the door and", "wait for me there."),
     ("Is there any milk left in the", "fridge?"),
     ("Remind me to call my mother at", "six o'clock."),
+    ("Can you open the", "window in the bedroom?"),
+    ("Please put the blue box on the", "top shelf."),
+    ("How many apples are left in", "the basket?"),
+    ("Could you find my", "glasses near the sofa?"),
+    ("What did the doctor say about", "my back?"),
+    ("Turn on the music in", "the kitchen please."),
+    ("When is the package from", "my sister arriving?"),
+    ("Bring the chair from the garden to", "the porch."),
+    ("Can you tell me where the", "scissors are?"),
+    ("Tell me the news from", "this morning."),
 )
 
 
