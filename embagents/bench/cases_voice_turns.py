@@ -452,10 +452,12 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         asys.spawn(ModelActor, "bench_whisper_t", "stt", whisper_tiny_en_dir(), {"threads": 1}, True, wait=120,
                    heartbeat=None)
         asys.spawn(ModelActor, "bench_turn", "turn", turn.resolve(), turn.options(), True, wait=120, heartbeat=None)
-        asys.spawn(ModelActor, "bench_turn_text", "llama", default_llm_path(), {"n_ctx": 512, "n_threads": 1}, True, wait=300,
-                   heartbeat=None)
+        asys.spawn(ModelActor, "bench_turn_text", "llama", default_llm_path(), {"n_ctx": 512, "n_threads": 1}, True,
+                   wait=300, heartbeat=None)
         for label, audio, text, silence, threshold in TURN_SETUPS:
-            cutoffs, delays, heard_delays, halves, wholes = 0, [], [], [], []
+            cutoffs, halves, wholes = 0, [], []
+            delays: list[float] = []
+            heard_delays: list[float] = []
             spec = {"used": 0, "dropped": 0}
             t0 = time.time()
             for clip, end, split in clips:
