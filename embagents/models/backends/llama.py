@@ -336,10 +336,10 @@ class LlamaBackend:
         if len(end) != 1:
             raise ValueError(f"{os.path.basename(self.model_path)} has no <|im_end|> token (not a ChatML model): "
                              "the text end-of-turn check needs one, e.g. SmolLM2-135M-Instruct (default_llm_path())")
-        prompt = f"<|im_start|>system\n{TURN_SYSTEM_PROMPT}<|im_end|>\n<|im_start|>user\n{turn_text(text)}"
-        tokens = llm.tokenize(prompt.encode(), add_bos=False, special=True)
-        if len(tokens) >= self.n_ctx:
-            tokens = tokens[:2] + tokens[len(tokens) - self.n_ctx + 8:]  # the last words decide
+        head = llm.tokenize(f"<|im_start|>system\n{TURN_SYSTEM_PROMPT}<|im_end|>\n<|im_start|>user\n".encode(),
+                            add_bos=False, special=True)
+        words = llm.tokenize(turn_text(text).encode(), add_bos=False, special=False)
+        tokens = head + words[-max(1, self.n_ctx - len(head) - 1):]  # a talk longer than the context: its last words
         # Keep what the cache holds of this prompt (the system prefix, or a chat's): evaluate the rest.
         cached = llm.input_ids[:llm.n_tokens]
         same = 0
