@@ -31,6 +31,7 @@ from embagents.bench.echo_room import (
     rms_db,
     robot_says,
     room_impulse_response,
+    said_with_a_pause,
     to_int16,
 )
 from embagents.bench.registry import BenchOptions, case
@@ -40,7 +41,7 @@ from embagents.components.vad import SpeechSegmenter
 from embagents.models import LocalModelClient, TurnDetectorModel
 from embagents.models.actor import ModelActor
 from embagents.models.files.speech import silero_vad_path, whisper_tiny_en_dir
-from embagents.msgs import Audio, BargeIn, String
+from embagents.msgs import Audio, BargeIn, String, VoiceStage
 from embagents.topic import Topic
 
 __all__: list[str] = []
@@ -298,7 +299,7 @@ def barge_in(opts: BenchOptions) -> dict[str, Any]:
     }
 
 
-#: Complete questions, and questions with a pause mid-sentence (the first part trails off).
+#: Complete questions, and the same questions with a pause mid-sentence (after the first part; see turn_clips).
 QUESTIONS = (
     "Can you bring me the red cup from the kitchen?",
     "What is the weather like in Paris today?",
@@ -310,6 +311,16 @@ QUESTIONS = (
     "Go to the door and wait for me there.",
     "Is there any milk left in the fridge?",
     "Remind me to call my mother at six o'clock.",
+    "Can you open the window in the bedroom?",
+    "Please put the blue box on the top shelf.",
+    "How many apples are left in the basket?",
+    "Could you find my glasses near the sofa?",
+    "What did the doctor say about my back?",
+    "Turn on the music in the kitchen please.",
+    "When is the package from my sister arriving?",
+    "Bring the chair from the garden to the porch.",
+    "Can you tell me where the scissors are?",
+    "Tell me the news from this morning.",
 )
 SPLIT_QUESTIONS = (
     ("Can you bring me the", "red cup from the kitchen?"),
@@ -322,11 +333,27 @@ SPLIT_QUESTIONS = (
     ("Go to the door and", "wait for me there."),
     ("Is there any milk left in the", "fridge?"),
     ("Remind me to call my mother at", "six o'clock."),
+    ("Can you open the", "window in the bedroom?"),
+    ("Please put the blue box on the", "top shelf."),
+    ("How many apples are left in", "the basket?"),
+    ("Could you find my", "glasses near the sofa?"),
+    ("What did the doctor say about", "my back?"),
+    ("Turn on the music in", "the kitchen please."),
+    ("When is the package from", "my sister arriving?"),
+    ("Bring the chair from the garden to", "the porch."),
+    ("Can you tell me where the", "scissors are?"),
+    ("Tell me the news from", "this morning."),
 )
 
 
 def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
-    """``(clip, speech_end, split)``: ``n`` complete questions and ``n`` with a 500-800 ms pause mid-sentence."""
+    """``(clip, speech_end, split)``: ``n`` complete questions and ``n`` with a 500-800 ms pause mid-sentence.
+
+    A paused question is the whole question spoken in one go, cut between two
+    words (:func:`~embagents.bench.echo_room.said_with_a_pause`): spoken as two
+    sentences, its first part would end on the voice's final fall, which any
+    turn model hears as a finished utterance.
+    """
 
     clips = []
     for i in range(n):
@@ -334,9 +361,8 @@ def turn_clips(n: int) -> list[tuple[np.ndarray, int, bool]]:
         clips.append((np.concatenate([np.zeros(RATE // 2, np.int16), q, np.zeros(2 * RATE, np.int16)]),
                       RATE // 2 + len(q), False))
     for i in range(n):
-        a, b = (robot_says(t) for t in SPLIT_QUESTIONS[i % len(SPLIT_QUESTIONS)])
-        pause = np.zeros(int(RATE * (0.5 + 0.3 * i / max(1, n - 1))), np.int16)
-        speech = np.concatenate([np.zeros(RATE // 2, np.int16), a, pause, b])
+        said, _ = said_with_a_pause(*SPLIT_QUESTIONS[i % len(SPLIT_QUESTIONS)], 0.5 + 0.3 * i / max(1, n - 1))
+        speech = np.concatenate([np.zeros(RATE // 2, np.int16), said])
         clips.append((np.concatenate([speech, np.zeros(2 * RATE, np.int16)]), len(speech), True))
     return clips
 
@@ -358,25 +384,66 @@ class _Asked:
         return got
 
 
-def turn_run(ears: Any, clip: np.ndarray, t0: float) -> tuple[int, float | None]:
-    """Feed ``clip`` in 20 ms chunks; ``(utterances heard, end of turn delay in s of the first)``."""
+def turn_run(ears: Any, clip: np.ndarray, t0: float, speech_end: int | None = None,
+             to_transcript: list[float] | None = None, texts: list[str] | None = None) -> tuple[int, float | None]:
+    """Feed ``clip`` in 20 ms chunks; ``(utterances heard, end of turn delay in s of the first)``.
+
+    The delay is the ears' own ``eou_delay``; with ``speech_end`` (the sample where the speech
+    ended, from how the clip was built) and a ``VoiceStage`` output on ``ears``, it is measured
+    from the end of speech to the end-of-turn decision on the wall clock: from 0.3 s before the
+    end of speech until the turn is published, chunks come at a microphone's pace (each when its
+    last sample has been said, or at once when the ears are behind), so what the ears do in the
+    background meanwhile (a transcript begun at the pause) has the time it would have live.
+    ``to_transcript`` gets the same delay to the transcript's publication, ``texts`` what was heard.
+    """
 
     heard: list[float] = []
-    ears.attach(lambda topic, msg: heard.append(time.monotonic()) if isinstance(msg, String) else None)
+    decided: list[float] = []
+
+    def got(topic: str, msg: Any) -> None:
+        if isinstance(msg, String):
+            heard.append(time.time())
+            if texts is not None:
+                texts.append(msg.data)
+        elif isinstance(msg, VoiceStage) and msg.stage == "end_of_turn":
+            decided.append(msg.stamp)
+
+    ears.attach(got)
     delay = None
+    paced_from = None if speech_end is None else max(0, speech_end - int(0.3 * RATE))
+    ended_at = 0.0  # wall time the speech ended, once pacing began
     for i in range(0, len(clip), 320):
+        if paced_from is not None and i >= paced_from and not heard:
+            if not ended_at:
+                ended_at = time.time() + (speech_end - i) / RATE  # type: ignore[operator]
+            left = ended_at + (i + 320 - speech_end) / RATE - time.time()  # type: ignore[operator]
+            if left > 0:
+                time.sleep(left)
         if ears.on_message("mic", Audio(data=clip[i:i + 320], stamp=t0 + (i + 320) / RATE)):
             ears.execute()
         if heard and delay is None:
-            delay = ears.last_eou_delay
+            if speech_end is None or not ended_at:
+                delay = ears.last_eou_delay
+            else:
+                delay = (decided[0] if decided else heard[0]) - ended_at
+                if to_transcript is not None:
+                    to_transcript.append(heard[0] - ended_at)
     n = len(heard)
     ears.on_message("mic", Audio(data=np.zeros(0, np.int16), stamp=t0 + len(clip) / RATE))
     ears.execute()
     return n, delay
 
 
+#: The bench's turn-taking setups: (label, Smart Turn, text check, silence fallback ms, turn threshold).
+TURN_SETUPS = (("model", True, False, 1000.0, 0.5), ("model_text", True, True, 1000.0, 0.5),
+               ("text", False, True, 1000.0, 0.5), ("strict", True, False, 1000.0, STRICT),
+               ("silence", False, False, 500.0, 0.5))
+
+
 @case("turn_detection", transport="embagents", kind="speech", needs="sherpa_onnx")
 def turn_detection(opts: BenchOptions) -> dict[str, Any]:
+    from embagents.models.files.hub import default_llm_path
+
     n = 1 if opts.quick else 20
     clips = turn_clips(n)
     turn = TurnDetectorModel(name="bench_turn")
@@ -385,42 +452,66 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         asys.spawn(ModelActor, "bench_whisper_t", "stt", whisper_tiny_en_dir(), {"threads": 1}, True, wait=120,
                    heartbeat=None)
         asys.spawn(ModelActor, "bench_turn", "turn", turn.resolve(), turn.options(), True, wait=120, heartbeat=None)
-        configs = (("model", LocalModelClient("bench_turn"), 1000.0, 0.5),
-                   ("strict", LocalModelClient("bench_turn"), 1000.0, STRICT),
-                   ("silence", None, 500.0, 0.5))
-        for label, client, silence, threshold in configs:
-            cutoffs, delays, halves = 0, [], []
+        asys.spawn(ModelActor, "bench_turn_text", "llama", default_llm_path(), {"n_ctx": 512, "n_threads": 1}, True,
+                   wait=300, heartbeat=None)
+        for label, audio, text, silence, threshold in TURN_SETUPS:
+            cutoffs, halves, wholes = 0, [], []
+            delays: list[float] = []
+            heard_delays: list[float] = []
+            spec = {"used": 0, "dropped": 0}
             t0 = time.time()
-            for clip, _, split in clips:
-                asked = _Asked(client)
+            for clip, end, split in clips:
+                asked = _Asked(LocalModelClient("bench_turn"))
                 ears = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")],
-                                    outputs=[Topic("heard", String)], model_client=LocalModelClient("bench_whisper_t"),
-                                    turn_model_client=asked if client is not None else None,
+                                    outputs=[Topic("heard", String), Topic("stages", VoiceStage, keep="all")],
+                                    model_client=LocalModelClient("bench_whisper_t"),
+                                    turn_model_client=asked if audio else None,
+                                    text_turn_client=LocalModelClient("bench_turn_text") if text else None,
                                     config=SpeechToTextConfig(min_silence_ms=silence, turn_threshold=threshold,
                                                               log_level="warning"))
                 ears.on_configure()
-                heard, delay = turn_run(ears, clip, t0)
+                heard, delay = turn_run(ears, clip, t0, end, None if split else heard_delays)
+                for k in spec:
+                    spec[k] += ears.speculations[k]
                 t0 += 100.0
                 if split:
                     cutoffs += heard > 1
                     halves.append(asked.probabilities[0] if asked.probabilities else None)
-                elif delay is not None:
-                    delays.append(delay * 1000)
+                else:
+                    wholes.append(asked.probabilities[0] if asked.probabilities else None)
+                    if delay is not None:
+                        delays.append(delay * 1000)
             results[label] = {"cutoffs": cutoffs, "eou_p50_ms": float(np.percentile(delays, 50)) if delays else None,
-                              "eou_max_ms": max(delays, default=None), "halves": halves}
-    m, st, s = results["model"], results["strict"], results["silence"]
+                              "eou_max_ms": max(delays, default=None), "halves": halves, "wholes": wholes,
+                              "transcript_p50_ms": float(np.percentile(heard_delays, 50)) * 1000 if heard_delays
+                              else None,
+                              "speculations": spec}
+    r = results
+    m, mt = r["model"], r["model_text"]
     said_done = sum(p is not None and p >= 0.5 for p in m["halves"])
-    return {
+
+    def ms(x: float | None) -> str:
+        return "-" if x is None else f"{x:.0f} ms"
+
+    # The headline is the default (Smart Turn alone: the text check is off unless a text_turn_client is given).
+    out: dict[str, Any] = {
         "p50_us": (m["eou_p50_ms"] or 0) * 1e3, "p99_us": (m["eou_max_ms"] or 0) * 1e3, "msgs_per_s": None,
-        "cutoffs": m["cutoffs"], "eou_p50_ms": m["eou_p50_ms"], "clips": 2 * n,
-        "strict_threshold": STRICT, "strict_cutoffs": st["cutoffs"], "strict_eou_p50_ms": st["eou_p50_ms"],
-        "silence_cutoffs": s["cutoffs"], "silence_eou_p50_ms": s["eou_p50_ms"],
-        "half_sentence_probabilities": [None if p is None else round(p, 2) for p in m["halves"]],
-        "note": f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice): Smart "
-                f"Turn v3 after {SpeechToTextConfig().turn_silence_ms:g} ms of pause (fallback: 1 s of silence) cut "
-                f"{m['cutoffs']}/{n} off, end of turn {m['eou_p50_ms']:.0f} ms after the question (p50); silence "
-                f"endpointing at 500 ms cut {s['cutoffs']}/{n} off, {s['eou_p50_ms']:.0f} ms; at threshold {STRICT} "
-                f"the model cut {st['cutoffs']}/{n} off, {st['eou_p50_ms']:.0f} ms; at the first pause the model "
-                f"said finished (p >= 0.5) on {said_done}/{n} half sentences; bars: cutoffs <= 2, "
-                "eou_p50_ms <= 300",
-    }
+        "cutoffs": m["cutoffs"], "eou_p50_ms": m["eou_p50_ms"], "transcript_p50_ms": m["transcript_p50_ms"],
+        "clips": 2 * n, "strict_threshold": STRICT}
+    for label in r:
+        if label != "model":
+            out[f"{label}_cutoffs"], out[f"{label}_eou_p50_ms"] = r[label]["cutoffs"], r[label]["eou_p50_ms"]
+            out[f"{label}_transcript_p50_ms"] = r[label]["transcript_p50_ms"]
+    out["speculations"] = {label: r[label]["speculations"] for label in r}
+    out["half_sentence_probabilities"] = [None if p is None else round(p, 2) for p in m["halves"]]
+    out["question_probabilities"] = [None if p is None else round(p, 2) for p in m["wholes"]]
+    out["note"] = (
+        f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice; each paused one is "
+        "the question spoken in one go, cut between two words); eou = end of speech (from the clip) -> the decision "
+        f"(fallback: 1 s of silence); cut off / eou p50: Smart Turn alone {m['cutoffs']}/{n}, {ms(m['eou_p50_ms'])}; "
+        f"Smart Turn + text check {mt['cutoffs']}/{n}, {ms(mt['eou_p50_ms'])}; text check alone "
+        f"{r['text']['cutoffs']}/{n}, {ms(r['text']['eou_p50_ms'])}; Smart Turn at {STRICT} {r['strict']['cutoffs']}/{n}, "
+        f"{ms(r['strict']['eou_p50_ms'])}; silence at 500 ms {r['silence']['cutoffs']}/{n}, "
+        f"{ms(r['silence']['eou_p50_ms'])}; Smart Turn said finished (p >= 0.5) on {said_done}/{n} half sentences at "
+        "the first pause; bars: cutoffs <= 2, eou_p50_ms <= 300")
+    return out

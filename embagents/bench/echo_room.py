@@ -8,6 +8,12 @@
   with reverberation time ``rt60_s``), seeded, made with numpy.
 - :func:`echo_of`: what a microphone hears of what the speaker played through
   that room, at ``level_db`` (RMS, dBFS).
+- :func:`said_with_a_pause`: a question spoken in one go with a pause cut in
+  between two of its words, as a person who stops mid-sentence sounds: the
+  words before the pause keep the level tone of a sentence going on, not the
+  falling end of one. The break between the two words is found by aligning
+  (dynamic time warping on log spectra) the whole question with its two parts
+  spoken apart, then taking the quietest 20 ms near it.
 
 Example::
 
@@ -23,7 +29,7 @@ import numpy as np
 from embagents.components.audio_io import read_wav, spoken_clip_path
 
 __all__ = ["ROBOT_LINES", "USER_BACKCHANNELS", "USER_INTERRUPTIONS", "echo_of", "mix_at", "robot_says",
-           "room_impulse_response", "rms_db"]
+           "room_impulse_response", "rms_db", "said_with_a_pause"]
 
 RATE = 16000
 #: What the robot says in the voice benches (answers of a few seconds).
@@ -53,6 +59,59 @@ def robot_says(text: str) -> np.ndarray:
     samples, _, _ = read_wav(spoken_clip_path(text, progress=False))
     loud = np.flatnonzero(np.abs(samples) > 300)
     return samples[loud[0]:loud[-1] + 1] if loud.size else samples
+
+
+def _spectra(x: np.ndarray) -> np.ndarray:
+    """Unit-norm log spectra (40 bands up to 8 kHz) every 10 ms of 16 kHz int16 ``x``, ``(frames, 40)``."""
+    f = np.pad(x.astype(np.float64) / 32768.0, (200, 200))
+    frames = np.lib.stride_tricks.sliding_window_view(f, 400)[::160] * np.hanning(400)
+    power = (np.abs(np.fft.rfft(frames, axis=-1)) ** 2)[:, :200].reshape(len(frames), 40, 5).sum(-1)
+    s = np.log(power + 1e-10)
+    s -= s.mean(axis=1, keepdims=True)
+    return s / (np.linalg.norm(s, axis=1, keepdims=True) + 1e-9)
+
+
+def _aligned(x: np.ndarray, y: np.ndarray) -> list[tuple[int, int]]:
+    """The dynamic time warping path between frames ``x`` and ``y`` (cosine distance), start to end."""
+    cost = 1.0 - x @ y.T
+    n, m = cost.shape
+    d = np.full((n + 1, m + 1), np.inf)
+    d[0, 0] = 0.0
+    for i in range(1, n + 1):
+        for j in range(1, m + 1):
+            d[i, j] = cost[i - 1, j - 1] + min(d[i - 1, j - 1], d[i - 1, j], d[i, j - 1])
+    i, j, path = n, m, []
+    while i > 0 and j > 0:
+        path.append((i - 1, j - 1))
+        step = int(np.argmin((d[i - 1, j - 1], d[i - 1, j], d[i, j - 1])))
+        i, j = (i - 1, j - 1) if step == 0 else (i - 1, j) if step == 1 else (i, j - 1)
+    return path[::-1]
+
+
+def said_with_a_pause(first: str, rest: str, pause_s: float) -> tuple[np.ndarray, int]:
+    """``(speech, cut)``: the voice saying ``first rest`` in one go with ``pause_s`` of silence after ``first``.
+
+    ``cut``: where the pause starts (samples). The two parts are the one
+    utterance's audio (:func:`robot_says` of the whole text), cut at the break
+    between ``first``'s last word and ``rest``'s first (see the module
+    docstring), each faded over 5 ms so the cut does not click.
+    """
+
+    whole, a, b = robot_says(f"{first} {rest}"), robot_says(first), robot_says(rest)
+    fa = len(_spectra(a))
+    path = _aligned(np.concatenate([_spectra(a), _spectra(b)]), _spectra(whole))
+    ends = max(j for i, j in path if i == fa - 1) * 160  # where first's last frame lands in the whole
+    starts = min(j for i, j in path if i == fa) * 160  # and rest's first
+    win, hop = 320, 80
+    lo, hi = max(0, min(ends, starts) - 640), min(len(whole) - win, max(ends, starts) + 320)
+    at = list(range(lo, max(lo + 1, hi), hop))
+    cut = at[int(np.argmin([np.square(whole[k:k + win].astype(np.float64)).mean() for k in at]))] + win // 2
+    fade = np.linspace(1.0, 0.0, RATE // 200)
+    head, tail = whole[:cut].astype(np.float64), whole[cut:].astype(np.float64)
+    head[-len(fade):] *= fade
+    tail[:len(fade)] *= fade[::-1]
+    pause = np.zeros(int(round(pause_s * RATE)))
+    return np.concatenate([head, pause, tail]).astype(np.int16), cut
 
 
 def room_impulse_response(rate: int = RATE, *, delay_ms: float = 30.0, rt60_s: float = 0.3,

@@ -171,6 +171,15 @@ class SpeechToTextConfig(BaseComponentConfig):
       probability at or above which the turn is finished (0.5, Pipecat's; a
       higher one cuts fewer users off mid-sentence and leaves more turns to the
       silence fallback: see ``embagents bench --only turn_detection``).
+    - ``text_turn_threshold``: with a ``text_turn_client`` (a chat model's actor,
+      ``LocalModelClient(LlamaModel(name="turn_text"))``: LiveKit's text check), a
+      turn the audio says is finished is finished only when the transcript's
+      end-of-turn probability is at least this (4e-8: picked for the stock
+      SmolLM2-135M-Instruct on 30 complete and 30 cut-off sentences that are not the
+      bench's); below it the turn waits for more speech or the silence fallback.
+    - ``speculative_transcript``: with a turn model, start transcribing at the pause
+      (in the speech model's actor, while the turn model decides): a turn that ends
+      has its transcript already, one that goes on drops it.
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -197,6 +206,8 @@ class SpeechToTextConfig(BaseComponentConfig):
     false_interruption_s: float = field(default=2.0, converter=positive_float)
     turn_silence_ms: float = field(default=150.0, converter=positive_float)
     turn_threshold: float = field(default=0.5, converter=_unit)
+    text_turn_threshold: float = field(default=4e-8, converter=_unit)
+    speculative_transcript: bool = field(default=True, converter=to_bool)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -226,11 +237,21 @@ class SpeechToText(ModelComponent):
     client_task = "transcribe"
     client_fix = "LocalModelClient(SpeechToTextModel(...)) or OpenAITranscriptionClient(url)"
 
-    def __init__(self, *, name: str, turn_model_client: Any = None, **kw: Any) -> None:
+    def __init__(self, *, name: str, turn_model_client: Any = None, text_turn_client: Any = None, **kw: Any) -> None:
         self.turn_client = turn_model_client  # an end-of-turn model (LocalModelClient(TurnDetectorModel(...)))
+        self.text_turn_client = text_turn_client  # a chat model reading the transcript (LocalModelClient(LlamaModel))
         self._turn_vad: Any = None
         self._turn_asked = False  # asked in this pause already
-        self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0}
+        # model: ended by the turn model(s); not_yet: the audio said the user goes on; text_not_yet: the audio said
+        # finished, the transcript not.
+        self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0, "text_not_yet": 0}
+        #: The text check's last probability that the user had finished (None: not asked yet).
+        self.last_text_turn_probability: float | None = None
+        self._spec: Any = None  # the pause's speech being transcribed (a PendingAnswer)
+        self._spec_text: str | None = None  # its transcript, once taken
+        self._spec_len = 0  # how many samples of the utterance it covers
+        #: Transcripts begun at a pause: used for the turn, or dropped (the user went on).
+        self.speculations: dict[str, int] = {"used": 0, "dropped": 0}
         #: The last turn's end-of-turn delay (s): end of speech -> the decision (``eou_delay``).
         self.last_eou_delay: float | None = None
         #: The last utterance's transcription delay (s): end of turn -> final transcript.
@@ -289,7 +310,7 @@ class SpeechToText(ModelComponent):
             if t.keep != "all":  # a dropped chunk is a hole in a word
                 self.logger.warning("%s: audio topic %r keeps only the latest messages: chunks may be dropped; "
                                     "declare it Topic(%r, Audio, keep='all')", self._label(), t.name, t.name)
-        if self.turn_client is not None and self._vad is not None:
+        if (self.turn_client is not None or self.text_turn_client is not None) and self._vad is not None:
             from embagents.models.files.speech import silero_vad_path  # lazy: a cycle
 
             self._turn_vad = SpeechOnset(cfg.vad_model or silero_vad_path(), threshold=cfg.vad_threshold)
@@ -359,33 +380,104 @@ class SpeechToText(ModelComponent):
 
     # --- end of turn -----------------------------------------------------------------------
     def _end_of_turn(self, samples: np.ndarray) -> None:
-        """After ``turn_silence_ms`` of pause, ask the turn model; a finished turn ends the utterance now."""
+        """After ``turn_silence_ms`` of pause, ask the turn model (then the text check, on the transcript begun
+        at the pause); a finished turn ends the utterance now."""
 
         vad = self._turn_vad
         vad.feed(samples)
         if vad.quiet == 0:
             self._turn_asked = False
+            self._drop_speculation()  # the user goes on: what was said so far is not the turn
             return
+        if not self._vad.speaking:
+            return
+        self._speculate()
         pause_s = vad.quiet * vad.window / 16000
-        if self._turn_asked or not self._vad.speaking or pause_s * 1000 < self.config.turn_silence_ms:
+        if self._turn_asked or pause_s * 1000 < self.config.turn_silence_ms:
             return
         self._turn_asked = True
         began = time.monotonic()
-        try:
-            verdict = self.turn_client.end_of_turn(self._vad.current())
-        except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
-            self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
-            return
-        p = verdict.get("probability")
-        self.last_turn_probability = None if p is None else float(p)
-        if not (bool(verdict.get("complete")) if p is None else float(p) >= self.config.turn_threshold):
-            self.turns["not_yet"] += 1
+        if self.turn_client is not None:
+            try:
+                verdict = self.turn_client.end_of_turn(self._vad.current())
+            except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
+                self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
+                return
+            p = verdict.get("probability")
+            self.last_turn_probability = None if p is None else float(p)
+            if not (bool(verdict.get("complete")) if p is None else float(p) >= self.config.turn_threshold):
+                self.turns["not_yet"] += 1
+                return
+        if self.text_turn_client is not None and not self._text_says_finished():
+            self.turns["text_not_yet"] += 1
             return
         self.turns["model"] += 1
         self.last_eou_delay = pause_s + time.monotonic() - began
         self._turn_ended = time.time()
         for utterance in self._vad.flush():
             self._finish(utterance)
+
+    def _text_says_finished(self) -> bool:
+        """The text check on the utterance's transcript (True when it cannot tell: no words, no answer)."""
+        text = self._speculated()
+        if text is None:  # nothing transcribed ahead (a client that cannot, or speculation off): now
+            current = self._vad.current()
+            text = self._transcribe(current)
+            self._spec_text, self._spec_len = text, len(current)
+        if not text or is_backchannel(text, ()):
+            return True
+        try:
+            p = float(self.text_turn_client.end_of_turn_text(text)["probability"])
+        except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
+            self.logger.warning("%s: the text turn check did not answer (%s); the audio's verdict stands",
+                                self._label(), exc)
+            return True
+        self.last_text_turn_probability = p
+        if p >= self.config.text_turn_threshold:
+            return True
+        self.logger.info("%s: %r does not end a sentence (p %.1e): waiting for more", self._label(), text, p)
+        return False
+
+    # --- the transcript begun at the pause ---------------------------------------------------
+    def _speculate(self) -> None:
+        """Start transcribing the utterance so far (once per pause), when the speech model's client can answer later."""
+        if (self._spec is not None or self._spec_text is not None or not self.config.speculative_transcript
+                or not callable(getattr(self.model_client, "submit", None))):
+            return
+        current = self._vad.current()
+        try:
+            self._spec = self.model_client.submit("transcribe", {"audio": current})
+        except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
+            self.logger.warning("%s: could not start transcribing at the pause (%s)", self._label(), exc)
+            return
+        self._spec_len = len(current)
+
+    def _speculated(self) -> str | None:
+        """The transcript begun at the pause (waited for); None when there is none or it failed."""
+        spec, self._spec = self._spec, None
+        if spec is not None:
+            try:
+                self._spec_text = str(spec.result().get("text", "")).strip()
+            except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
+                self.logger.warning("%s: the transcript begun at the pause failed (%s)", self._label(), exc)
+        return self._spec_text
+
+    def _drop_speculation(self) -> None:
+        if self._spec is not None:
+            self._spec.cancel()
+        if self._spec is not None or self._spec_text is not None:
+            self.speculations["dropped"] += 1
+        self._spec, self._spec_text = None, None
+
+    def _take_speculation(self, utterance: np.ndarray) -> str | None:
+        """The transcript begun at the pause when ``utterance`` is what it transcribed plus the pause; else None."""
+        text = self._speculated() if len(utterance) >= self._spec_len > 0 else None
+        if text is not None:
+            self.speculations["used"] += 1
+            self._spec_text = None
+        self._drop_speculation()
+        self._spec_len = 0
+        return text
 
     # --- barge-in ---------------------------------------------------------------------------
     def _barge_publish(self, action: str, text: str = "") -> None:
@@ -465,6 +557,7 @@ class SpeechToText(ModelComponent):
         return f"{self.name}-{self._utterances + 1}"
 
     def _transcribe(self, samples: np.ndarray) -> str | None:
+        self._speculated()  # an answer is read only by the request waiting for it: take the pause's first
         try:
             return str(self.model_client.transcribe(samples).get("text", "")).strip()
         except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
@@ -479,7 +572,9 @@ class SpeechToText(ModelComponent):
             self.logger.info("%s: skipped an empty utterance", self._label())
             return
         began = time.monotonic()
-        text = self._transcribe(utterance)
+        text = self._take_speculation(utterance)
+        if text is None:
+            text = self._transcribe(utterance)
         self.last_transcription_delay = time.monotonic() - began
         if text is None:
             return
@@ -542,15 +637,20 @@ class SpeechToText(ModelComponent):
 
         ``eou_delay``: end of speech -> end-of-turn decision (the model's, or the silence's);
         ``transcription_delay``: that decision -> the final transcript; ``turn_probability``: the turn
-        model's last answer (how likely the user had finished); ``turns``: how turns ended
-        (``model``, ``silence``; ``not_yet``: the model said the user goes on); ``barge_ins``: pauses,
+        model's last answer (how likely the user had finished); ``text_turn_probability``: the text
+        check's; ``turns``: how turns ended (``model``, ``silence``; ``not_yet``: the audio model said the
+        user goes on; ``text_not_yet``: the audio said finished, the transcript not); ``speculations``:
+        transcripts begun at a pause, ``used`` for the turn or ``dropped``; ``barge_ins``: pauses,
         resumes and interruptions published.
         """
         def ms(s: float | None) -> float | None:
             return None if s is None else round(s * 1000, 1)
 
         return {"eou_delay": ms(self.last_eou_delay), "transcription_delay": ms(self.last_transcription_delay),
-                "turn_probability": self.last_turn_probability, "utterances": self._utterances, "turns": dict(self.turns), "barge_ins": dict(self.barge_ins)}
+                "turn_probability": self.last_turn_probability,
+                "text_turn_probability": self.last_text_turn_probability, "utterances": self._utterances,
+                "turns": dict(self.turns),
+                "speculations": dict(self.speculations), "barge_ins": dict(self.barge_ins)}
 
     def flush(self) -> int:
         """Transcribe the utterance in progress now (the end of a stream); returns how many ended."""

@@ -22,6 +22,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator
+from functools import partial
 from typing import Any, cast
 
 import zmq
@@ -44,7 +45,7 @@ from embagents.models.protocol import (
     inference_endpoint,
 )
 
-__all__ = ["LocalModelClient"]
+__all__ = ["LocalModelClient", "PendingAnswer"]
 
 _req_ids = itertools.count(1)
 #: Handshake outcomes: a remote client (CURVE) tells a refused key from a dead server by them.
@@ -72,6 +73,30 @@ class _Conn:
         self.sock.disable_monitor()
         self.monitor.close(0)
         self.sock.close(0)
+
+
+class PendingAnswer:
+    """A request sent with :meth:`LocalModelClient.submit`: take its answer once, or cancel it."""
+
+    def __init__(self, answers: Iterator[dict[str, Any]], abandon: Callable[[], None]) -> None:
+        self._answers, self._abandon = answers, abandon
+        self.state = "sent"  # "taken", "cancelled"
+
+    def result(self) -> dict[str, Any]:
+        """The answer (the outputs of its ``done`` frame), waited for; raises as :meth:`LocalModelClient.infer` does."""
+        if self.state != "sent":
+            raise RuntimeError(f"this answer was {self.state} already: a pending answer is taken once")
+        self.state = "taken"
+        last: dict[str, Any] = {}
+        for last in self._answers:  # noqa: B007
+            pass
+        return last
+
+    def cancel(self) -> None:
+        """Not wanted any more: the model actor drops it (if it has not begun) and its answer is not read."""
+        if self.state == "sent":
+            self.state = "cancelled"
+            self._abandon()
 
 
 class LocalModelClient:
@@ -125,6 +150,24 @@ class LocalModelClient:
         frames and 0.5 s), and then the answer is :class:`StaleInput`.
         """
 
+        rt, conn, codec, rid, segments, asked = self._ask(task, inputs, forward_frames, options)
+        yield from self._answers(rt, conn, codec, rid, segments, asked)
+
+    def submit(self, task: str, inputs: dict[str, Any], **options: Any) -> PendingAnswer:
+        """Send a request of ``task`` now and return at once: its answer is waited for later.
+
+        While the model works, the caller does other things (asks another model): the
+        SpeechToText transcribes a pause's speech this way while the turn model decides.
+        Take the answer with :meth:`PendingAnswer.result`, or :meth:`PendingAnswer.cancel`
+        it, before this thread sends this client another request (an answer is read only
+        by the request waiting for it).
+        """
+        rt, conn, codec, rid, segments, asked = self._ask(task, inputs, False, options)
+        return PendingAnswer(self._answers(rt, conn, codec, rid, segments, asked),
+                             partial(self._abandon, conn, codec, rid, segments))
+
+    def _ask(self, task: str, inputs: dict[str, Any], forward_frames: bool,
+             options: dict[str, Any]) -> tuple[Any, _Conn, Any, int, list[str], float]:
         rt = current()
         conn = self._conn()
         self._drain_monitor(conn)
@@ -132,8 +175,19 @@ class LocalModelClient:
         codec = self._codec(rt)
         data, segments = codec.encode(InferRequest(id=rid, task=task, inputs=inputs, options=options),
                                       forward=forward_frames)
-        asked: float | None = time.monotonic()  # the first answer is due within timeout of the ask, not of the end of the send
+        asked = time.monotonic()  # the first answer is due within timeout of the ask, not of the end of the send
         self._send(rt, conn, data)
+        return rt, conn, codec, rid, segments, asked
+
+    def _abandon(self, conn: _Conn, codec: Any, rid: int, segments: list[str]) -> None:
+        """Cancel request ``rid`` in the actor; its shared memory is freed when the actor lets go of it."""
+        if not conn.sock.closed:
+            conn.sock.send(codec.encode(InferCancel(id=rid), shm=False)[0])
+            conn.orphans[rid] = segments
+
+    def _answers(self, rt: Any, conn: _Conn, codec: Any, rid: int, segments: list[str],
+                 asked: float | None) -> Iterator[dict[str, Any]]:
+        """The outputs of request ``rid``'s answer frames; the first is due within ``timeout`` of ``asked``."""
         finished = False
         try:
             while True:
@@ -158,9 +212,8 @@ class LocalModelClient:
         finally:
             if finished:
                 rt.pool.acked(segments)
-            elif not conn.sock.closed:
-                conn.sock.send(codec.encode(InferCancel(id=rid), shm=False)[0])
-                conn.orphans[rid] = segments  # freed when the actor says it let go of them
+            else:
+                self._abandon(conn, codec, rid, segments)
 
     def infer(self, task: str, inputs: dict[str, Any], *, forward_frames: bool = False,
               **options: Any) -> dict[str, Any]:
@@ -279,6 +332,11 @@ class LocalModelClient:
     def end_of_turn(self, audio: Any) -> dict[str, Any]:
         """Whether the user has finished, from their speech so far (1-D 16 kHz): ``{"probability", "complete"}``."""
         return self.infer("end_of_turn", {"audio": audio})
+
+    def end_of_turn_text(self, text: str) -> dict[str, Any]:
+        """Whether the user has finished, from the transcript of their speech so far: ``{"probability"}``
+        (a chat model's end-of-turn token after ``text``: :meth:`~embagents.models.backends.llama.LlamaBackend.end_of_turn_probability`)."""
+        return self.infer("end_of_turn", {"text": text})
 
     def speak(self, text: str, **options: Any) -> Iterator[dict[str, Any]]:
         """Speech for ``text``, a chunk per sentence: ``{"audio": float32 samples, "sample_rate", "text"}``.

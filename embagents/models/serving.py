@@ -52,11 +52,13 @@ def _check_task(task: str, tasks: tuple[str, ...], what: str) -> None:
 def _check_options(options: dict[str, Any], allowed: tuple[str, ...]) -> None:
     unknown = sorted(set(options) - set(allowed))
     if unknown:
-        raise BadRequest(f"unknown option(s) {', '.join(unknown)}; this model takes {', '.join(allowed)}")
+        raise BadRequest(f"unknown option(s) {', '.join(unknown)}; this model takes {', '.join(allowed) or 'none'}")
 
 
 class ChatServing:
-    """llama.cpp behind the ``chat`` task (streamed chunks of :mod:`embagents.models.chat`)."""
+    """llama.cpp behind the ``chat`` task (streamed chunks of :mod:`embagents.models.chat`), and the
+    ``end_of_turn`` task on a transcript (``{"text": str}`` -> ``{"probability": float}``: the text
+    end-of-turn check, :meth:`~embagents.models.backends.llama.LlamaBackend.end_of_turn_probability`)."""
 
     batchable = False
 
@@ -70,7 +72,13 @@ class ChatServing:
         self.backend.warmup()
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
-        _check_task(task, ("chat",), "a chat model")
+        _check_task(task, ("chat", "end_of_turn"), "a chat model")
+        if task == "end_of_turn":
+            if not isinstance(inputs.get("text"), str) or set(inputs) != {"text"}:
+                raise BadRequest(f"end_of_turn on a chat model reads a transcript: inputs {{'text': str}}, got "
+                                 f"{sorted(inputs)} (audio goes to a TurnDetectorModel)")
+            _check_options(options, ())
+            return
         if inputs.get("images"):
             raise BadRequest("this chat model takes no images; serve a vision-language model (VLMModel) for them")
         try:
@@ -83,6 +91,8 @@ class ChatServing:
             raise BadRequest(f"max_tokens must be an integer >= 1, got {max_tokens!r}")
 
     def run(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> Iterator[dict[str, Any]]:
+        if task == "end_of_turn":
+            return iter([{"probability": self.backend.end_of_turn_probability(inputs["text"]), "done": True}])
         return self.backend.chat_stream(inputs["messages"], **options)
 
     def run_batch(self, task: str, batch: list[dict[str, Any]], options: dict[str, Any]) -> list[dict[str, Any]]:
@@ -147,6 +157,7 @@ class VLMServing(ChatServing):
         self.backend = VLMBackend(path, **options)  # type: ignore[assignment]
 
     def check(self, task: str, inputs: dict[str, Any], options: dict[str, Any]) -> None:
+        _check_task(task, ("chat",), "a vision-language model")
         images = inputs.get("images", [])
         if not isinstance(images, list):
             raise BadRequest(f"images must be a list of (H, W, 3) uint8 arrays, got {type(images).__name__}")

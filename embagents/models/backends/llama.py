@@ -23,8 +23,10 @@ import contextlib
 import functools
 import json
 import os
+import re
 import threading
 import time
+import unicodedata
 from collections.abc import Iterator
 from typing import Any
 
@@ -36,12 +38,14 @@ from embagents.models.chat import (
 )
 
 __all__ = [
+    "TURN_SYSTEM_PROMPT",
     "LlamaBackend",
     "calls_as_text",
     "default_use_extra_bufts",
     "tool_call_schema",
     "tool_prompt_messages",
     "tool_signature",
+    "turn_text",
 ]
 
 _INSTALL_HINT = "pip install 'embagents[llm]' (or pip install llama-cpp-python)"
@@ -305,6 +309,51 @@ class LlamaBackend:
             )
         )
 
+    def end_of_turn_probability(self, text: str) -> float:
+        """How likely the user has finished after saying ``text``: LiveKit's text end-of-turn check.
+
+        The probability of the chat template's end-of-turn token (``<|im_end|>``) right after the
+        user's words, lowercased and without punctuation (:func:`turn_text`), as LiveKit's turn
+        detector (a SmolLM2-135M fine-tune) reads it; here the stock instruct model, with
+        :data:`TURN_SYSTEM_PROMPT` before it. The system prefix stays in the KV cache: only the
+        user's tokens are evaluated. A model whose vocabulary has no ``<|im_end|>`` (not ChatML)
+        raises ``ValueError``.
+
+        Example::
+
+            >>> llm.end_of_turn_probability("Can you bring me the") < 1e-8 < llm.end_of_turn_probability(
+            ...     "Can you bring me the red cup?")                                    # doctest: +SKIP
+            True
+        """
+        import llama_cpp
+        import numpy as np
+
+        self.load()
+        if self._busy:
+            raise RuntimeError("LlamaBackend runs one generation at a time; finish or close the other stream first")
+        llm = self._llm
+        end = llm.tokenize(b"<|im_end|>", add_bos=False, special=True)
+        if len(end) != 1:
+            raise ValueError(f"{os.path.basename(self.model_path)} has no <|im_end|> token (not a ChatML model): "
+                             "the text end-of-turn check needs one, e.g. SmolLM2-135M-Instruct (default_llm_path())")
+        head = llm.tokenize(f"<|im_start|>system\n{TURN_SYSTEM_PROMPT}<|im_end|>\n<|im_start|>user\n".encode(),
+                            add_bos=False, special=True)
+        words = llm.tokenize(turn_text(text).encode(), add_bos=False, special=False)
+        tokens = head + words[-max(1, self.n_ctx - len(head) - 1):]  # a talk longer than the context: its last words
+        # Keep what the cache holds of this prompt (the system prefix, or a chat's): evaluate the rest.
+        cached = llm.input_ids[:llm.n_tokens]
+        same = 0
+        for a, b in zip(cached, tokens[:-1], strict=False):
+            if a != b:
+                break
+            same += 1
+        llm.n_tokens = same
+        llm.eval(tokens[same:])
+        logits = np.ctypeslib.as_array(llama_cpp.llama_get_logits_ith(llm.ctx, -1), shape=(llm.n_vocab(),))
+        logits = logits.astype(np.float64)
+        top = logits.max()
+        return float(np.exp(logits[end[0]] - top) / np.exp(logits - top).sum())
+
     def close(self) -> None:
         """Free the model (idempotent); a later call loads it again."""
         llm, self._llm = self._llm, None
@@ -317,6 +366,21 @@ class LlamaBackend:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+#: The system message the text end-of-turn check puts before the user's words (SmolLM2's default).
+TURN_SYSTEM_PROMPT = "You are a helpful assistant."
+
+_NOT_WORD = re.compile(r"[^\w\s'-]+")
+
+
+def turn_text(text: str) -> str:
+    """``text`` as the text end-of-turn check reads it (LiveKit's normalisation): lowercase, no punctuation.
+
+    >>> turn_text("  Where did you put my...  Keys? ")
+    'where did you put my keys'
+    """
+    return " ".join(_NOT_WORD.sub(" ", unicodedata.normalize("NFKC", text)).lower().split())
 
 
 def _usable_cpus() -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import time
 from collections.abc import Iterator
 
@@ -12,11 +13,13 @@ pytest.importorskip("sherpa_onnx")
 pytest.importorskip("onnxruntime")
 
 from actors import ActorSystem  # noqa: E402
-from embagents.bench.cases_voice_turns import turn_run  # noqa: E402
-from embagents.bench.echo_room import robot_says  # noqa: E402
+from embagents.bench.cases_voice_turns import QUESTIONS, turn_clips, turn_run  # noqa: E402
+from embagents.bench.echo_room import robot_says, said_with_a_pause  # noqa: E402
 from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
 from embagents.models import BadRequest, LocalModelClient, TurnDetectorModel  # noqa: E402
 from embagents.models.actor import ModelActor
+from embagents.models.backends.sherpa_stt import SherpaRecognizer
+from embagents.models.files.hub import default_llm_path
 from embagents.msgs import Audio, String, VoiceStage
 from embagents.topic import Topic  # noqa: E402
 
@@ -29,6 +32,9 @@ def actors(whisper_dir: str) -> Iterator[tuple[str, str]]:
     with ActorSystem() as asys:
         asys.spawn(ModelActor, "whisper_t", "stt", whisper_dir, {"threads": 1}, True, wait=60)
         asys.spawn(ModelActor, "turn_t", "turn", turn.resolve(), turn.options(), True, wait=60)
+        if importlib.util.find_spec("llama_cpp") is not None:  # the text check (LiveKit's): a chat model
+            asys.spawn(ModelActor, "turn_text_t", "llama", default_llm_path(), {"n_ctx": 512, "n_threads": 1}, True,
+                       wait=120)
         yield "whisper_t", "turn_t"
 
 
@@ -118,3 +124,68 @@ def test_a_turn_threshold_above_the_models_probability_leaves_a_finished_questio
     assert comp.turns["not_yet"] >= 1 and comp.turns["model"] == 0 and comp.turns["silence"] == 1
     with pytest.raises(ValueError, match=r"threshold .* must be in \(0, 1\), got 1.5"):
         SpeechToTextConfig(turn_threshold=1.5)
+
+
+def test_a_paused_question_the_audio_model_calls_finished_is_held_by_the_text_check_and_heard_whole(
+        actors: tuple[str, str]) -> None:
+    pytest.importorskip("llama_cpp")
+    clip, end, split = turn_clips(1)[1]  # "Can you bring me the" (pause) "red cup from the kitchen?"
+    assert split
+
+    def ears_with(text_check: bool) -> SpeechToText:
+        comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                            model_client=LocalModelClient(actors[0]), turn_model_client=LocalModelClient(actors[1]),
+                            text_turn_client=LocalModelClient("turn_text_t") if text_check else None,
+                            config=SpeechToTextConfig(min_silence_ms=1000.0))
+        comp.on_configure()
+        return comp
+
+    alone, cut = ears_with(False), []
+    assert turn_run(alone, clip, time.time(), texts=cut)[0] == 2, "Smart Turn alone cuts this one off at its pause"
+    assert alone.turns["model"] == 2 and "bring me" in cut[0].lower(), cut
+    held, said = ears_with(True), []
+    heard, _ = turn_run(held, clip, time.time(), texts=said)
+    stats = held.stats()
+    assert heard == 1 and stats["turns"]["text_not_yet"] == 1, (said, stats)
+    assert "bring me the red" in said[0].lower() and "kitchen" in said[0].lower(), said
+    assert stats["turns"]["model"] == 1 and stats["turns"]["silence"] == 0, "the whole question ended by the models"
+    assert stats["text_turn_probability"] >= SpeechToTextConfig().text_turn_threshold
+    # The half was transcribed at the pause (and dropped when the user went on); the whole at the last pause.
+    assert stats["speculations"] == {"used": 1, "dropped": 1}
+
+
+def test_a_chat_model_actor_answers_the_text_check_and_refuses_audio_with_where_it_goes(
+        actors: tuple[str, str]) -> None:
+    pytest.importorskip("llama_cpp")
+    client = LocalModelClient("turn_text_t")
+    finished = client.end_of_turn_text("Can you bring me the red cup from the kitchen?")["probability"]
+    going_on = client.end_of_turn_text("Can you bring me the")["probability"]
+    assert going_on < SpeechToTextConfig().text_turn_threshold <= finished
+    with pytest.raises(BadRequest, match="TurnDetectorModel"):
+        client.infer("end_of_turn", {"audio": np.zeros(16, np.float32)})
+
+
+def test_a_bench_question_with_a_pause_is_the_question_spoken_in_one_go_with_the_pause_cut_in() -> None:
+    """Its words before the pause are the whole question's (a level tone), not a sentence of their own (a fall)."""
+    clip, end, split = turn_clips(1)[1]
+    speech, whole = clip[RATE // 2:end], robot_says(QUESTIONS[0])
+    assert split and len(speech) == len(whole) + RATE // 2, "0.5 s of pause in the first paused clip"
+    assert np.array_equal(speech[:RATE // 2], whole[:RATE // 2]), "the start is the whole question's"
+    assert np.array_equal(speech[-RATE // 2:], whole[-RATE // 2:]), "and so is the end"
+
+
+def test_the_pause_is_cut_in_between_the_two_words_it_is_said_to_fall_between(whisper_dir: str) -> None:
+    stt, pad = SherpaRecognizer(whisper_dir), np.zeros(RATE // 4, np.float32)
+
+    def words(text: str) -> list[str]:
+        return "".join(c if c.isalpha() else " " for c in text.lower()).split()
+
+    def heard(x: np.ndarray) -> list[str]:
+        return words(stt.transcribe(np.concatenate([pad, x.astype(np.float32) / 32768.0, pad])))
+
+    for first, rest in (("Go to the door and", "wait for me there."),
+                        ("Is there any milk left in the", "fridge?")):
+        said, cut = said_with_a_pause(first, rest, 0.6)
+        assert not said[cut:cut + int(0.6 * RATE)].any()
+        before, after = heard(said[:cut]), heard(said[cut + int(0.6 * RATE):])
+        assert before[-1] == words(first)[-1] and after[0] == words(rest)[0], (before, after)

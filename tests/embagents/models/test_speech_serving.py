@@ -59,3 +59,23 @@ def test_a_model_directory_the_user_gives_is_served_the_same_way(system: ActorSy
     assert LocalModelClient(model).transcribe(np.zeros(16000, np.float32))["text"] == "hello robot"
     stats = system.ref("para").ask("stats", timeout=10).get()
     assert (stats["served"], stats["kind"], stats["model"]) == (1, "stt", tiny_paraformer)
+
+
+def test_a_submitted_request_is_answered_later_or_cancelled_without_keeping_its_shared_memory(
+        whisper: str, speech_clip: tuple) -> None:
+    from actors.runtime import current
+
+    client = LocalModelClient(whisper)
+    clip = speech_clip[0].astype(np.float32) / 32768  # 640 KB: through shared memory
+    pending = client.submit("transcribe", {"audio": clip[:44000]})  # sent: the caller goes on meanwhile
+    assert words(pending.result()["text"]) == "ever tried ever failed"
+    with pytest.raises(RuntimeError, match="taken once"):
+        pending.result()
+    client.submit("transcribe", {"audio": clip}).cancel()  # the user went on: not wanted
+    # The next request on the same connection gets its own answer, not the cancelled one's ...
+    assert words(client.transcribe(clip[:44000])["text"]) == "ever tried ever failed"
+    # ... and the cancelled one's segment is free again: a request of its size reuses it.
+    pool = current().pool
+    before = pool.segment_count
+    assert words(client.transcribe(clip)["text"]).startswith("ever tried ever failed")
+    assert pool.segment_count == before, "the cancelled request's shared memory was kept"
