@@ -62,7 +62,7 @@ from embagents.config import (
 )
 from embagents.msgs import Audio, BargeIn, VoiceStage
 
-__all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
+__all__ = ["Microphone", "MicrophoneConfig", "PacedOutput", "Speaker", "SpeakerConfig", "input_device_present"]
 
 LIST_HINT = ("list the devices with `python -m sounddevice` (ALSA's own view: `arecord -l`, `aplay -l`); "
              "check it is plugged in and that the user is in group 'audio' (`sudo usermod -aG audio $USER`, "
@@ -75,6 +75,54 @@ _PA_INVALID_CHANNELS, _PA_INVALID_RATE, _PA_DEVICE_UNAVAILABLE = -9998, -9997, -
 
 class DeviceUnavailable(Exception):
     """A sound device cannot be used now; the message says what is wrong and how to fix it."""
+
+
+class PacedOutput:
+    """A speaker with no sound device (``SpeakerConfig(simulated=True)``): an output stream that plays into
+    nothing at the pace a device would, so that what the Speaker publishes as played is stamped as a
+    real one's (offline demos and tests of echo cancellation and barge-in; examples/voice.py).
+
+    What is written is "heard" from when the frames before it have been (or, when it ran dry, after its
+    ``latency``, as the Speaker stamps it); it takes up to twice ``latency`` ahead of the wall clock, as a
+    device's buffer does. The Speaker uses it as it uses a ``sounddevice.OutputStream``.
+
+    >>> out = PacedOutput(16000, 1, 0.2)
+    >>> out.start(); out.write_available
+    6400
+    >>> out.write(np.zeros(1600, np.int16))  # heard from 0.2 s on, until 0.3 s: 0.1 s more fits
+    >>> 1600 <= out.write_available < 1700
+    True
+    """
+
+    class PortAudioError(Exception):
+        """Never raised: there is no device to fail (the Speaker catches this type of its backend)."""
+
+    def __init__(self, samplerate: int, channels: int, latency: float) -> None:
+        self.samplerate, self.channels, self.latency = samplerate, channels, latency
+        self.active = False
+        self._end = 0.0  # wall time the last frame written is heard
+
+    @property
+    def write_available(self) -> int:
+        ahead = max(0.0, self._end - time.time())
+        return max(0, int((2 * self.latency - ahead) * self.samplerate))
+
+    def write(self, frames: np.ndarray) -> None:
+        now = time.time()
+        start = self._end if self._end >= now else now + self.latency
+        self._end = start + len(frames) / self.samplerate
+
+    def start(self) -> None:
+        self.active = True
+
+    def stop(self) -> None:
+        self.active = False  # a device plays out what it holds before stopping: the Speaker stops once it has
+
+    def abort(self) -> None:
+        self.active, self._end = False, 0.0  # what it held is not heard
+
+    def close(self) -> None:
+        self.abort()
 
 
 def portaudio() -> ModuleType:
@@ -168,6 +216,9 @@ class MicrophoneConfig(_DeviceConfig):
 class SpeakerConfig(_DeviceConfig):
     """Settings of :class:`Speaker`; ``sample_rate`` / ``channels`` ``None``: the device's own (at most 2 channels).
 
+    ``simulated``: no sound device, nor PortAudio: it plays into nothing in real time (:class:`PacedOutput`;
+    16 kHz mono unless ``sample_rate`` / ``channels`` say otherwise), publishing what it plays as a device would.
+
     >>> SpeakerConfig(sample_rate=48000).channels is None
     True
     """
@@ -175,6 +226,7 @@ class SpeakerConfig(_DeviceConfig):
     sample_rate: int | None = field(default=None, converter=_optional_int)
     channels: int | None = field(default=None, converter=_optional_int)
     buffer_ms: float = field(default=200.0, converter=positive_float)
+    simulated: bool = field(default=False, converter=to_bool)
 
 
 class _SoundDevice(Component):
@@ -192,6 +244,8 @@ class _SoundDevice(Component):
     def _describe(self) -> str:
         what = "microphone" if self.kind == "input" else "speaker"
         device = self.config.device
+        if getattr(self.config, "simulated", False):
+            return f"the simulated {what}"
         return f"the default {what}" if device is None else f"{what} {device!r}"
 
     def _make_stream(self, sd: ModuleType) -> Any:
@@ -200,8 +254,11 @@ class _SoundDevice(Component):
     def _open(self) -> bool:
         """Open and start the stream; False (reported, retry scheduled) when it cannot be had."""
         try:
-            sd = self._sd = portaudio()
-            _rescan(sd)
+            if getattr(self.config, "simulated", False):  # a Speaker with no device (SpeakerConfig.simulated)
+                sd = self._sd = PacedOutput  # type: ignore[assignment]  # stands for the module: PortAudioError
+            else:
+                sd = self._sd = portaudio()
+                _rescan(sd)
             stream = self._make_stream(sd)
         except DeviceUnavailable as exc:
             self._lost(str(exc))
@@ -411,6 +468,9 @@ class Speaker(_SoundDevice, AudioSink):
 
     def _make_stream(self, sd: ModuleType) -> Any:
         c = self.config
+        if c.simulated:
+            self._rate, self._channels = c.sample_rate or 16000, c.channels or 1
+            return PacedOutput(self._rate, self._channels, c.buffer_ms / 1000)
         info = sd.query_devices(c.device, "output")
         self._rate = c.sample_rate or int(info["default_samplerate"])
         self._channels = c.channels or min(2, int(info["max_output_channels"]))
@@ -585,6 +645,7 @@ class Speaker(_SoundDevice, AudioSink):
         dropped = self._queue_s() + _seconds(self.take())
         self._queue.clear()
         self._paused = False
+        self._started = False  # the utterance's end was dropped with it: what comes next is a new one
         if self._stream is not None and self._stream.active:
             self._stream.abort()  # abort, not stop: what the device holds is not played
         self._silenced()
