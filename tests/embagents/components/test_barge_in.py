@@ -154,6 +154,23 @@ def test_an_interrupt_after_the_answer_was_written_marks_it_while_it_is_still_sp
     assert llm.interrupted == 1
 
 
+def test_an_interrupt_that_comes_in_after_the_question_it_was_about_does_not_cut_that_questions_answer() -> None:
+    client = EndlessClient()
+    llm, sent, later = llm_with_barge_in(client)
+    assert llm.on_message("heard", String("Tell me about Paris.")) and llm.execute()
+    later.pop(0)()
+    spoke = time.time()  # the user speaks over the answer...
+    assert llm.on_message("heard", String("No, tell me about Berlin.")) and llm.execute()  # ...it is heard first
+    assert llm.history[-1]["interrupted"] is True and client.closed == 1, "the question cut the first answer short"
+    llm.on_message("barge", BargeIn(action="interrupt", text="No, tell", stamp=spoke))  # then the interrupt
+    assert client.closed == 1 and llm.interrupted == 1, "the answer to Berlin goes on"
+    later.pop(0)()
+    streams = list(dict.fromkeys(m.stream_id for m in sent))
+    assert len(streams) == 2 and (sent[-1].stream_id, sent[-1].data, sent[-1].done) == (streams[1], "word0 ", False)
+    llm.on_message("barge", BargeIn(action="interrupt", text="Stop.", stamp=time.time()))  # speech over this one
+    assert client.closed == 2 and llm.interrupted == 2
+
+
 def test_an_answer_publishes_its_first_token_once_on_a_voice_stage_output() -> None:
     llm = LLM(name="llm", inputs=[Topic("heard", String), Topic("barge", BargeIn)],
               outputs=[Topic("answer", StreamingString), Topic("stages", VoiceStage)], model_client=EndlessClient(),
