@@ -447,6 +447,8 @@ class Speaker(_SoundDevice, AudioSink):
         self._recent: collections.deque[np.ndarray] = collections.deque()  # written lately: re-queued by pause()
         self._paused = False
         self._started = False  # the utterance in progress has reached the device (its speaker_start is out)
+        self._receiving = False  # audio of an utterance has come whose end (an empty Audio) has not
+        self._drop_rest = False  # stopped mid-utterance: what comes of it until its end is not played
         self.played_s = 0.0
         self.dropped_s = 0.0
         self.utterances = 0
@@ -503,7 +505,15 @@ class Speaker(_SoundDevice, AudioSink):
             return
         for msg in received:
             if msg.data.size == 0:
-                self._queue.append(None)
+                self._receiving = False
+                if self._drop_rest:  # the end of the utterance stop_playback() cut: the next one plays
+                    self._drop_rest = False
+                else:
+                    self._queue.append(None)
+                continue
+            self._receiving = True
+            if self._drop_rest:
+                self.dropped_s += _seconds([msg])  # made before the voice heard the stop (a sentence in progress)
                 continue
             try:
                 frames, note = to_pcm16(msg, self._rate, self._channels)
@@ -641,8 +651,16 @@ class Speaker(_SoundDevice, AudioSink):
             self.logger.warning("%s: dropped %.2f s of audio: %s", self._label(), seconds, why)
 
     def stop_playback(self) -> float:
-        """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped."""
-        dropped = self._queue_s() + _seconds(self.take())
+        """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped.
+
+        The rest of the utterance in progress is dropped too when it comes (until its end, an empty ``Audio``):
+        a voice that was making a sentence when the stop came sends it after.
+        """
+        taken = self.take()
+        for msg in taken:
+            self._receiving = msg.data.size > 0
+        self._drop_rest = self._receiving
+        dropped = self._queue_s() + _seconds(taken)
         self._queue.clear()
         self._paused = False
         self._started = False  # the utterance's end was dropped with it: what comes next is a new one

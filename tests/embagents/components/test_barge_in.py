@@ -186,3 +186,38 @@ def test_an_answer_publishes_its_first_token_once_on_a_voice_stage_output() -> N
     assert [(m.stage, m.source) for m in stages] == [("llm_first_token", "llm")] and stages[0].stamp >= before
     assert [t for t, _ in sent].index("stages") == 0, "stamped as the first token goes out"
     assert all(isinstance(m, StreamingString) for t, m in sent if t == "answer")
+
+
+# --- the Speaker: an interrupt stops the sound, and the rest of that answer is not played when it comes -----
+
+
+def test_a_simulated_speaker_plays_in_real_time_and_after_an_interrupt_drops_what_comes_of_that_answer() -> None:
+    from embagents.components import Speaker, SpeakerConfig
+    from embagents.msgs import Audio
+
+    out: list[Audio] = []
+    later: list[Callable[[], None]] = []
+    speaker = Speaker(name="speaker", inputs=[Topic("said", Audio, keep="all"), Topic("barge", BargeIn)],
+                      outputs=[Topic("played", Audio, keep="all")], config=SpeakerConfig(simulated=True))
+    speaker.attach(lambda topic, msg: out.append(msg), None, lambda delay, fn: later.append(fn))
+    speaker.on_configure()
+    speaker.on_activate()  # no PortAudio, no device: it opens at once
+
+    def send(value: int, n: int) -> None:
+        assert speaker.on_message("said", Audio(data=np.full(n, value, np.int16)))
+        speaker.execute()
+
+    before = time.time()
+    send(500, 2 * RATE)  # 2 s of an answer: the device takes 0.4 s ahead of the clock, the rest waits
+    played = [m for m in out if m.data.size]
+    assert sum(m.data.size for m in played) == int(0.4 * RATE) and before + 0.2 <= played[0].stamp < time.time() + 0.3
+    assert speaker.stats()["queued_s"] == pytest.approx(1.6)
+    speaker.on_message("barge", BargeIn(action="interrupt"))
+    send(600, RATE // 2)  # the sentence the voice was making when the stop came: not played
+    speaker.on_message("said", Audio(data=np.zeros(0, np.int16)))  # the voice ends that answer
+    speaker.execute()
+    send(700, RATE // 2)  # the next answer plays
+    values = [int(m.data[0]) for m in out if m.data.size]
+    assert set(values) == {500, 700} and values.index(700) > len(played) - 1, values
+    assert out[len(played)].data.size == 0, "the stop says on the played stream that nothing plays from then on"
+    assert speaker.stats()["dropped_s"] == pytest.approx(0.5)
