@@ -78,17 +78,18 @@ from embagents.msgs import Audio, BargeIn, StreamingString, String, VoiceStage
 from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
-SYSTEM_PROMPT = "You are a helpful assistant. Answer in three sentences."
+SYSTEM_PROMPT = "You are a helpful assistant. Answer in three short sentences."
 RATE = 16000
 #: The user's part: (what they say, when). ``"start"``: seconds after the microphone starts; ``"robot"``:
 #: seconds after the robot starts speaking once the user's previous turn has ended.
 USER_TURNS = (
     ("Tell me about Paris.", "start", 0.5),
     ("Wait, tell me about Berlin instead.", "robot", 1.0),  # an interruption
-    ("Mm hm.", "robot", 1.0),  # a backchannel ("mhm" as the Piper voice can say it: Whisper writes "M-H-M.")
+    ("Yeah, okay.", "robot", 1.0),  # a backchannel (not "mhm": the Piper voice says it as no word Whisper knows)
 )
 QUESTIONS = 2  # turns above that ask something: the robot's last answer is the second
-USER_DB = -24.0  # the user's level at the microphone (RMS dBFS); the echo of the robot is about as loud
+USER_DB = -18.0  # the user's level at the microphone (RMS dBFS): nearer it than the robot's speaker is
+ECHO_GAIN = 0.1  # the speaker's direct path to the microphone: the robot's echo at about -29 dBFS
 TIMEOUT_S = 150.0
 
 
@@ -122,11 +123,11 @@ class RoomMicrophone(EchoCancelling, Component):
     def on_configure(self) -> None:
         from scipy.signal import lfilter
 
-        from embagents.bench.echo_room import robot_says, rms_db, room_impulse_response, to_int16
+        from embagents.bench.echo_room import rms_db, robot_says, room_impulse_response, to_int16
 
         self._aec_setup(RATE, 1)
         self.chunk = int(RATE * self.config.chunk_ms / 1000)
-        self.room = room_impulse_response(RATE, delay_ms=30, rt60_s=0.3, seed=1) * 0.35
+        self.room = room_impulse_response(RATE, delay_ms=30, rt60_s=0.3, seed=1) * ECHO_GAIN
         self.turns = []
         for text, after, delay in USER_TURNS:
             x = robot_says(text).astype(np.float64) / 32768.0
@@ -193,25 +194,11 @@ class RoomMicrophone(EchoCancelling, Component):
             mic = echo + self.rng.standard_normal(c) * 10 ** (-65 / 20)
             self._user_speaks(mic, start)
             stamp = self.t0 + (start + c) / RATE
-            if os.environ.get("VOICE_DEBUG_DIR"):
-                with open(os.environ["VOICE_DEBUG_DIR"] + "/aecref0.i16", "ab") as f:
-                    f.write(self._aec._reference_for(self._aec._index(stamp) - c, c).tobytes())
             samples = self._aec_process(self._to_int16(mic), stamp)
             self.made += c
             keep = self.made - 3 * RATE - self.ref_start  # what the room still echoes is well within 3 s
             if keep > 0:
                 self.ref, self.ref_start = self.ref[keep:], self.ref_start + keep
-            if os.environ.get("VOICE_DEBUG_DIR"):
-                with open(os.environ["VOICE_DEBUG_DIR"] + "/raw.i16", "ab") as f:
-                    f.write(self._to_int16(mic).tobytes())
-                with open(os.environ["VOICE_DEBUG_DIR"] + "/clean.i16", "ab") as f:
-                    f.write(samples.astype(np.int16).tobytes())
-                with open(os.environ["VOICE_DEBUG_DIR"] + "/echo.f64", "ab") as f:
-                    f.write(echo.tobytes())
-                with open(os.environ["VOICE_DEBUG_DIR"] + "/aecref.i16", "ab") as f:
-                    f.write(self._aec._reference_for(self._aec._index(stamp) - c, c).tobytes())
-                with open(os.environ["VOICE_DEBUG_DIR"] + "/ref.f64", "ab") as f:
-                    f.write(played.astype(np.float64).tobytes())
             if samples.size:
                 for t in self.outputs:
                     self.publish(t, Audio(data=samples, sample_rate=RATE, stamp=stamp))
@@ -221,6 +208,10 @@ class RoomMicrophone(EchoCancelling, Component):
         if self.turn_at is None or start + len(mic) <= self.turn_at:
             return
         voice, _, _ = self.turns[self.next_turn]
+        if start <= self.turn_at:
+            assert self.t0 is not None
+            self.logger.info("%s: the user says %r from %.3f (wall time)", self._label(), USER_TURNS[self.next_turn][0],
+                             self.t0 + self.turn_at / RATE)
         lo, hi = max(start, self.turn_at), min(start + len(mic), self.turn_at + len(voice))
         if hi > lo:
             mic[lo - start:hi - start] += voice[lo - self.turn_at:hi - self.turn_at]
@@ -246,10 +237,13 @@ class Report(Component):
         self.played: list[list[float]] = []  # [start, end] of each played chunk (a pause cuts those after it)
         self.paused_at: float | None = None
         self.holding = False  # the speaker is paused: the user speaks over it, undecided yet
+        self.resumed: tuple[str, int] | None = None  # a resume (what was heard, the answer) not yet heard played
         self.interrupted: list[int] = []
         self.ignored: list[int] = []
         self.turns = VoiceTurns()
-        self.finishing = False
+        self.finishing = 0.0  # when the last answer's audio was written (0: not yet)
+        self.written: list[str] = []  # each answer's WAV
+        self.shown = 0  # answers whose stages are printed
         super().__init__(**kw)
 
     def default_trigger(self) -> list[Topic]:
@@ -290,16 +284,38 @@ class Report(Component):
             elif topic == barge.name:
                 self.on_barge_in(msg)
             elif topic == written.name:
-                shown = {k: v for k, v in self.turns.latest().items() if v is not None}
-                print("stages: " + ", ".join(f"{k} {v:.0f} ms" for k, v in shown.items()), flush=True)
-                print(f"answer audio: {msg.data}", flush=True)
+                self.written.append(msg.data)  # the answers' audio is written in order: the n-th is answer n's
+                self.call_later(3.0, lambda: self.say_stages(at_last=True))  # a speaker that never starts: say it all the same
                 if len(self.answers) >= QUESTIONS and not self.finishing and not os.environ.get("EMBAGENTS_KEEP_RUNNING"):
-                    self.finishing = True  # stops once the speaker has played it all
+                    self.finishing = time.time()  # stops once the speaker has played it all
                     self.finish()
+        self.say_stages()
+
+    def say_stages(self, at_last: bool = False) -> None:
+        """Each answer's stages and WAV once both are in: its audio written, its first sound played (or at last)."""
+        while self.shown < len(self.written):
+            n = self.shown
+            turn = self.turns.turns[n] if n < len(self.turns.turns) else {}
+            if "speaker_start" not in turn and not at_last:
+                return
+            shown = {k: v for k, v in self.turns.delays(turn).items() if v is not None}
+            print("stages: " + ", ".join(f"{k} {v:.0f} ms" for k, v in shown.items()), flush=True)
+            print(f"answer audio: {self.written[n]}", flush=True)
+            self.shown += 1
 
     def on_played(self, msg: Audio) -> None:
         if msg.data.size:
             self.played.append([msg.stamp, msg.stamp + msg.data.size / msg.channels / msg.sample_rate])
+            if self.resumed is not None:
+                (text, n), self.resumed = self.resumed, None
+                held = msg.stamp - (self.paused_at or msg.stamp)  # from the user's first sound to the robot's next
+                if text:
+                    self.ignored.append(n)
+                    print(f'backchannel ignored: "{text}" during answer {n + 1} (the robot paused {held:.1f} s, '
+                          "then went on)", flush=True)
+                else:
+                    print(f"noise ignored during answer {n + 1} (the robot paused {held:.1f} s, then went on)",
+                          flush=True)
             return
         # Nothing plays from msg.stamp on: what the speaker had given its device after it was not heard.
         self.played = [[a, min(b, msg.stamp)] for a, b in self.played if a < msg.stamp]
@@ -339,13 +355,7 @@ class Report(Component):
             print(f"barge-in: user interrupted answer {n + 1} after {msg.stamp - self.starts[n]:.1f} s "
                   f'(cut short at "{cut}")', flush=True)
         elif msg.action == "resume" and n >= 0:
-            held = time.time() - (self.paused_at or time.time())
-            if msg.text:
-                self.ignored.append(n)
-                print(f'backchannel ignored: "{msg.text}" during answer {n + 1} (the robot paused {held:.1f} s, '
-                      "then went on)", flush=True)
-            else:
-                print(f"noise ignored during answer {n + 1} (the robot paused {held:.1f} s, then went on)", flush=True)
+            self.resumed = (msg.text, n)  # said once the robot is heard again (on_played)
 
     def finish(self) -> None:
         """Once the last answer has played to its end: say how it went and stop the system."""
@@ -354,11 +364,14 @@ class Report(Component):
         n = len(self.answers) - 1
         made = sum(self.sentences[n]) if n < len(self.sentences) else 0.0
         end = max((b for _, b in self.played), default=0.0)
-        # Played to its end; or, short of it (what was dropped), nothing played for 2 s and the speaker not held.
-        if self.holding or time.time() < end + (0.3 if self.heard_s(n) >= made - 0.05 else 2.0):
+        # Played to its end; or, short of it (what was dropped), nothing played for 2 s and the speaker not held;
+        # a speaker that has not started it waits (10 s at most).
+        started = len(self.starts) > n or time.time() > self.finishing + 10.0
+        if not started or self.holding or time.time() < end + (0.3 if self.heard_s(n) >= made - 0.05 else 2.0):
             self.call_later(0.2, self.finish)
             return
-        self.finishing = False
+        self.finishing = 0.0
+        self.say_stages(at_last=True)
         print(f"done: {len(self.interrupted)} interruption, {len(self.ignored)} backchannel ignored; answer {n + 1} "
               f"played {self.heard_s(n):.1f} s of {made:.1f} s", flush=True)
         self.publish(stop, String(data="answered"))
@@ -403,7 +416,7 @@ system = System(
                      model_client=LocalModelClient(whisper),
                      config=SpeechToTextConfig(min_silence_ms=300, playback_input="played")),
         LLM(name="llm", inputs=[heard, barge], outputs=[answer, stages], model_client=LocalModelClient(smollm2),
-            trigger=heard, config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=96, chat_history=True,
+            trigger=heard, config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=40, chat_history=True,
                                             system_prompt=SYSTEM_PROMPT)),
         TextToSpeech(name="voice", inputs=[answer, barge], outputs=[speaker, stages], model_client=LocalModelClient(joe)),
         WavFileSink(name="speaker_file", inputs=[speaker], outputs=[written],
