@@ -1,4 +1,4 @@
-"""A voice robot, offline: the user asks, interrupts it mid-answer, says "mm hm" over the next; every model in its own process.
+"""A voice robot, offline: the user asks, interrupts it mid-answer, says "yeah, okay" over the next; each model in its own process.
 
     pip install -e ".[llm,speech]"
     embagents supervise examples/voice.py
@@ -12,8 +12,9 @@ response, :mod:`embagents.bench.echo_room`) and the user's scripted turns,
 cancels the echo with the ``played`` reference (WebRTC AEC3, as the
 Microphone does) and publishes 20 ms chunks. The user (the Piper voice too)
 asks "Tell me about Paris."; 1 s after the robot starts answering, says "Wait,
-tell me about Berlin instead." over it; 1 s into that answer, says "Mm hm."
-(a backchannel).
+tell me about Berlin instead." over it; 1 s into that answer, says "Yeah,
+okay." (a backchannel: not "mhm", which the Piper voice says as no word
+Whisper knows).
 
 ``ears`` (SpeechToText: Silero VAD, then the ``whisper`` model actor) hears the
 questions and, while the robot speaks, publishes barge-in decisions
