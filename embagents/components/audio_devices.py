@@ -429,7 +429,8 @@ class Speaker(_SoundDevice, AudioSink):
 
     Its optional ``BargeIn`` input (SpeechToText's) acts at once, between two
     writes: ``pause`` -> :meth:`pause`, ``resume`` -> :meth:`resume`,
-    ``interrupt`` -> :meth:`stop_playback`.
+    ``interrupt`` -> :meth:`stop_playback`, and what still comes of the utterance in progress (a sentence the
+    voice was making) is dropped up to its end.
     """
 
     allowed_inputs = {"Required": [Audio], "Optional": [BargeIn]}
@@ -459,7 +460,7 @@ class Speaker(_SoundDevice, AudioSink):
 
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
         if isinstance(msg, BargeIn) and topic_name in self._subscribed:
-            act = {"pause": self.pause, "resume": self.resume, "interrupt": self.stop_playback}.get(msg.action)
+            act = {"pause": self.pause, "resume": self.resume, "interrupt": self._interrupted}.get(msg.action)
             if act is None:
                 self.logger.warning("%s: BargeIn action %r ignored; it is pause, resume or interrupt",
                                     self._label(), msg.action)
@@ -650,16 +651,18 @@ class Speaker(_SoundDevice, AudioSink):
             self.dropped_s += seconds
             self.logger.warning("%s: dropped %.2f s of audio: %s", self._label(), seconds, why)
 
-    def stop_playback(self) -> float:
-        """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped.
-
-        The rest of the utterance in progress is dropped too when it comes (until its end, an empty ``Audio``):
-        a voice that was making a sentence when the stop came sends it after.
-        """
-        taken = self.take()
-        for msg in taken:
+    def _interrupted(self) -> float:
+        """A barge-in ``interrupt``: :meth:`stop_playback`, and the rest of the utterance in progress is dropped
+        when it comes, until its end (an empty ``Audio``): the voice stops that answer too, but a sentence it
+        was making when the interrupt came is sent after."""
+        for msg in self._received:  # received, not yet taken: stop_playback drops them
             self._receiving = msg.data.size > 0
         self._drop_rest = self._receiving
+        return self.stop_playback()
+
+    def stop_playback(self) -> float:
+        """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped."""
+        taken = self.take()
         dropped = self._queue_s() + _seconds(taken)
         self._queue.clear()
         self._paused = False
