@@ -253,9 +253,10 @@ class _SoundDevice(Component):
 
     def _open(self) -> bool:
         """Open and start the stream; False (reported, retry scheduled) when it cannot be had."""
+        sd: Any
         try:
             if getattr(self.config, "simulated", False):  # a Speaker with no device (SpeakerConfig.simulated)
-                sd = self._sd = PacedOutput  # type: ignore[assignment]  # stands for the module: PortAudioError
+                sd = self._sd = PacedOutput  # stands for the module where the Speaker looks: PortAudioError
             else:
                 sd = self._sd = portaudio()
                 _rescan(sd)
