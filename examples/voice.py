@@ -12,7 +12,7 @@ response, :mod:`embagents.bench.echo_room`) and the user's scripted turns,
 cancels the echo with the ``played`` reference (WebRTC AEC3, as the
 Microphone does) and publishes 20 ms chunks. The user (the Piper voice too)
 asks "Tell me about Paris."; 1 s after the robot starts answering, says "Wait,
-tell me about Berlin instead." over it; 1 s into that answer, says "Yeah,
+tell me about Berlin instead." over it; 2 s into that answer, says "Yeah,
 okay." (a backchannel: not "mhm", which the Piper voice says as no word
 Whisper knows).
 
@@ -86,7 +86,7 @@ RATE = 16000
 USER_TURNS = (
     ("Tell me about Paris.", "start", 0.5),
     ("Wait, tell me about Berlin instead.", "robot", 1.0),  # an interruption
-    ("Yeah, okay.", "robot", 1.0),  # a backchannel (not "mhm": the Piper voice says it as no word Whisper knows)
+    ("Yeah, okay.", "robot", 2.0),  # a backchannel (not "mhm": the Piper voice says it as no word Whisper knows)
 )
 QUESTIONS = 2  # turns above that ask something: the robot's last answer is the second
 USER_DB = -18.0  # the user's level at the microphone (RMS dBFS): nearer it than the robot's speaker is
@@ -364,11 +364,10 @@ class Report(Component):
             return
         n = len(self.answers) - 1
         made = sum(self.sentences[n]) if n < len(self.sentences) else 0.0
-        end = max((b for _, b in self.played), default=0.0)
-        # Played to its end; or, short of it (what was dropped), nothing played for 2 s and the speaker not held;
-        # a speaker that has not started it waits (10 s at most).
-        started = len(self.starts) > n or time.time() > self.finishing + 10.0
-        if not started or self.holding or time.time() < end + (0.3 if self.heard_s(n) >= made - 0.05 else 2.0):
+        mine = [b for a, b in self.played if len(self.starts) > n and a >= self.starts[n]]  # answer n's sound
+        end = max(mine, default=self.finishing + 10.0)  # not played yet: wait for it (10 s at most)
+        # Played to its end; or, short of it (what was dropped), nothing played for 2 s and the speaker not held.
+        if self.holding or time.time() < end + (0.3 if self.heard_s(n) >= made - 0.05 else 2.0):
             self.call_later(0.2, self.finish)
             return
         self.finishing = 0.0
