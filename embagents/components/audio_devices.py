@@ -62,7 +62,7 @@ from embagents.config import (
 )
 from embagents.msgs import Audio, BargeIn, VoiceStage
 
-__all__ = ["Microphone", "MicrophoneConfig", "Speaker", "SpeakerConfig", "input_device_present"]
+__all__ = ["Microphone", "MicrophoneConfig", "PacedOutput", "Speaker", "SpeakerConfig", "input_device_present"]
 
 LIST_HINT = ("list the devices with `python -m sounddevice` (ALSA's own view: `arecord -l`, `aplay -l`); "
              "check it is plugged in and that the user is in group 'audio' (`sudo usermod -aG audio $USER`, "
@@ -75,6 +75,54 @@ _PA_INVALID_CHANNELS, _PA_INVALID_RATE, _PA_DEVICE_UNAVAILABLE = -9998, -9997, -
 
 class DeviceUnavailable(Exception):
     """A sound device cannot be used now; the message says what is wrong and how to fix it."""
+
+
+class PacedOutput:
+    """A speaker with no sound device (``SpeakerConfig(simulated=True)``): an output stream that plays into
+    nothing at the pace a device would, so that what the Speaker publishes as played is stamped as a
+    real one's (offline demos and tests of echo cancellation and barge-in; examples/voice.py).
+
+    What is written is "heard" from when the frames before it have been (or, when it ran dry, after its
+    ``latency``, as the Speaker stamps it); it takes up to twice ``latency`` ahead of the wall clock, as a
+    device's buffer does. The Speaker uses it as it uses a ``sounddevice.OutputStream``.
+
+    >>> out = PacedOutput(16000, 1, 0.2)
+    >>> out.start(); out.write_available
+    6400
+    >>> out.write(np.zeros(1600, np.int16))  # heard from 0.2 s on, until 0.3 s: 0.1 s more fits
+    >>> 1600 <= out.write_available < 1700
+    True
+    """
+
+    class PortAudioError(Exception):
+        """Never raised: there is no device to fail (the Speaker catches this type of its backend)."""
+
+    def __init__(self, samplerate: int, channels: int, latency: float) -> None:
+        self.samplerate, self.channels, self.latency = samplerate, channels, latency
+        self.active = False
+        self._end = 0.0  # wall time the last frame written is heard
+
+    @property
+    def write_available(self) -> int:
+        ahead = max(0.0, self._end - time.time())
+        return max(0, int((2 * self.latency - ahead) * self.samplerate))
+
+    def write(self, frames: np.ndarray) -> None:
+        now = time.time()
+        start = self._end if self._end >= now else now + self.latency
+        self._end = start + len(frames) / self.samplerate
+
+    def start(self) -> None:
+        self.active = True
+
+    def stop(self) -> None:
+        self.active = False  # a device plays out what it holds before stopping: the Speaker stops once it has
+
+    def abort(self) -> None:
+        self.active, self._end = False, 0.0  # what it held is not heard
+
+    def close(self) -> None:
+        self.abort()
 
 
 def portaudio() -> ModuleType:
@@ -168,6 +216,9 @@ class MicrophoneConfig(_DeviceConfig):
 class SpeakerConfig(_DeviceConfig):
     """Settings of :class:`Speaker`; ``sample_rate`` / ``channels`` ``None``: the device's own (at most 2 channels).
 
+    ``simulated``: no sound device, nor PortAudio: it plays into nothing in real time (:class:`PacedOutput`;
+    16 kHz mono unless ``sample_rate`` / ``channels`` say otherwise), publishing what it plays as a device would.
+
     >>> SpeakerConfig(sample_rate=48000).channels is None
     True
     """
@@ -175,6 +226,7 @@ class SpeakerConfig(_DeviceConfig):
     sample_rate: int | None = field(default=None, converter=_optional_int)
     channels: int | None = field(default=None, converter=_optional_int)
     buffer_ms: float = field(default=200.0, converter=positive_float)
+    simulated: bool = field(default=False, converter=to_bool)
 
 
 class _SoundDevice(Component):
@@ -192,6 +244,8 @@ class _SoundDevice(Component):
     def _describe(self) -> str:
         what = "microphone" if self.kind == "input" else "speaker"
         device = self.config.device
+        if getattr(self.config, "simulated", False):
+            return f"the simulated {what}"
         return f"the default {what}" if device is None else f"{what} {device!r}"
 
     def _make_stream(self, sd: ModuleType) -> Any:
@@ -199,9 +253,13 @@ class _SoundDevice(Component):
 
     def _open(self) -> bool:
         """Open and start the stream; False (reported, retry scheduled) when it cannot be had."""
+        sd: Any
         try:
-            sd = self._sd = portaudio()
-            _rescan(sd)
+            if getattr(self.config, "simulated", False):  # a Speaker with no device (SpeakerConfig.simulated)
+                sd = self._sd = PacedOutput  # stands for the module where the Speaker looks: PortAudioError
+            else:
+                sd = self._sd = portaudio()
+                _rescan(sd)
             stream = self._make_stream(sd)
         except DeviceUnavailable as exc:
             self._lost(str(exc))
@@ -372,7 +430,8 @@ class Speaker(_SoundDevice, AudioSink):
 
     Its optional ``BargeIn`` input (SpeechToText's) acts at once, between two
     writes: ``pause`` -> :meth:`pause`, ``resume`` -> :meth:`resume`,
-    ``interrupt`` -> :meth:`stop_playback`.
+    ``interrupt`` -> :meth:`stop_playback`, and what still comes of the utterance in progress (a sentence the
+    voice was making) is dropped up to its end.
     """
 
     allowed_inputs = {"Required": [Audio], "Optional": [BargeIn]}
@@ -390,6 +449,8 @@ class Speaker(_SoundDevice, AudioSink):
         self._recent: collections.deque[np.ndarray] = collections.deque()  # written lately: re-queued by pause()
         self._paused = False
         self._started = False  # the utterance in progress has reached the device (its speaker_start is out)
+        self._receiving = False  # audio of an utterance has come whose end (an empty Audio) has not
+        self._drop_rest = False  # stopped mid-utterance: what comes of it until its end is not played
         self.played_s = 0.0
         self.dropped_s = 0.0
         self.utterances = 0
@@ -400,7 +461,7 @@ class Speaker(_SoundDevice, AudioSink):
 
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
         if isinstance(msg, BargeIn) and topic_name in self._subscribed:
-            act = {"pause": self.pause, "resume": self.resume, "interrupt": self.stop_playback}.get(msg.action)
+            act = {"pause": self.pause, "resume": self.resume, "interrupt": self._interrupted}.get(msg.action)
             if act is None:
                 self.logger.warning("%s: BargeIn action %r ignored; it is pause, resume or interrupt",
                                     self._label(), msg.action)
@@ -411,6 +472,9 @@ class Speaker(_SoundDevice, AudioSink):
 
     def _make_stream(self, sd: ModuleType) -> Any:
         c = self.config
+        if c.simulated:
+            self._rate, self._channels = c.sample_rate or 16000, c.channels or 1
+            return PacedOutput(self._rate, self._channels, c.buffer_ms / 1000)
         info = sd.query_devices(c.device, "output")
         self._rate = c.sample_rate or int(info["default_samplerate"])
         self._channels = c.channels or min(2, int(info["max_output_channels"]))
@@ -443,7 +507,15 @@ class Speaker(_SoundDevice, AudioSink):
             return
         for msg in received:
             if msg.data.size == 0:
-                self._queue.append(None)
+                self._receiving = False
+                if self._drop_rest:  # the end of the utterance stop_playback() cut: the next one plays
+                    self._drop_rest = False
+                else:
+                    self._queue.append(None)
+                continue
+            self._receiving = True
+            if self._drop_rest:
+                self.dropped_s += _seconds([msg])  # made before the voice heard the stop (a sentence in progress)
                 continue
             try:
                 frames, note = to_pcm16(msg, self._rate, self._channels)
@@ -580,11 +652,22 @@ class Speaker(_SoundDevice, AudioSink):
             self.dropped_s += seconds
             self.logger.warning("%s: dropped %.2f s of audio: %s", self._label(), seconds, why)
 
+    def _interrupted(self) -> float:
+        """A barge-in ``interrupt``: :meth:`stop_playback`, and the rest of the utterance in progress is dropped
+        when it comes, until its end (an empty ``Audio``): the voice stops that answer too, but a sentence it
+        was making when the interrupt came is sent after."""
+        for msg in self._received:  # received, not yet taken: stop_playback drops them
+            self._receiving = msg.data.size > 0
+        self._drop_rest = self._receiving
+        return self.stop_playback()
+
     def stop_playback(self) -> float:
         """Stop at once: drop what is queued and what the device still holds; returns the seconds dropped."""
-        dropped = self._queue_s() + _seconds(self.take())
+        taken = self.take()
+        dropped = self._queue_s() + _seconds(taken)
         self._queue.clear()
         self._paused = False
+        self._started = False  # the utterance's end was dropped with it: what comes next is a new one
         if self._stream is not None and self._stream.active:
             self._stream.abort()  # abort, not stop: what the device holds is not played
         self._silenced()

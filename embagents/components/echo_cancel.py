@@ -190,7 +190,8 @@ class EchoCancelling:
                                     "Topic(%r, Audio, keep='all')", t.name, t.name)
 
     def _aec_reference(self, topic_name: str, msg: Any) -> None:
-        if self._aec is not None and isinstance(msg, Audio) and msg.data.size:
+        # An empty chunk too: the speaker stopped (a pause, a barge-in) and what it had announced is not played.
+        if self._aec is not None and isinstance(msg, Audio):
             self._aec.reference(msg.data, msg.sample_rate, msg.stamp, msg.channels)
 
     def _aec_process(self, samples: np.ndarray, stamp: float) -> np.ndarray:

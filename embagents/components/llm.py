@@ -39,6 +39,7 @@ import inspect
 import json
 import re
 import string
+import time
 import uuid
 from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from typing import Any
@@ -279,6 +280,7 @@ class LLM(ModelComponent):
             (k.name if isinstance(k, Topic) else str(k).lstrip("/")): fn for k, fn in (output_converters or {}).items()}
         self._live: dict[str, Any] | None = None  # the answer being generated between loop turns (barge-in)
         self.interrupted = 0  # answers cut short
+        self._began = 0.0  # wall time the latest answer began
         super().__init__(name=name, **kw)
 
     def _typed_outputs(self) -> tuple[Topic, ...]:
@@ -419,7 +421,12 @@ class LLM(ModelComponent):
 
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
         if isinstance(msg, BargeIn) and topic_name in self._subscribed:
-            if msg.action == "interrupt":
+            if msg.action == "interrupt" and msg.stamp and msg.stamp < self._began:
+                # The speech began before this answer did: this answer is the reply to it (the interrupt came
+                # in after the question, as a busy loop may take them), not one it cuts short.
+                self.logger.info("%s: an interrupt of speech before the answer in progress began: ignored",
+                                 self._label())
+            elif msg.action == "interrupt":
                 self.interrupt()
             return False
         return super().on_message(topic_name, msg, now)
@@ -427,6 +434,7 @@ class LLM(ModelComponent):
     def _begin(self, text: str, context: Mapping[str, str] | None) -> dict[str, Any]:
         messages = self.build_messages(text, context)
         self._stream_count += 1
+        self._began = time.time()
         return {"messages": messages, "turn": [messages[-1]], "said": [],
                 "stream_id": f"{self.name}-{uuid.uuid4().hex[:8]}-{self._stream_count}",
                 "streams": [t for t in self.outputs

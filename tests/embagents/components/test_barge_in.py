@@ -154,6 +154,23 @@ def test_an_interrupt_after_the_answer_was_written_marks_it_while_it_is_still_sp
     assert llm.interrupted == 1
 
 
+def test_an_interrupt_that_comes_in_after_the_question_it_was_about_does_not_cut_that_questions_answer() -> None:
+    client = EndlessClient()
+    llm, sent, later = llm_with_barge_in(client)
+    assert llm.on_message("heard", String("Tell me about Paris.")) and llm.execute()
+    later.pop(0)()
+    spoke = time.time()  # the user speaks over the answer...
+    assert llm.on_message("heard", String("No, tell me about Berlin.")) and llm.execute()  # ...it is heard first
+    assert llm.history[-1]["interrupted"] is True and client.closed == 1, "the question cut the first answer short"
+    llm.on_message("barge", BargeIn(action="interrupt", text="No, tell", stamp=spoke))  # then the interrupt
+    assert client.closed == 1 and llm.interrupted == 1, "the answer to Berlin goes on"
+    later.pop(0)()
+    streams = list(dict.fromkeys(m.stream_id for m in sent))
+    assert len(streams) == 2 and (sent[-1].stream_id, sent[-1].data, sent[-1].done) == (streams[1], "word0 ", False)
+    llm.on_message("barge", BargeIn(action="interrupt", text="Stop.", stamp=time.time()))  # speech over this one
+    assert client.closed == 2 and llm.interrupted == 2
+
+
 def test_an_answer_publishes_its_first_token_once_on_a_voice_stage_output() -> None:
     llm = LLM(name="llm", inputs=[Topic("heard", String), Topic("barge", BargeIn)],
               outputs=[Topic("answer", StreamingString), Topic("stages", VoiceStage)], model_client=EndlessClient(),
@@ -169,3 +186,38 @@ def test_an_answer_publishes_its_first_token_once_on_a_voice_stage_output() -> N
     assert [(m.stage, m.source) for m in stages] == [("llm_first_token", "llm")] and stages[0].stamp >= before
     assert [t for t, _ in sent].index("stages") == 0, "stamped as the first token goes out"
     assert all(isinstance(m, StreamingString) for t, m in sent if t == "answer")
+
+
+# --- the Speaker: an interrupt stops the sound, and the rest of that answer is not played when it comes -----
+
+
+def test_a_simulated_speaker_plays_in_real_time_and_after_an_interrupt_drops_what_comes_of_that_answer() -> None:
+    from embagents.components import Speaker, SpeakerConfig
+    from embagents.msgs import Audio
+
+    out: list[Audio] = []
+    later: list[Callable[[], None]] = []
+    speaker = Speaker(name="speaker", inputs=[Topic("said", Audio, keep="all"), Topic("barge", BargeIn)],
+                      outputs=[Topic("played", Audio, keep="all")], config=SpeakerConfig(simulated=True))
+    speaker.attach(lambda topic, msg: out.append(msg), None, lambda delay, fn: later.append(fn))
+    speaker.on_configure()
+    speaker.on_activate()  # no PortAudio, no device: it opens at once
+
+    def send(value: int, n: int) -> None:
+        assert speaker.on_message("said", Audio(data=np.full(n, value, np.int16)))
+        speaker.execute()
+
+    before = time.time()
+    send(500, 2 * RATE)  # 2 s of an answer: the device takes 0.4 s ahead of the clock, the rest waits
+    played = [m for m in out if m.data.size]
+    assert sum(m.data.size for m in played) == int(0.4 * RATE) and before + 0.2 <= played[0].stamp < time.time() + 0.3
+    assert speaker.stats()["queued_s"] == pytest.approx(1.6)
+    speaker.on_message("barge", BargeIn(action="interrupt"))
+    send(600, RATE // 2)  # the sentence the voice was making when the stop came: not played
+    speaker.on_message("said", Audio(data=np.zeros(0, np.int16)))  # the voice ends that answer
+    speaker.execute()
+    send(700, RATE // 2)  # the next answer plays
+    values = [int(m.data[0]) for m in out if m.data.size]
+    assert set(values) == {500, 700} and values.index(700) > len(played) - 1, values
+    assert out[len(played)].data.size == 0, "the stop says on the played stream that nothing plays from then on"
+    assert speaker.stats()["dropped_s"] == pytest.approx(0.5)

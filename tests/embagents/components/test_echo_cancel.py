@@ -116,3 +116,31 @@ def test_the_canceller_takes_20_db_off_the_echo_and_leaves_silence_after_the_spe
 def test_a_rate_the_webrtc_module_does_not_take_is_named_with_the_fix() -> None:
     with pytest.raises(ValueError, match="8000, 16000, 32000, 48000 Hz, got 44100 Hz; set the microphone's"):
         EchoCanceller(44100)
+
+
+def test_a_speaker_paused_with_sound_announced_ahead_does_not_cancel_the_user_who_spoke_over_it(tmp_path: Path) -> None:
+    # The Speaker announces what it plays ahead of time; on barge-in it pauses and says so with an empty chunk.
+    # What it had announced after that is never played: cancelling it anyway ate the start of the user's words.
+    robot, user = robot_says(ROBOT), robot_says(USER)
+    echo = to_int16(echo_of(robot, room_impulse_response(RATE, delay_ms=35, rt60_s=0.3, seed=3), level_db=-24.0))
+    user = to_int16(mix_at(np.zeros(len(user)), user, 0, level_db=-26.0))
+    src = WavFileSource(name="mic", inputs=[Topic("played", Audio, keep="all")], outputs=[Topic("mic", Audio, keep="all")],
+                        trigger=10.0, config=WavFileSourceConfig(path=write_wav(tmp_path / "m.wav", np.concatenate([echo, user])),
+                                                                 chunk_ms=100))
+    out: list[Audio] = []
+    src.attach(lambda topic, msg: out.append(msg))
+    src.on_configure()
+    step = RATE // 10
+    for at in range(0, len(echo) - step + 1, step):  # the robot speaks: the canceller converges on its echo
+        src.on_message("played", Audio(data=robot[at:at + step], sample_rate=RATE, stamp=time.time() - 0.1))
+        src.execute()
+    heard = len(np.concatenate([m.data for m in out]))
+    now = time.time()
+    src.on_message("played", Audio(data=robot[:2 * RATE], sample_rate=RATE, stamp=now))  # 2 s announced...
+    src.on_message("played", Audio(data=np.zeros(0, np.int16), sample_rate=RATE, stamp=now))  # ...and paused at once
+    for k in range(len(user) // step):  # in real time: each chunk is stamped when it ends, after the pause
+        time.sleep(max(0.0, now + (k + 1) * 0.1 - time.time()))
+        src.execute()
+    got = np.concatenate([m.data for m in out])[heard:]
+    # Its first second (where the announced sound lay): 1 dB off with the pause heeded, 6-12 dB eaten without.
+    assert erle_db(user[:RATE], got[:RATE]) < 3.0, "the user's voice came through (no more than 3 dB off)"
