@@ -70,6 +70,8 @@ BACKCHANNELS = ("mhm", "m", "mm", "hmm", "mmhmm", "mm-hmm", "uh-huh", "uh", "huh
                 "yep", "ok", "okay", "right", "all right", "sure", "alright", "i see", "got it", "aha")
 
 _WORD = re.compile(r"[\w']+")
+#: A hum Whisper spells out in letters ("M-H-M.", "M H H", "Mmh"): no English word is made of m and h alone.
+_HUM = re.compile(r"[mh]+", re.IGNORECASE)
 _NOT_SPEECH = re.compile(r"\[[^\]]*\]?|\([^)]*\)?|\*[^*]*\*?")
 _ECHO_TAIL_S = 0.25  # after the robot's last sound: its reverberation, a device's buffer
 
@@ -105,16 +107,23 @@ def is_backchannel(text: str, backchannels: tuple[str, ...] = BACKCHANNELS) -> b
     (True, False)
     >>> is_backchannel(""), is_backchannel("[BLANK_AUDIO]"), is_backchannel("(coughs)")
     (True, True, True)
+    >>> is_backchannel("M H H."), is_backchannel("Mmh, okay."), is_backchannel("Hm, move.")
+    (True, True, False)
     """
     text = _NOT_SPEECH.sub(" ", text)  # Whisper's "[BLANK_AUDIO]", "(coughs)", "*sighs*": no words said
     # Word by word: the words of a backchannel phrase count alone too ("see" is "I see" misheard).
     known = {w.lower() for p in backchannels for w in _WORD.findall(p.replace("-", ""))}
-    return all(w.lower() in known for w in _WORD.findall(text.replace("-", "")))
+    return all(w.lower() in known or _HUM.fullmatch(w) for w in _WORD.findall(text.replace("-", "")))
 
 
 def _news(text: str, backchannels: tuple[str, ...]) -> int:
-    """How many words of ``text`` are not backchannels."""
-    return sum(not is_backchannel(w, backchannels) for w in _WORD.findall(_NOT_SPEECH.sub(" ", text)))
+    """How many words of ``text`` are not backchannels (split as :func:`is_backchannel` splits them).
+
+    >>> _news("M-H-M.", BACKCHANNELS), _news("M H H", BACKCHANNELS), _news("Uh-huh, stop.", BACKCHANNELS)
+    (0, 0, 1)
+    """
+    # Hyphens out first: Whisper spells a hummed "mhm" "M-H-M.", which is one backchannel, not three words.
+    return sum(not is_backchannel(w, backchannels) for w in _WORD.findall(_NOT_SPEECH.sub(" ", text).replace("-", "")))
 
 
 def _optional_db(value: object) -> float | None:

@@ -87,6 +87,15 @@ def test_backchannels_are_told_from_words_word_by_word() -> None:
     assert is_backchannel("sure thing", ("sure", "thing"))
 
 
+def test_a_hum_whisper_spells_in_letters_is_a_backchannel_not_words() -> None:
+    # The Piper voice's "Mm hm." comes back from Whisper as "M-H-M." or "M H H": three "words" that interrupted.
+    from embagents.components.speech_to_text import BACKCHANNELS, _news
+
+    assert is_backchannel("M-H-M.") and is_backchannel("M H H") and is_backchannel("Mmh.")
+    assert _news("M-H-M.", BACKCHANNELS) == 0 and _news("M H H", BACKCHANNELS) == 0
+    assert _news("Hm, move left.", BACKCHANNELS) == 2
+
+
 # --- the LLM: an interrupt cancels the generation and marks the answer cut short -------------------
 
 
