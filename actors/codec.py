@@ -157,7 +157,11 @@ class Flat:
         return _unflat[self.prefix[1:]](memoryview(self.data))
 
     def frame(self) -> bytes:
-        """Its encoded frame, as :meth:`Codec.encode` writes it (without a Packer: a publisher's hot path)."""
+        """Its encoded frame, built without a Packer (a publisher's hot path): :meth:`Codec.decode` reads the message.
+
+        The same bytes as :meth:`Codec.encode` writes, but for payloads of 1, 2, 4, 8 or 16 bytes
+        (msgpack gives those a fixext header).
+        """
         n = len(self.prefix) + len(self.data)
         if n < 1 << 8:
             head = _EXT8.pack(0xC7, n, EXT_FLAT)
