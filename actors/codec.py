@@ -15,10 +15,19 @@ Example::
     >>> codec = Codec()
     >>> codec.decode(codec.encode(Point(1.0, 2.0))[0])
     Point(x=1.0, y=2.0)
+
+A class of fixed layout may also have a *flat* form (``register(...,
+flat=(pack, unpack))``): its frame is ``pack(obj)``'s bytes, and a
+:class:`Flat` sends bytes already in that form without building the object
+(the ROS bridge turns an ``Imu``'s CDR bytes into its flat form directly).
+A nested msgpack map of fields costs ~60 us to encode and ~75 us to decode
+with cold caches (a 200 Hz sensor's messages find them cold); a flat ``Imu``
+~10 us each.
 """
 
 from __future__ import annotations
 
+import struct
 import threading
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar
@@ -38,6 +47,7 @@ from actors.errors import (
 
 __all__ = [
     "Codec",
+    "Flat",
     "MAX_EXT_DEPTH",
     "SHM_THRESHOLD",
     "ShmSink",
@@ -51,6 +61,7 @@ __all__ = [
 EXT_NDARRAY = 1
 EXT_MESSAGE = 2
 EXT_SHM = 3
+EXT_FLAT = 4
 
 #: Arrays at or above this many bytes travel through shared memory.
 SHM_THRESHOLD = 64 * 1024
@@ -65,15 +76,28 @@ MAX_EXT_DEPTH = 32
 
 _by_class: dict[type, tuple[str, tuple[str, ...]]] = {}
 _by_name: dict[str, type] = {}
+#: Flat forms: class -> (the payload's prefix: its wire name, pack); the prefix -> unpack.
+_flat_by_class: dict[type, tuple[bytes, Callable[[Any], bytes]]] = {}
+_unflat: dict[bytes, Callable[[memoryview], Any]] = {}
+
+# msgpack's ext 8/16/32 headers: the marker, the payload's length, the extension type.
+_EXT8, _EXT16, _EXT32 = struct.Struct(">BBb"), struct.Struct(">BHb"), struct.Struct(">BIb")
 
 T = TypeVar("T", bound=type)
+#: A class's flat form: ``pack(obj) -> bytes`` and ``unpack(memoryview) -> obj``.
+FlatForm = tuple[Callable[[Any], bytes], Callable[[memoryview], Any]]
 
 
-def register(cls: T, name: str | None = None) -> T:
+def register(cls: T, name: str | None = None, flat: FlatForm | None = None) -> T:
     """Register an attrs class so instances can cross process boundaries.
 
     ``name`` is the stable wire name (default ``module.QualName``); both ends
-    must register the class under the same name.
+    must register the class under the same name. ``flat``: ``(pack,
+    unpack)`` of a fixed-layout class, sent as ``pack(obj)``'s bytes instead
+    of a map of its fields (see the module doc). ``unpack`` reads any bytes a
+    peer may send: it must raise (any exception: the frame is corrupt) on
+    bytes that are not an object's flat form, and must not build anything but
+    the class's instances.
     """
     is_attrs = attrs.has(cls)  # kept apart: attrs.has would narrow cls and lose T
     if not is_attrs:
@@ -85,16 +109,70 @@ def register(cls: T, name: str | None = None) -> T:
     fields = tuple(f.name for f in attrs.fields(cls) if f.init)
     _by_class[cls] = (wire, fields)
     _by_name[wire] = cls
+    if flat is not None:
+        key = wire.encode()
+        if len(key) > 255:
+            raise ValueError(f"message name {wire[:60]!r}... is too long for a flat form (255 bytes at most)")
+        pack, unpack = flat
+        _flat_by_class[cls] = (bytes([len(key)]) + key, pack)
+        _unflat[key] = unpack
     return cls
 
 
-def message(name: str | None = None) -> Callable[[T], T]:
+def message(name: str | None = None, flat: FlatForm | None = None) -> Callable[[T], T]:
     """Class decorator form of :func:`register`."""
 
     def deco(cls: T) -> T:
-        return register(cls, name)
+        return register(cls, name, flat)
 
     return deco
+
+
+class Flat:
+    """A message of a class with a flat form, as those bytes: encoded as they are; receivers get the object.
+
+    Built where the bytes come from elsewhere (a ROS message's CDR), to skip
+    building an object only to encode it again.
+
+    >>> import attrs, struct
+    >>> @message("demo/Pair", flat=(lambda p: struct.pack("<2d", p.a, p.b), lambda b: Pair(*struct.unpack("<2d", b))))
+    ... @attrs.define
+    ... class Pair:
+    ...     a: float
+    ...     b: float
+    >>> Codec().decode(Codec().encode(Flat(Pair, struct.pack("<2d", 1.0, 2.0)))[0])
+    Pair(a=1.0, b=2.0)
+    """
+
+    __slots__ = ("cls", "data", "prefix")
+
+    def __init__(self, cls: type, data: bytes) -> None:
+        entry = _flat_by_class.get(cls)
+        if entry is None:
+            raise TypeError(f"{cls.__qualname__} has no flat form: register it with flat=(pack, unpack)")
+        self.cls, self.data, self.prefix = cls, data, entry[0]
+
+    def message(self) -> Any:
+        """The object these bytes stand for."""
+        return _unflat[self.prefix[1:]](memoryview(self.data))
+
+    def frame(self) -> bytes:
+        """Its encoded frame, built without a Packer (a publisher's hot path): :meth:`Codec.decode` reads the message.
+
+        The same bytes as :meth:`Codec.encode` writes, but for payloads of 1, 2, 4, 8 or 16 bytes
+        (msgpack gives those a fixext header).
+        """
+        n = len(self.prefix) + len(self.data)
+        if n < 1 << 8:
+            head = _EXT8.pack(0xC7, n, EXT_FLAT)
+        elif n < 1 << 16:
+            head = _EXT16.pack(0xC8, n, EXT_FLAT)
+        else:
+            head = _EXT32.pack(0xC9, n, EXT_FLAT)
+        return head + self.prefix + self.data
+
+    def __repr__(self) -> str:
+        return f"Flat({self.cls.__qualname__}, {len(self.data)} bytes)"
 
 
 def message_name(cls: type) -> str:
@@ -180,8 +258,13 @@ class _Enc:
 
     def default(self, obj: Any) -> Any:
         cls = type(obj)
+        if cls is Flat:
+            return msgpack.ExtType(EXT_FLAT, obj.prefix + obj.data)
         entry = _by_class.get(cls)
         if entry is not None:
+            flat = _flat_by_class.get(cls)
+            if flat is not None:
+                return msgpack.ExtType(EXT_FLAT, flat[0] + flat[1](obj))
             wire, fields = entry
             body = [wire, {f: getattr(obj, f) for f in fields}]
             return msgpack.ExtType(EXT_MESSAGE, self.pack_nested(body))
@@ -241,6 +324,14 @@ class _Dec:
             finally:
                 self.depth = depth
             return message_class(wire)(**fields)
+        if code == EXT_FLAT:
+            view = memoryview(payload)
+            key = bytes(view[1 : 1 + payload[0]]) if payload else b""
+            unpack = _unflat.get(key)
+            if unpack is None:
+                message_class(key.decode(errors="replace"))  # unknown: the error that says what to import
+                raise CorruptFrame(f"{quote(key.decode(errors='replace'), 100)} has no flat form in this process")
+            return unpack(view[1 + len(key) :])
         if code == EXT_SHM:
             if self.source is None:
                 raise CorruptFrame("shared-memory handle on a channel that does not accept them")
@@ -328,6 +419,13 @@ class Codec:
         ``mapped``: gets the handle of each shared-memory array of the frame
         (to check later that forwarded frames stayed whole).
         """
+        if data and data[0] in _FLAT_MARKERS:  # maybe one flat message (a sensor stream's): no unpacker
+            try:
+                msg = _flat_frame(data)
+            except Exception as exc:  # noqa: BLE001 - whatever unpack raises: the frame is not a flat message
+                raise CorruptFrame(f"undecodable flat message ({type(exc).__name__}: {str(exc)[:200]})") from exc
+            if msg is not _NOT_FLAT:
+                return msg
         dec = self._state()[1]
         dec.on_release = on_release
         dec.mapped = mapped
@@ -351,6 +449,25 @@ class Codec:
             raise
         except Exception as exc:
             raise CorruptFrame(f"undecodable frame ({type(exc).__name__}: {str(exc)[:200]})") from exc
+
+
+_FLAT_MARKERS = (0xC7, 0xC8)  # msgpack's ext 8 and ext 16 (a flat message of up to 64 KB)
+_NOT_FLAT = object()
+
+
+def _flat_frame(data: bytes | memoryview) -> Any:
+    """The message of a frame that is one flat message, read without an unpacker; else ``_NOT_FLAT``."""
+    if data[0] == 0xC7:
+        n, code, start = data[1], data[2], 3
+    else:
+        n, code, start = (data[1] << 8) | data[2], data[3], 4
+    if code != EXT_FLAT or len(data) != start + n:
+        return _NOT_FLAT
+    end = start + 1 + data[start]
+    unpack = _unflat.get(bytes(data[start + 1 : end]))
+    if unpack is None:
+        return _NOT_FLAT  # the unpacker's path says what is wrong
+    return unpack(memoryview(data)[end:])
 
 
 class _NoShm:

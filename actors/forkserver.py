@@ -34,6 +34,7 @@ import msgpack
 
 from actors.pdeathsig import die_with_parent
 from actors.shm import sweep
+from actors.topics import mark_changed
 
 __all__ = ["ForkServer", "cleanup_pid"]
 
@@ -50,6 +51,7 @@ def cleanup_pid(run_dir: str, prefix: str, pid: int) -> None:
             os.path.join(run_dir, "topics", "*", f".{pid}-*")):  # a mark killed while it was being made
         with contextlib.suppress(FileNotFoundError):
             os.unlink(path)
+            mark_changed(os.path.dirname(path))  # its publishers stop sending to it
     for path in glob.glob(os.path.join(run_dir, f"s.{pid}-*")):
         with contextlib.suppress(FileNotFoundError):
             os.unlink(path)

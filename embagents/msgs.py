@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import struct
 from collections.abc import Iterable
 from typing import Any, SupportsFloat
 
@@ -32,6 +33,7 @@ __all__ = [
     "Detections",
     "Health",
     "HealthStatus",
+    "IMU_FLAT",
     "Image",
     "Imu",
     "JointState",
@@ -457,11 +459,48 @@ def _cov3() -> Any:  # an attrs field: a 3x3 covariance, row-major as ROS sends 
     return attrs.field(factory=lambda: np.zeros((3, 3)), converter=lambda v: np.asarray(v, np.float64).reshape(3, 3))
 
 
-@message("embagents/Imu")
+#: An Imu's flat form (see actors.codec): the stamp, then the 37 doubles in sensor_msgs/Imu's field
+#: order (orientation, its covariance, angular velocity, its covariance, ...), then frame_id (UTF-8).
+IMU_FLAT = struct.Struct("<38d")
+
+
+def _imu_flat(m: Imu) -> bytes:
+    parts = (m.orientation, m.orientation_covariance, m.angular_velocity, m.angular_velocity_covariance,
+             m.linear_acceleration, m.linear_acceleration_covariance)
+    doubles = np.concatenate([[m.stamp], *(np.ravel(p) for p in parts)]).astype("<f8", copy=False)
+    return doubles.tobytes() + m.frame_id.encode()
+
+
+def _imu_unflat(data: memoryview) -> Imu:
+    # Built without attrs' converters: the values have their fields' types already. With cold caches
+    # (a 200 Hz stream's) every Python or numpy call counts: 11 floats, 3 array views, one object.
+    v = _IMU_SCALARS.unpack_from(data)
+    imu = object.__new__(Imu)
+    put, view = object.__setattr__, np.ndarray
+    put(imu, "orientation", v[1:5])
+    put(imu, "orientation_covariance", view((3, 3), _F8, data, 40))
+    put(imu, "angular_velocity", v[5:8])
+    put(imu, "angular_velocity_covariance", view((3, 3), _F8, data, 136))
+    put(imu, "linear_acceleration", v[8:11])
+    put(imu, "linear_acceleration_covariance", view((3, 3), _F8, data, 232))
+    put(imu, "frame_id", str(data[IMU_FLAT.size :], "utf-8"))
+    put(imu, "stamp", v[0])
+    return imu
+
+
+_IMU_SCALARS = struct.Struct("<5d72x3d72x3d")  # IMU_FLAT's stamp, orientation, angular velocity, acceleration
+_F8 = np.dtype("<f8")
+
+
+@message("embagents/Imu", flat=(_imu_flat, _imu_unflat))
 @attrs.define(eq=False)
 class Imu:
     """An IMU sample (``sensor_msgs/Imu``): orientation quaternion x, y, z, w, angular velocity (rad/s),
-    linear acceleration (m/s^2), their 3x3 covariances (``[0, 0] == -1`` marks a missing estimate)."""
+    linear acceleration (m/s^2), their 3x3 covariances (``[0, 0] == -1`` marks a missing estimate).
+
+    Sent in its flat form (:data:`IMU_FLAT`), not as a map of fields: at 200 Hz each message finds
+    the caches cold, where a map of fields and three arrays took ~60 us to encode and ~75 us to decode.
+    """
 
     orientation: Quat = attrs.field(default=(0.0, 0.0, 0.0, 1.0), converter=_quat)
     angular_velocity: Vec3 = attrs.field(default=(0.0, 0.0, 0.0), converter=_vec3)

@@ -164,7 +164,7 @@ class RosBridgeActor(Actor):
         self.forwarded_in = 0
         self.forwarded_out = 0
         self.served = 0
-        self.core = RosBridgeCore(ins, outs, services, self._serve, actions)
+        self.core = RosBridgeCore(ins, outs, services, self._serve, actions, flat=True)  # Imu: see node.py
         ctx = self.context
         expected, self.peers = set(self.peer_ros_topics), set(self.peer_ros_topics)
 

@@ -13,7 +13,9 @@ with ``embagents bench --only ros_generic`` (Imu at 200 Hz, p50, one way
 into a subscriber actor; per stage, 2 busy cores): rclpy's executor turn and
 Python message (~55 us warm) made the take as slow as a plain rclpy
 subscriber's whole path; a hand-over to the actor's loop thread cost one
-more wake-up (70-200 us).
+more wake-up (70-200 us); building an ``Imu`` and encoding it as a map of
+fields cost ~50 + ~50 us with cold caches, where its flat form is a slice of
+the CDR bytes (see :func:`embagents.ros.convert.converter_from_cdr`).
 
 Example::
 
@@ -152,7 +154,9 @@ class RosBridgeCore:
     ``start`` calls ``on_message(internal_topic, our_msg)`` for each incoming
     ROS message: from its subscription thread (always the same one while it
     runs) for the RosInputs, from its spin thread for actions' feedback and
-    results. ``publish`` may be called from any
+    results. With ``flat``, types read from their CDR bytes (``Imu``) come
+    as an :class:`actors.codec.Flat`, ready to publish (subscribers receive
+    the message). ``publish`` may be called from any
     thread. Each ``start`` uses a fresh rclpy Context, so a core can be
     stopped and started again, and several can coexist in one process.
     """
@@ -164,7 +168,10 @@ class RosBridgeCore:
         services: Sequence[RosService] = (),
         on_request: OnRequest | None = None,
         actions: Sequence[RosAction] = (),
+        *,
+        flat: bool = False,
     ) -> None:
+        self.flat = flat
         self.inputs = list(inputs)
         self.outputs = list(outputs)
         self.services = list(services)
@@ -298,7 +305,7 @@ class RosBridgeCore:
         topic, ros_type = inp.topic, inp.ros_type
         counts = self.counts[topic]
         convert = converter_from_ros(ros_type)
-        from_cdr = converter_from_cdr(ros_type)
+        from_cdr = converter_from_cdr(ros_type, flat=self.flat)
         if from_cdr is not None:  # a raw subscription: reading its CDR skips rclpy's Python message (~55 us)
             typed, cls = convert, ros_msg_class(ros_type)
 

@@ -1,13 +1,14 @@
 from __future__ import annotations
 
 import os
+import struct
 
 import attrs
 import msgpack
 import numpy as np
 import pytest
 
-from actors.codec import EXT_MESSAGE, MAX_EXT_DEPTH, Codec, message
+from actors.codec import EXT_FLAT, EXT_MESSAGE, MAX_EXT_DEPTH, Codec, Flat, message
 from actors.errors import CodecError, CorruptFrame, MessageTooLarge, StaleFrame, UnregisteredType
 from actors.shm import ShmPool, ShmReader
 
@@ -22,6 +23,51 @@ class Point:
 
 class NotRegistered:
     pass
+
+
+_SAMPLE = struct.Struct("<dI")
+
+
+def _unpack_sample(b: memoryview) -> Sample:
+    value, count = _SAMPLE.unpack_from(b)
+    return Sample(value, count, str(b[_SAMPLE.size:], "utf-8"))
+
+
+@message("test/Sample", flat=(lambda s: _SAMPLE.pack(s.value, s.count) + s.name.encode(), _unpack_sample))
+@attrs.define
+class Sample:
+    value: float
+    count: int
+    name: str = ""
+
+
+def test_a_class_with_a_flat_form_crosses_as_those_bytes_alone_and_in_other_data() -> None:
+    c = Codec()
+    data = c.encode(Sample(1.5, 7, "imu"))[0]
+    assert data[0] == 0xC7 and data[2] == EXT_FLAT and data.endswith(_SAMPLE.pack(1.5, 7) + b"imu")  # no map of fields
+    assert c.decode(data) == Sample(1.5, 7, "imu")
+    assert c.decode(memoryview(b"\0" + data)[1:]) == Sample(1.5, 7, "imu")  # as a topic's frame comes
+    long = Sample(2.0, 1, "x" * 70_000)  # ext 32: read by the unpacker
+    assert c.decode(c.encode({"s": [long, Point(1.0)]})[0]) == {"s": [long, Point(1.0)]}
+    assert c.decode(c.encode(Sample(0.0, 0, "y" * 300))[0]).name == "y" * 300  # ext 16
+
+
+def test_a_flat_object_encodes_as_the_message_without_building_it() -> None:
+    c = Codec()
+    flat = Flat(Sample, _SAMPLE.pack(3.0, 2) + b"cam")
+    assert flat.frame() == c.encode(flat)[0] == c.encode(Sample(3.0, 2, "cam"))[0]
+    assert c.decode(flat.frame()) == flat.message() == Sample(3.0, 2, "cam")
+    with pytest.raises(TypeError, match="Point has no flat form: register it with flat="):
+        Flat(Point, b"")
+
+
+@pytest.mark.parametrize("cut", [1, 2, 3, 5, 12, 20])
+def test_a_flat_message_cut_short_is_a_corrupt_frame(cut: int) -> None:
+    data = Codec().encode(Sample(1.0, 1, "abc"))[0]
+    with pytest.raises(CorruptFrame):
+        Codec().decode(data[:cut])
+    with pytest.raises(CorruptFrame):
+        Codec().decode(data[:2] + bytes([EXT_FLAT]) + b"\x0btest/Sample" + b"\xff" * 20)  # not UTF-8
 
 
 def test_round_trip_of_native_values_messages_and_arrays() -> None:

@@ -14,10 +14,11 @@ import pytest
 import zmq
 
 from actors import ActorSystem
+from actors.forkserver import cleanup_pid
 from actors.loop import Loop
 from actors.runtime import Runtime
 from actors.topics import Publisher as TopicPublisher
-from actors.topics import Subscription
+from actors.topics import Subscription, mark_changed
 from tests.actors.workers import Burst, Holder, Publisher, Subscriber, TopicCounter
 from tests.helpers import wait_until
 
@@ -220,6 +221,50 @@ def test_a_keep_all_subscriber_stopped_for_good_makes_its_publisher_hold_only_a_
             assert "did not come back within 1 s: dropped the 768 message(s)" in caplog.text
     finally:
         pub.close()
+
+
+def test_a_publisher_sees_subscriptions_come_and_go_without_listing_the_folder_at_each_publish(tmp_path: Path) -> None:
+    rt, loop, got = Runtime(str(tmp_path), "seen"), Loop(), []
+    pub = TopicPublisher(rt, "events")
+    subs: list[Subscription] = []
+    try:
+        assert pub.subscribers == 0
+        pub.publish({"n": 0})  # nobody: not sent
+        subs.append(Subscription(rt, loop, "events", got.append, keep="all"))
+        subs.append(Subscription(rt, loop, "events", got.append))
+        assert pub.subscribers == 2
+        pub.publish({"n": 1})
+        assert loop.run(until=lambda: len(got) == 2, timeout=5), got
+        subs.pop().close()
+        assert pub.subscribers == 1
+        # A subscription whose process died, removed by the fork server's cleanup, is seen gone too.
+        folder = os.path.dirname(subs[0]._mark)
+        Path(folder, "999999-0-all").touch()
+        mark_changed(folder)
+        assert pub.subscribers == 2
+        cleanup_pid(str(tmp_path), "none_", 999999)
+        assert pub.subscribers == 1
+        pub.publish({"n": 2})
+        assert loop.run(until=lambda: len(got) == 3, timeout=5), got
+        assert [m["n"] for m in got] == [1, 1, 2]
+    finally:
+        for s in subs:
+            s.close()
+        pub.close()
+        loop.close()
+        rt.close()
+
+
+def test_a_subscription_woken_with_nothing_to_read_reads_nothing(tmp_path: Path) -> None:
+    rt, loop, got = Runtime(str(tmp_path), "idle"), Loop(), []
+    sub = Subscription(rt, loop, "quiet", got.append, keep="all")
+    try:
+        sub.on_readable()  # a spurious wake: no message, no error
+        assert (got, sub.received, sub.bad) == ([], 0, 0)
+    finally:
+        sub.close()
+        loop.close()
+        rt.close()
 
 
 def test_a_publisher_keeps_for_a_durable_subscriber_only_what_it_has_not_acknowledged(tmp_path: Path) -> None:

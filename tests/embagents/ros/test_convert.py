@@ -18,7 +18,9 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from sensor_msgs.msg import ChannelFloat32, PointCloud  # noqa: E402
 from sensor_msgs.msg import Image as RosImage  # noqa: E402
 
+from actors.codec import Codec  # noqa: E402
 from embagents.msgs import (  # noqa: E402
+    IMU_FLAT,
     CompressedImage,
     Detections,
     Image,
@@ -373,20 +375,42 @@ def test_imu():
     assert list(to_ros(imu).orientation_covariance) == list(range(9))  # row-major, as ROS documents
 
 
+def test_an_imu_crosses_processes_in_its_flat_form_with_every_field():
+    imu = Imu(orientation=(0.1, 0.2, 0.3, 0.9), angular_velocity=(1, 2, 3), linear_acceleration=(4, 5, 6),
+              orientation_covariance=np.arange(9.0).reshape(3, 3), angular_velocity_covariance=np.arange(9.0, 18.0),
+              linear_acceleration_covariance=-np.eye(3), frame_id="imu_ñ", stamp=12.25)
+    codec = Codec()
+    data = codec.encode(imu)[0]
+    assert len(data) == 4 + 1 + len("embagents/Imu") + IMU_FLAT.size + len("imu_ñ".encode())  # ext 16; no field names
+    back = codec.decode(data)
+    for name in ("orientation", "angular_velocity", "linear_acceleration", "frame_id", "stamp"):
+        assert getattr(back, name) == getattr(imu, name), name
+        assert type(getattr(back, name)) is type(getattr(imu, name)), name
+    for name in ("orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"):
+        got = getattr(back, name)
+        assert got.shape == (3, 3) and got.dtype == np.float64, name
+        np.testing.assert_array_equal(got, getattr(imu, name))
+    back.angular_velocity = [7, 8, 9]  # a decoded Imu converts what is set on it like any other
+    assert back.angular_velocity == (7.0, 8.0, 9.0)
+
+
 def test_an_imu_read_from_its_cdr_bytes_equals_rclpys_deserialization():
-    read = converter_from_cdr("sensor_msgs/Imu")
+    read, flat, codec = converter_from_cdr("sensor_msgs/Imu"), converter_from_cdr("sensor_msgs/Imu", flat=True), Codec()
     for frame_id in ("", "i", "imu", "imu_lin", "imu_link", "a_longer_frame_ñ"):  # every alignment of the doubles
         ros = to_ros(Imu(orientation=(0.1, 0.2, 0.3, 0.9), angular_velocity=(1, 2, 3), linear_acceleration=(4, 5, 6),
                          orientation_covariance=np.arange(9.0).reshape(3, 3), angular_velocity_covariance=-np.eye(3),
                          linear_acceleration_covariance=np.full((3, 3), 0.5), frame_id=frame_id, stamp=12.25))
         data = serialize_message(ros)
-        ours, rclpys = read(data), from_ros(deserialize_message(data, type(ros)), "sensor_msgs/Imu")
-        for name in ("orientation", "angular_velocity", "linear_acceleration", "frame_id", "stamp"):
-            assert getattr(ours, name) == getattr(rclpys, name), (frame_id, name)
-        for name in ("orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"):
-            np.testing.assert_array_equal(getattr(ours, name), getattr(rclpys, name))
-    assert read(b"\x00\x00" + data[2:]) is None  # big endian: left to rclpy
-    assert read(data[:40]) is None  # cut short
+        rclpys = from_ros(deserialize_message(data, type(ros)), "sensor_msgs/Imu")
+        # Read into an Imu, and as the bridge publishes it: its flat form, decoded by a subscriber.
+        for ours in (read(data), codec.decode(codec.encode(flat(data))[0])):
+            assert type(ours) is Imu
+            for name in ("orientation", "angular_velocity", "linear_acceleration", "frame_id", "stamp"):
+                assert getattr(ours, name) == getattr(rclpys, name), (frame_id, name)
+            for name in ("orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"):
+                np.testing.assert_array_equal(getattr(ours, name), getattr(rclpys, name))
+    assert read(b"\x00\x00" + data[2:]) is None and flat(b"\x00\x00" + data[2:]) is None  # big endian: left to rclpy
+    assert read(data[:40]) is None and flat(data[:40]) is None  # cut short
     assert converter_from_cdr("std_msgs/String") is None
 
 

@@ -21,7 +21,8 @@ import pytest
 
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 
-from embagents.msgs import Image, StreamingString, String, Twist  # noqa: E402
+from actors.codec import Codec, Flat  # noqa: E402
+from embagents.msgs import Image, Imu, StreamingString, String, Twist  # noqa: E402
 from embagents.ros import QoS, RosInput, RosOutput  # noqa: E402
 from embagents.ros.fastdds_shm import clean_zombie_fastdds_segments  # noqa: E402
 from embagents.ros.node import RosBridgeCore  # noqa: E402
@@ -248,6 +249,43 @@ def test_receives_text_and_images_from_an_external_node(spawn, core_factory):
     assert depth.data.dtype == np.uint16 and depth.data.shape == (480, 640)
     np.testing.assert_array_equal(depth.data, (np.arange(480 * 640) % 65536).astype(np.uint16).reshape(480, 640))
     assert core.counts["text_in"].received >= 1 and core.counts["camera"].errors == 0
+
+
+IMU_PUBLISHER = r"""
+import time, rclpy
+from sensor_msgs.msg import Imu
+rclpy.init()
+node = rclpy.create_node("external_imu")
+pub = node.create_publisher(Imu, "/imu_in", 10)
+msg = Imu()
+msg.header.frame_id, msg.header.stamp.sec, msg.header.stamp.nanosec = "imu_link", 3, 250000000
+msg.linear_acceleration.z, msg.orientation.w = 9.81, 1.0
+msg.angular_velocity_covariance[4] = 0.5
+end = time.time() + 30
+while time.time() < end:
+    pub.publish(msg)
+    time.sleep(0.05)
+"""
+
+
+def test_a_flat_core_hands_an_imu_on_as_its_flat_form_ready_to_publish(spawn):
+    got: queue.Queue = queue.Queue()
+    core = RosBridgeCore([RosInput("/imu_in", "sensor_msgs/Imu", topic="imu")], flat=True)
+    try:
+        core.start("bridge_flat", lambda topic, msg: got.put(msg), domain_id=DOMAIN_ID)
+        pub = spawn(IMU_PUBLISHER)
+        try:
+            flat = got.get(timeout=DEADLINE)
+        except queue.Empty:
+            raise AssertionError(f"no Imu within {DEADLINE} s (publisher exit status {pub.poll()})") from None
+    finally:
+        core.stop()
+    assert isinstance(flat, Flat) and flat.cls is Imu  # what the bridge publishes: no Imu built
+    codec = Codec()
+    imu = codec.decode(codec.encode(flat)[0])  # what a subscriber gets
+    assert isinstance(imu, Imu) and (imu.frame_id, imu.stamp) == ("imu_link", 3.25)
+    assert imu.linear_acceleration == (0.0, 0.0, 9.81) and imu.orientation == (0.0, 0.0, 0.0, 1.0)
+    assert imu.angular_velocity_covariance[1, 1] == 0.5
 
 
 def test_publishes_to_an_external_node(spawn, core_factory):
