@@ -3,10 +3,16 @@
 It serves the System's :class:`~embagents.zenoh.ZenohBridge`: each exported
 internal topic is subscribed here and put on Zenoh under the namespace;
 each import's key expression is subscribed on Zenoh and published on its
-internal topic. Messages cross as the actors' msgpack frames, arrays of
-64 KB or more copied once into the payload after the frame (shared memory
-never leaves a host; see :class:`_Blobs`). Zenoh's own threads
-hand each sample to the actor's loop thread.
+internal topic. Messages cross as the actors' msgpack frames, relayed as
+they came: an export's frame goes into the payload undecoded, an import's
+payload body goes onto ipc undecoded (the receiving component's bounded
+decoder refuses a malformed one, counted as ``bad``). Only a frame that may
+hold an extension of type 3 is decoded: on the way out its shared-memory
+arrays are copied once into the payload after the frame (shared memory
+never leaves a host; see :class:`_Blobs`), on the way in such arrays
+(or a forged handle, ``refused``) are checked against the payload; so are
+compressed ones. Imports are published from Zenoh's network thread that
+received them (no hand-over to the actor's loop thread).
 
 Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
 samples cached, heartbeats for miss detection) and advanced subscriber
