@@ -443,7 +443,9 @@ class ZenohBridgeActor(Actor):
             assert i.topic is not None  # Import fills it in from the key
             if i.topic not in self.in_publishers:
                 self.in_publishers[i.topic] = ctx.thread_publisher(i.topic)
-            # indirect=False: called on the network thread, not handed to a Python thread of zenoh's first.
+            # indirect=False: called on the network thread, not handed to a Python thread of zenoh's first
+            # (a wake-up). A publish that waits for a slow keep-all component (at most its stall_timeout,
+            # 1 s, well within the lease) holds the reading of that link meanwhile: backpressure.
             cb = zenoh.handlers.Callback(self._in_callback(i.topic, once=i.keep == "all"), indirect=False)
             if i.keep == "all":
                 sub = zext.declare_advanced_subscriber(
