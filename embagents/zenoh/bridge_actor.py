@@ -49,7 +49,7 @@ import numpy as np
 
 from actors import Actor
 from actors.codec import Codec
-from actors.errors import CodecError, CorruptFrame, UnknownMessage
+from actors.errors import CodecError, CorruptFrame, StaleFrame, UnknownMessage
 from embagents.msgs import CompressedImage, Health, HealthStatus, Image
 from embagents.requests import HealthQuery
 from embagents.system import loaded_system
@@ -472,6 +472,10 @@ class ZenohBridgeActor(Actor):
                 data[_HEAD.size:] = frame
             else:
                 data = self._encode(self.exported[topic].decode(frame), how, quality)
+        except StaleFrame as exc:  # its shared memory was reused meanwhile: dropped, as a subscription drops it
+            self.exported[topic].dropped += 1
+            log.debug("topic %s: %s", topic, exc)
+            return
         except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
             self.blobs.arrays, self.blobs.size = [], 0
             with self._lock:
@@ -541,10 +545,16 @@ class ZenohBridgeActor(Actor):
             with in_lock:
                 if self.stopped:  # on_stop undeclared us while this sample was on its way: the publishers go
                     return
-                if body is not None:
-                    pub.publish_frame(body)
-                else:
-                    pub.publish(msg)
+                try:
+                    if body is not None:
+                        pub.publish_frame(body)
+                    else:
+                        pub.publish(msg)
+                except Exception as exc:  # noqa: BLE001 - never into zenoh's thread: dropped, counted, named
+                    with lock:
+                        counts["refused"] += 1
+                    log.error("not published on %s: %s", topic, exc)
+                    return
                 if once:
                     after(sample)  # the bookkeeping once the message is on its way
 
