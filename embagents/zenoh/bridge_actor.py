@@ -11,8 +11,8 @@ hold an extension of type 3 is decoded: on the way out its shared-memory
 arrays are copied once into the payload after the frame (shared memory
 never leaves a host; see :class:`_Blobs`), on the way in such arrays
 (or a forged handle, ``refused``) are checked against the payload; so are
-compressed ones. Imports are published from Zenoh's network thread that
-received them (no hand-over to the actor's loop thread).
+compressed ones. Imports are published from the Zenoh thread that calls
+back with them (no hand-over to the actor's loop thread).
 
 Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
 samples cached, heartbeats for miss detection) and advanced subscriber
@@ -432,7 +432,7 @@ class ZenohBridgeActor(Actor):
         self.chains: dict[str, tuple[tuple[bytes, int], int]] = {}  # key -> last (source, number) received
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
-        # Imports are published from zenoh's network thread that received them, with publishers of
+        # Imports are published from the zenoh thread that calls back with them, with publishers of
         # their own (a hand-over to the loop thread costs a wake-up); the lock makes one thread at a
         # time use them (ZeroMQ sockets are not thread-safe) and guards the keep-all bookkeeping.
         self._in_lock = threading.Lock()
@@ -443,10 +443,13 @@ class ZenohBridgeActor(Actor):
             assert i.topic is not None  # Import fills it in from the key
             if i.topic not in self.in_publishers:
                 self.in_publishers[i.topic] = ctx.thread_publisher(i.topic)
-            # indirect=False: called on the network thread, not handed to a Python thread of zenoh's first
-            # (a wake-up). A publish that waits for a slow keep-all component (at most its stall_timeout,
-            # 1 s, well within the lease) holds the reading of that link meanwhile: backpressure.
-            cb = zenoh.handlers.Callback(self._in_callback(i.topic, once=i.keep == "all"), indirect=False)
+            # Keep-latest: called on the network thread that read the sample (indirect=False), not handed
+            # to a Python thread of zenoh's first (a wake-up); one link's samples come from one thread.
+            # Keep-all: zenoh's Python thread calls us in the order the advanced subscriber delivers, its
+            # history and recovery replies included; from network threads they raced for the GIL and a
+            # restarted bridge delivered out of order (seen: 110 before 101). A publish that waits for a slow
+            # keep-all component (at most its stall_timeout, 1 s) holds that thread meanwhile: backpressure.
+            cb = zenoh.handlers.Callback(self._in_callback(i.topic, once=i.keep == "all"), indirect=i.keep == "all")
             if i.keep == "all":
                 sub = zext.declare_advanced_subscriber(
                     self.session, zenoh_key(i.key), cb, allowed_origin=zenoh.Locality.REMOTE,
@@ -511,7 +514,7 @@ class ZenohBridgeActor(Actor):
         delivered, after, in_lock, pub = self.delivered, self._forwarded, self._in_lock, self.in_publishers[topic]
         relay_max = pub.rt.codec.max_frame_bytes
 
-        def on_sample(sample: Any) -> None:  # zenoh's network thread
+        def on_sample(sample: Any) -> None:  # zenoh's thread (see on_start)
             # Only a restarted bridge gets replays of what it forwarded: a first one skips the look-up
             # (each step costs tens of microseconds on a core that just woke up).
             if once and delivered.restarted and (source := _source(sample)) is not None and delivered.seen(*source):
