@@ -39,6 +39,7 @@ class SubscribeOptions(TypedDict, total=False):
     queue_size: int
     keep: str  # "latest" or "all"
     msg_type: type | None
+    raw: bool  # the callback gets undecoded frames (a relay's; see Subscription)
 
 
 class ActorContext:

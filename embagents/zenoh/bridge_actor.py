@@ -3,10 +3,16 @@
 It serves the System's :class:`~embagents.zenoh.ZenohBridge`: each exported
 internal topic is subscribed here and put on Zenoh under the namespace;
 each import's key expression is subscribed on Zenoh and published on its
-internal topic. Messages cross as the actors' msgpack frames, arrays of
-64 KB or more copied once into the payload after the frame (shared memory
-never leaves a host; see :class:`_Blobs`). Zenoh's own threads
-hand each sample to the actor's loop thread.
+internal topic. Messages cross as the actors' msgpack frames, relayed as
+they came: an export's frame goes into the payload undecoded, an import's
+payload body goes onto ipc undecoded (the receiving component's bounded
+decoder refuses a malformed one, counted as ``bad``). Only a frame that may
+hold an extension of type 3 is decoded: on the way out its shared-memory
+arrays are copied once into the payload after the frame (shared memory
+never leaves a host; see :class:`_Blobs`), on the way in such arrays
+(or a forged handle, ``refused``) are checked against the payload; so are
+compressed ones. Imports are published from the Zenoh thread that calls
+back with them (no hand-over to the actor's loop thread).
 
 Keep-all topics use zenoh-ext's advanced publisher (the last ``window``
 samples cached, heartbeats for miss detection) and advanced subscriber
@@ -32,6 +38,7 @@ import json
 import logging
 import mmap
 import os
+import re
 import socket
 import struct
 import threading
@@ -42,7 +49,7 @@ import numpy as np
 
 from actors import Actor
 from actors.codec import Codec
-from actors.errors import CodecError, CorruptFrame, UnknownMessage
+from actors.errors import CodecError, CorruptFrame, StaleFrame, UnknownMessage
 from embagents.msgs import CompressedImage, Health, HealthStatus, Image
 from embagents.requests import HealthQuery
 from embagents.system import loaded_system
@@ -66,6 +73,11 @@ MAX_PAYLOAD = 256 * 1024 * 1024
 _HEAD = struct.Struct("<4sI")  # magic, msgpack body length
 #: A keep-all sample's attachment: its number among all its export's samples, across bridge restarts.
 _NUMBER = struct.Struct("<Q")
+#: Where a msgpack frame may hold an extension of type 3 (EXT_SHM: a shared-memory handle, or our
+#: payload's array handle): the header of each ext size, then the type. Nested messages are inside
+#: their parent's bytes as they are, so a frame without a match holds none at any depth. A match in
+#: plain data (a false alarm) only costs a decode.
+_MAY_HOLD_HANDLES = re.compile(rb"[\xd4-\xd8]\x03|\xc7.\x03|\xc8..\x03|\xc9....\x03", re.S)
 
 
 class _Blobs:
@@ -393,6 +405,7 @@ class ZenohBridgeActor(Actor):
 
         self.link_listener = self.session.info.declare_link_events_listener(on_link, history=True)
         self.publishers: dict[str, Any] = {}
+        self.exported: dict[str, Any] = {}  # topic -> its (raw) subscription
         self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
         # Keep-all samples are numbered across this bridge's incarnations (the attachment): a receiver
         # counts what a killed incarnation took but never got out (the advanced subscriber's sequence
@@ -410,18 +423,33 @@ class ZenohBridgeActor(Actor):
             else:
                 pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
-            ctx.subscribe(e.topic, functools.partial(self._out, pub, topic=e.topic, number=n if e.keep == "all" else -1),
-                          queue_size=max(10, min(e.window, 1000)),
-                          keep=e.keep)
+            # Raw: a frame goes on as it came (see _out); only one holding shared memory is decoded.
+            self.exported[e.topic] = ctx.subscribe(
+                e.topic, functools.partial(self._out, pub, topic=e.topic, number=n if e.keep == "all" else -1),
+                queue_size=max(10, min(e.window, 1000)), keep=e.keep, raw=True)
         # What this bridge's earlier incarnations forwarded (keep-all imports), by source and sequence number.
         self.delivered = _Delivered(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.delivered"))
         self.chains: dict[str, tuple[tuple[bytes, int], int]] = {}  # key -> last (source, number) received
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
+        # Imports are published from the zenoh thread that calls back with them, with publishers of
+        # their own (a hand-over to the loop thread costs a wake-up); the lock makes one thread at a
+        # time use them (ZeroMQ sockets are not thread-safe) and guards the keep-all bookkeeping.
+        self._in_lock = threading.Lock()
+        self.stopped = False
+        self.in_publishers: dict[str, Any] = {}
         sub: Any
         for i in spec.imports:
             assert i.topic is not None  # Import fills it in from the key
-            cb = self._in_callback(i.topic, once=i.keep == "all")
+            if i.topic not in self.in_publishers:
+                self.in_publishers[i.topic] = ctx.thread_publisher(i.topic)
+            # Keep-latest: called on the network thread that read the sample (indirect=False), not handed
+            # to a Python thread of zenoh's first (a wake-up); one link's samples come from one thread.
+            # Keep-all: zenoh's Python thread calls us in the order the advanced subscriber delivers, its
+            # history and recovery replies included; from network threads they raced for the GIL and a
+            # restarted bridge delivered out of order (seen: 110 before 101). A publish that waits for a slow
+            # keep-all component (at most its stall_timeout, 1 s) holds that thread meanwhile: backpressure.
+            cb = zenoh.handlers.Callback(self._in_callback(i.topic, once=i.keep == "all"), indirect=i.keep == "all")
             if i.keep == "all":
                 sub = zext.declare_advanced_subscriber(
                     self.session, zenoh_key(i.key), cb, allowed_origin=zenoh.Locality.REMOTE,
@@ -437,24 +465,25 @@ class ZenohBridgeActor(Actor):
         self._timer = ctx.call_later(CHECK_EVERY_S, self._check)
 
     # -- traffic ------------------------------------------------------------------------
-    def _out(self, pub: Any, msg: Any, topic: str = "", number: int = -1) -> None:
+    def _out(self, pub: Any, frame: memoryview, topic: str = "", number: int = -1) -> None:
         how, quality = self.compress.get(topic, (None, 0))
         try:
-            if how == "jpeg":
-                msg = _to_jpeg(msg, quality)
-            body, _ = self.codec.encode(msg, sink=self.blobs)
-            data = self.blobs.frame(body)
-            if how == "jpeg":
-                data[:4] = JPEG
-            elif how == "lz4":
-                import lz4.frame
-
-                data = bytearray(LZ4 + lz4.frame.compress(data))
+            if how is None and not _MAY_HOLD_HANDLES.search(frame):
+                # The ipc frame is the payload's body as it is: no decode, no encode.
+                data = bytearray(_HEAD.size + len(frame))  # zenoh takes a bytearray without a copy
+                _HEAD.pack_into(data, 0, MAGIC, len(frame))
+                data[_HEAD.size:] = frame
+            else:
+                data = self._encode(self.exported[topic].decode(frame), how, quality)
+        except StaleFrame as exc:  # its shared memory was reused meanwhile: dropped, as a subscription drops it
+            self.exported[topic].dropped += 1
+            log.debug("topic %s: %s", topic, exc)
+            return
         except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
             self.blobs.arrays, self.blobs.size = [], 0
             with self._lock:
                 self.counts["refused"] += 1
-            log.error("not sent: %s (%s)", type(msg).__name__, exc)
+            log.error("not sent on %s: %s", topic, exc)
             return
         if number < 0:
             pub.put(data)
@@ -466,11 +495,26 @@ class ZenohBridgeActor(Actor):
             self.counts["msgs_out"] += 1
             self.counts["bytes_out"] += len(data)
 
-    def _in_callback(self, topic: str, once: bool = False) -> Any:
-        codec, blobs, ctx, counts, lock = self.codec, self.blobs, self.context, self.counts, self._lock
-        delivered, after = self.delivered, self._forwarded
+    def _encode(self, msg: Any, how: str | None, quality: int) -> bytearray:
+        """A decoded message's payload: its arrays copied out of shared memory, compressed if asked."""
+        if how == "jpeg":
+            msg = _to_jpeg(msg, quality)
+        body, _ = self.codec.encode(msg, sink=self.blobs)
+        data = self.blobs.frame(body)
+        if how == "jpeg":
+            data[:4] = JPEG
+        elif how == "lz4":
+            import lz4.frame
 
-        def on_sample(sample: Any) -> None:  # zenoh's thread: decode here, publish on the loop thread
+            data = bytearray(LZ4 + lz4.frame.compress(data))
+        return data
+
+    def _in_callback(self, topic: str, once: bool = False) -> Any:
+        codec, blobs, counts, lock = self.codec, self.blobs, self.counts, self._lock
+        delivered, after, in_lock, pub = self.delivered, self._forwarded, self._in_lock, self.in_publishers[topic]
+        relay_max = pub.rt.codec.max_frame_bytes
+
+        def on_sample(sample: Any) -> None:  # zenoh's thread (see on_start)
             # Only a restarted bridge gets replays of what it forwarded: a first one skips the look-up
             # (each step costs tens of microseconds on a core that just woke up).
             if once and delivered.restarted and (source := _source(sample)) is not None and delivered.seen(*source):
@@ -478,34 +522,49 @@ class ZenohBridgeActor(Actor):
                     counts["replayed"] += 1
                 return
             data = sample.payload.to_bytes()
-            try:
-                if data[:4] == LZ4:
-                    data = _unlz4(data[4:])
-                msg = codec.decode(blobs.split(data))
-                if data[:4] == JPEG:
-                    msg = _from_jpeg(msg)
-            except CodecError as exc:  # a peer's garbage: dropped and counted, never a crash
-                with lock:
-                    counts["refused"] += 1
-                log.warning("dropped a frame on %s from %s: %s", sample.key_expr, topic, exc)
-                return
+            size = len(data)
+            # A frame with no arrays after it and no handles in it goes on as it came: receivers
+            # decode it (and drop, counted as bad, one that is not well formed). Any other is decoded
+            # here: its arrays (views into the payload) go into this host's shared memory.
+            body: memoryview | None = None
+            if (_HEAD.size < size <= relay_max and data[:4] == MAGIC and _HEAD.unpack_from(data)[1] == size - _HEAD.size
+                    and not _MAY_HOLD_HANDLES.search(data, _HEAD.size)):
+                body = memoryview(data)[_HEAD.size:]
+            else:
+                try:
+                    if data[:4] == LZ4:
+                        data = _unlz4(data[4:])
+                    msg = codec.decode(blobs.split(data))
+                    if data[:4] == JPEG:
+                        msg = _from_jpeg(msg)
+                except CodecError as exc:  # a peer's garbage: dropped and counted, never a crash
+                    with lock:
+                        counts["refused"] += 1
+                    log.warning("dropped a frame on %s from %s: %s", sample.key_expr, topic, exc)
+                    return
             with lock:
                 counts["msgs_in"] += 1
-                counts["bytes_in"] += len(data)
-            if not once:
-                ctx.call_soon_threadsafe(lambda: ctx.publish(topic, msg))
-                return
-
-            def forward() -> None:
-                ctx.publish(topic, msg)
-                after(sample)  # the bookkeeping once the message is on its way
-
-            ctx.call_soon_threadsafe(forward)
+                counts["bytes_in"] += size
+            with in_lock:
+                if self.stopped:  # on_stop undeclared us while this sample was on its way: the publishers go
+                    return
+                try:
+                    if body is not None:
+                        pub.publish_frame(body)
+                    else:
+                        pub.publish(msg)
+                except Exception as exc:  # noqa: BLE001 - never into zenoh's thread: dropped, counted, named
+                    with lock:
+                        counts["refused"] += 1
+                    log.error("not published on %s: %s", topic, exc)
+                    return
+                if once:
+                    after(sample)  # the bookkeeping once the message is on its way
 
         return on_sample
 
     def _forwarded(self, sample: Any) -> None:
-        """Note a keep-all sample as forwarded (for a successor); count a jump in its export's numbers."""
+        """Note a keep-all sample as forwarded (for a successor); count a jump in its export's numbers (under _in_lock)."""
         source = _source(sample)
         if source is None:
             return
@@ -641,6 +700,8 @@ class ZenohBridgeActor(Actor):
     def on_stop(self) -> None:
         for sub in self.subscribers:
             sub.undeclare()
+        with self._in_lock:  # a sample being published finishes; later ones find the publishers gone
+            self.stopped = True
         for pub in self.publishers.values():
             pub.undeclare()
         self.link_listener.undeclare()

@@ -282,3 +282,32 @@ def test_a_publisher_keeps_for_a_durable_subscriber_only_what_it_has_not_acknowl
         pub.close()
         sub.close()
         rt.close()
+
+
+def test_a_raw_subscription_relays_frames_undecoded_and_the_receiver_decodes_or_refuses_them(tmp_path: Path) -> None:
+    # A relay (the Zenoh bridge) sends a frame on as it came: no decode, no encode.
+    rt, loop, frames, got = Runtime(str(tmp_path), "raw"), Loop(), [], []
+    raw = Subscription(rt, loop, "in", frames.append, keep="all", raw=True)
+    out = Subscription(rt, loop, "out", got.append, keep="all")
+    pub_in, pub_out = TopicPublisher(rt, "in"), TopicPublisher(rt, "out")
+    try:
+        msg = {"n": 1, "a": np.arange(4, dtype=np.int16)}
+        pub_in.publish(msg)
+        loop.run(until=lambda: bool(frames), timeout=10.0)
+        assert isinstance(frames[0], memoryview) and bytes(frames[0]) == rt.codec.encode(msg)[0]
+        assert raw.decode(frames[0])["n"] == 1
+        pub_out.publish_frame(frames[0])
+        pub_out.publish_frame(b"\xc1 is no msgpack")  # a peer's garbage: the receiver's decoder refuses it
+        pub_out.publish_frame(rt.codec.encode({"n": 2})[0])
+        loop.run(until=lambda: len(got) >= 2, timeout=10.0)
+        assert got[0]["n"] == 1 and np.array_equal(got[0]["a"], msg["a"]) and got[1] == {"n": 2}
+        assert out.bad == 1 and out.received == 3
+        with pytest.raises(ValueError, match="cannot check msg_type"):
+            Subscription(rt, loop, "typed", got.append, raw=True, msg_type=dict)
+    finally:
+        for s in (raw, out):
+            s.close()
+        pub_in.close()
+        pub_out.close()
+        loop.close()
+        rt.close()

@@ -165,3 +165,49 @@ def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_rep
         assert any("replayed" in line for line in detail["lines"])
     finally:
         b.stop(), a.stop()
+
+
+def test_a_peers_frames_go_on_as_they_came_and_its_garbage_or_forged_handles_are_dropped_and_counted(
+        tmp_path: Path) -> None:
+    # A bare Zenoh peer (no bridge) puts on run B's import: frames without arrays go on to the component
+    # undecoded (its subscription refuses garbage), a forged array handle is refused by the bridge itself.
+    import json
+
+    import msgpack
+    import zenoh
+
+    import embagents.msgs  # noqa: F401 - registers String
+    from actors.codec import Codec
+    from embagents.msgs import String
+    from embagents.zenoh.bridge_actor import _HEAD, MAGIC
+
+    def payload(body: bytes) -> bytes:
+        return _HEAD.pack(MAGIC, len(body)) + body
+
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    runs = str(tmp_path / "runs")
+    with zenoh.open(conf) as session:
+        b = Run(write(tmp_path, "peer_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+        try:
+            codec = Codec()
+
+            def put(n: int) -> list[int]:
+                session.put("robot1/chatter", payload(codec.encode(String(data=str(n)))[0]))
+                return b.got()
+
+            wait_for(lambda: put(1), 60, "a peer's message on run B: " + "".join(b.all[-20:]))
+            session.put("robot1/chatter", payload(b"\xc1\xc1 no msgpack"))
+            session.put("robot1/chatter", payload(msgpack.packb(msgpack.ExtType(3, msgpack.packb([0, 8, "|u1", [8]])))))
+            wait_for(lambda: 7 in put(7), 30, "a message after the garbage")
+            assert b.got()[-1] == 7 and set(b.got()) == {1, 7}
+            detail = b.bridge()
+            assert detail is not None and detail["counts"]["refused"] == 1  # the forged handle
+            wait_for(lambda: any("dropped a corrupt frame" in x for x in b.all), 10, "the receiver's log line")
+            rows = {r["name"]: r for r in b.status()["rows"]}  # type: ignore[index]
+            assert rows["_zenoh_bridge"]["restarts"] == 0 and rows["_zenoh_bridge"]["status"] == "running"
+            assert rows["printer"]["restarts"] == 0
+        finally:
+            assert b.stop() == 0, "".join(b.all[-30:])
