@@ -12,8 +12,9 @@ response, :mod:`embagents.bench.echo_room`) and the user's scripted turns,
 cancels the echo with the ``played`` reference (WebRTC AEC3, as the
 Microphone does) and publishes 20 ms chunks. The user (the Piper voice too)
 asks "Tell me about Paris."; 1 s after the robot starts answering, says "Wait,
-tell me about Berlin instead." over it; 2 s into that answer, says "Mm hm."
-(a backchannel, "mhm": Whisper spells it in letters, "M-H-M.").
+tell me about Berlin instead." over it; 2 s into that answer, says "Yeah,
+okay." (a backchannel: not "mhm", which the Piper voice says as no word
+Whisper knows).
 
 ``ears`` (SpeechToText: Silero VAD, then the ``whisper`` model actor) hears the
 questions and, while the robot speaks, publishes barge-in decisions
@@ -85,7 +86,9 @@ RATE = 16000
 USER_TURNS = (
     ("Tell me about Paris.", "start", 0.5),
     ("Wait, tell me about Berlin instead.", "robot", 1.0),  # an interruption
-    ("Mm hm.", "robot", 2.0),  # a backchannel: "mhm" (Whisper spells the Piper voice's "M-H-M.")
+    # A backchannel. Not "mhm": the Piper voice's hum comes back from Whisper as "M-H-M." (a backchannel) one run
+    # and "and then hm." (words: an interruption) another; "yeah, okay" is heard the same way every run.
+    ("Yeah, okay.", "robot", 2.0),
 )
 QUESTIONS = 2  # turns above that ask something: the robot's last answer is the second
 USER_DB = -18.0  # the user's level at the microphone (RMS dBFS): nearer it than the robot's speaker is

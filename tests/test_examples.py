@@ -124,7 +124,7 @@ def test_listen_example_hears_the_six_phrases_of_the_clip(tmp_path: Path) -> Non
 
 def test_voice_example_is_interrupted_mid_answer_once_and_speaks_on_over_a_backchannel(tmp_path: Path) -> None:
     # The user's part is scripted against the simulated speaker (examples/voice.py's USER_TURNS): "Tell me about
-    # Paris."; 1 s into the answer, "Wait, tell me about Berlin instead."; 2 s into that answer, "Mm hm." (a backchannel)
+    # Paris."; 1 s into the answer, "Wait, tell me about Berlin instead."; 2 s into that answer, "Yeah, okay."
     for module in ("sherpa_onnx", "espeakng_loader", "livekit", "llama_cpp"):
         pytest.importorskip(module, reason="the example needs the llm and speech extras (pip install 'embagents[llm,speech]')")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "voice.py")],
