@@ -57,7 +57,7 @@ class ActorContext:
     def publish(self, topic: str, message: Any) -> None:
         self._host.publisher(topic).publish(message)
 
-    def thread_publisher(self, topic: str) -> Publisher:
+    def thread_publisher(self, topic: str, pub_id: int | None = None) -> Publisher:
         """A publisher of ``topic`` for one thread of the actor's own (a driver's receive thread).
 
         ``publish`` hands a message to this actor's thread; a driver thread that
@@ -65,9 +65,10 @@ class ActorContext:
         machine). Only one thread at a time may use it (ZeroMQ sockets are not
         thread-safe); a publish may wait, as on the actor's thread, for a slow
         ``keep="all"`` subscriber. It counts in the actor's stats and is closed
-        with the actor, after ``on_stop``: stop the thread there.
+        with the actor, after ``on_stop``: stop the thread there. ``pub_id``: see
+        :class:`~actors.topics.Publisher` (a relay's, whose messages are numbered by their source).
         """
-        return self._host.thread_publisher(topic)
+        return self._host.thread_publisher(topic, pub_id)
 
     def subscribe(self, topic: str, callback: Callable[[Any], None], **options: Unpack[SubscribeOptions]) -> Subscription:
         """Call ``callback(message)`` on this actor's thread for each message on ``topic``.

@@ -185,9 +185,9 @@ class ActorHost:
             pub = self.publishers[topic] = Publisher(self.rt, topic)
         return pub
 
-    def thread_publisher(self, topic: str) -> Publisher:
+    def thread_publisher(self, topic: str, pub_id: int | None = None) -> Publisher:
         """A new publisher of ``topic`` for one other thread of this actor (closed with the actor)."""
-        pub = Publisher(self.rt, topic)
+        pub = Publisher(self.rt, topic, pub_id=pub_id)
         self.thread_publishers.append((topic, pub))
         return pub
 

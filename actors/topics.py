@@ -197,6 +197,13 @@ class Publisher:
     ``stall_timeout``: the longest a publish waits for a ``keep="all"``
     subscriber that is ``window`` messages behind before it reports it
     stalled and drops for it (counted) until it reads again.
+
+    ``pub_id`` (48 bits, not 0; random by default), with ``seq`` given to
+    each publish: for a relay whose messages are numbered by their source (a
+    Zenoh bridge) and that may be killed and restarted. Its successor
+    publishes under the same id with the same numbers, so it may re-send what
+    the killed one may not have got out: a subscription drops a number it
+    has had from that id, and counts a jump as dropped.
     """
 
     #: Messages in flight to one keep-all subscriber before a publish waits for it.
@@ -212,6 +219,7 @@ class Publisher:
         *,
         ring: int = 8,
         stall_timeout: float = 1.0,
+        pub_id: int | None = None,
     ) -> None:
         self.rt = rt
         self.topic = wire.check_name(topic.replace("/", "."))
@@ -229,7 +237,9 @@ class Publisher:
         s.setsockopt(zmq.RECONNECT_IVL, 20)
         self.sock = s
         self._sink = _Ring(rt.pool, self.topic, ring)  # built once: encodes pass it explicitly
-        self.id = int.from_bytes(os.urandom(6), "little")
+        if pub_id is not None and not 0 < pub_id < 1 << 48:
+            raise ValueError(f"a publisher id has 48 bits and is not 0, got {pub_id}")
+        self.id = int.from_bytes(os.urandom(6), "little") if pub_id is None else pub_id
         self._changed = _map_changed(self.dir)
         self._seen: bytes | None = None  # the folder's change word when last listed
         self._peers: set[str] = set()
@@ -400,27 +410,32 @@ class Publisher:
         """Messages kept for keyed ``keep="all"`` subscribers that are gone, for their next incarnation."""
         return sum(len(r.unacked) for r in self._orphans.values())
 
-    def publish(self, msg: Any) -> None:
+    def publish(self, msg: Any, seq: int | None = None) -> None:
+        """Publish ``msg``; ``seq``: its sequence number (see ``pub_id``), else the next one."""
         if self.msg_type is not None and not isinstance(msg, self.msg_type):
             raise TypeError(
                 f"topic {self.topic!r} carries {self.msg_type.__name__}, "
                 f"got {type(msg).__name__}: publish a {self.msg_type.__name__} or declare another topic"
             )
         self._refresh()
+        if seq is not None:
+            self.sent = seq - 1  # _send numbers it
         if not self._peers and not self._orphans:
             return
         # A Flat is its frame already (an Imu from the ROS bridge): no Packer, no callbacks (~25 us cold).
         body = msg.frame() if type(msg) is Flat else self.rt.codec.encode(msg, sink=self._sink)[0]
         self._send(body)
 
-    def publish_frame(self, body: bytes | memoryview) -> None:
+    def publish_frame(self, body: bytes | memoryview, seq: int | None = None) -> None:
         """Publish a message already encoded by a codec (a relay's: :class:`Subscription` ``raw=True``).
 
         ``body`` must hold no shared-memory handles (a frame of another host's never does):
         receivers decode it as any frame, and drop (count as ``bad``) one that is not well formed.
-        The declared message type is not checked (that takes a decode).
+        The declared message type is not checked (that takes a decode). ``seq``: as for :meth:`publish`.
         """
         self._refresh()
+        if seq is not None:
+            self.sent = seq - 1
         if self._peers or self._orphans:
             self._send(body)
 
@@ -634,7 +649,7 @@ class Subscription:
             self._last.pop(next(iter(self._last)))
         if last is not None and seq > last + 1:
             self.dropped += seq - last - 1  # lost before it reached us
-        elif last is not None and seq <= last and self._credits is not None:  # keep="all": re-sent, had it
+        elif last is not None and seq <= last:  # re-sent (to a keep-all successor, by a restarted relay): had it
             return pub_id, seq, _SEEN
         if again:
             self.redelivered += 1

@@ -21,7 +21,12 @@ shorter than the window loses nothing; a loss beyond it is counted
 (``lost`` in ``embagents status``) and logged. A restarted bridge gets the
 publishers' caches again: what its killed incarnation had forwarded (the last
 sequence number of each source, in a file of the run: :class:`_Delivered`)
-is dropped and counted as ``replayed``, so a component gets each message once.
+is dropped and counted as ``replayed``, but for the last :data:`RESEND`, which
+may have died in ZeroMQ's queue: those are sent again, and the component's
+subscription drops those it had (a source's samples go on ipc under a
+publisher id of that source's, with its sequence numbers). History the
+advanced subscriber skips (a live sample came first) is fetched here
+(``_recover``). So a component gets each message once, in order.
 Keep-latest topics are plain publishers that drop under congestion and just resume.
 
 Links: explicit endpoints, multicast scouting off. Each endpoint's state
@@ -34,6 +39,7 @@ way are in ``embagents status``; an endpoint without a link for
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import logging
 import mmap
@@ -50,6 +56,7 @@ import numpy as np
 from actors import Actor
 from actors.codec import Codec
 from actors.errors import CodecError, CorruptFrame, StaleFrame, UnknownMessage
+from actors.topics import Publisher
 from embagents.msgs import CompressedImage, Health, HealthStatus, Image
 from embagents.requests import HealthQuery
 from embagents.system import loaded_system
@@ -64,6 +71,12 @@ CHECK_EVERY_S = 0.25
 PROBE_EVERY_S = 2.0
 PROBE_ANSWERED_EVERY_S = 30.0
 HEALTH_TOPIC = "_health"
+#: A restarted bridge sends each source's last this many forwarded messages again: the killed one may
+#: not have got them out (still in ZeroMQ's queue). No more can be: a publisher has at most this many
+#: messages not yet handled by a keep-all subscriber. The component drops those it had by their number.
+RESEND = Publisher.window
+#: The longest a restarted bridge waits for a publisher's cache to answer (see ZenohBridgeActor._recover).
+RECOVER_TIMEOUT_S = 5.0
 #: The first bytes of our Zenoh payloads: the frame format's version.
 MAGIC = b"EZ1\0"
 LZ4 = b"EZL\0"  # then an lz4 frame of a whole MAGIC payload
@@ -177,6 +190,8 @@ class _Delivered:
         return sn <= self.last.get(source, -1)
 
     def forwarded(self, source: tuple[bytes, int], sn: int) -> None:
+        if sn <= self.last.get(source, -1):  # sent again (see RESEND)
+            return
         self.tick += 1
         i = self.slot.get(source)
         if i is None:
@@ -438,6 +453,9 @@ class ZenohBridgeActor(Actor):
         self._in_lock = threading.Lock()
         self.stopped = False
         self.in_publishers: dict[str, Any] = {}
+        # Keep-all samples of an advanced publisher go on ipc from a publisher of their source's: its id is
+        # the source's, its sequence numbers the source's, the same in this bridge's next incarnation (see RESEND).
+        self.source_publishers: dict[tuple[str, tuple[bytes, int]], Publisher] = {}
         sub: Any
         for i in spec.imports:
             assert i.topic is not None  # Import fills it in from the key
@@ -513,14 +531,28 @@ class ZenohBridgeActor(Actor):
         codec, blobs, counts, lock = self.codec, self.blobs, self.counts, self._lock
         delivered, after, in_lock, pub = self.delivered, self._forwarded, self._in_lock, self.in_publishers[topic]
         relay_max = pub.rt.codec.max_frame_bytes
+        resumed: set[tuple[bytes, int]] = set()  # sources this incarnation forwarded a sample of
 
         def on_sample(sample: Any) -> None:  # zenoh's thread (see on_start)
-            # Only a restarted bridge gets replays of what it forwarded: a first one skips the look-up
-            # (each step costs tens of microseconds on a core that just woke up).
-            if once and delivered.restarted and (source := _source(sample)) is not None and delivered.seen(*source):
-                with lock:
-                    counts["replayed"] += 1
-                return
+            # Only a restarted bridge gets replays of what it forwarded (the publishers' caches again).
+            source = _source(sample) if once else None
+            if source is not None and delivered.restarted and (last := delivered.last.get(source[0])) is not None:
+                src, sn = source
+                if sn <= last - RESEND:  # surely got out by the killed incarnation
+                    with lock:
+                        counts["replayed"] += 1
+                    return
+                if src not in resumed:
+                    resumed.add(src)
+                    # The first sample after a restart further on than the resent ones: the advanced
+                    # subscriber skipped history (see _recover), fetched here and forwarded first.
+                    first = max(last - RESEND + 1, 0)
+                    if sn > first:
+                        for old in self._recover(str(sample.key_expr), src, first, sn - 1, last):
+                            on_sample(old)
+                if sn <= last:  # sent again: the component drops it if it had it
+                    with lock:
+                        counts["replayed"] += 1
             data = sample.payload.to_bytes()
             size = len(data)
             # A frame with no arrays after it and no handles in it goes on as it came: receivers
@@ -548,26 +580,67 @@ class ZenohBridgeActor(Actor):
             with in_lock:
                 if self.stopped:  # on_stop undeclared us while this sample was on its way: the publishers go
                     return
+                out, seq = pub, None
+                if source is not None:
+                    out = self.source_publishers.get((topic, source[0])) or self._source_publisher(topic, source[0])
+                    seq = source[1] + 1  # ipc numbers start at 1
                 try:
                     if body is not None:
-                        pub.publish_frame(body)
+                        out.publish_frame(body, seq)
                     else:
-                        pub.publish(msg)
+                        out.publish(msg, seq)
                 except Exception as exc:  # noqa: BLE001 - never into zenoh's thread: dropped, counted, named
                     with lock:
                         counts["refused"] += 1
                     log.error("not published on %s: %s", topic, exc)
                     return
-                if once:
-                    after(sample)  # the bookkeeping once the message is on its way
+                if source is not None:
+                    after(sample, source)  # the bookkeeping once the message is on its way
 
         return on_sample
 
-    def _forwarded(self, sample: Any) -> None:
+    def _source_publisher(self, topic: str, source: tuple[bytes, int]) -> Publisher:
+        """The ipc publisher of ``topic`` for one Zenoh source: its id is the source's (under _in_lock)."""
+        digest = hashlib.blake2b(repr((topic, source)).encode(), digest_size=6).digest()
+        pub = self.context.thread_publisher(topic, pub_id=int.from_bytes(digest, "little") or 1)
+        self.source_publishers[(topic, source)] = pub
+        return pub
+
+    def _recover(self, key: str, source: tuple[bytes, int], first: int, last: int, had: int) -> list[Any]:
+        """Samples ``first``..``last`` of ``source`` from its publisher's cache, in order (zenoh's thread).
+
+        A restarted bridge's advanced subscriber delivers a source's first live sample at once when it
+        comes before the replies to its history query for that source (a publisher it learnt of from
+        its token, after the link came up), and then drops the replies as old: what the source published
+        while the bridge was down would be skipped, silently. Those the cache no longer holds beyond
+        ``had`` (the last the killed incarnation forwarded) are counted lost.
+        """
+        import zenoh
+
+        zid, eid = source
+        selector = f"{key}/@adv/*/{zid.decode()}/{eid}/**?_sn={first}..{last}"  # the advanced cache's queryable
+        found: dict[int, Any] = {}
+        try:
+            for reply in self.session.get(selector, target=zenoh.QueryTarget.ALL, timeout=RECOVER_TIMEOUT_S,
+                                          consolidation=zenoh.ConsolidationMode.NONE,
+                                          accept_replies=zenoh.ReplyKeyExpr.ANY):
+                sample = reply.ok
+                got = _source(sample) if sample is not None else None
+                if got is not None and got[0] == source and first <= got[1] <= last:
+                    found[got[1]] = sample
+        except Exception as exc:  # noqa: BLE001 - a failed query is a loss, counted below
+            log.warning("could not query %s: %s", selector, exc)
+        missing = sum(1 for sn in range(max(first, had + 1), last + 1) if sn not in found)
+        log.info("%d message(s) on %s after a restart from the publisher's cache (%d..%d)", len(found), key, first, last)
+        if missing:
+            with self._lock:
+                self.counts["lost"] += missing
+            log.error("%d message(s) on %s lost: gone from the publisher's cache (Export(window=...)) while this "
+                      "bridge restarted", missing, key)
+        return [found[sn] for sn in sorted(found)]
+
+    def _forwarded(self, sample: Any, source: tuple[tuple[bytes, int], int]) -> None:
         """Note a keep-all sample as forwarded (for a successor); count a jump in its export's numbers (under _in_lock)."""
-        source = _source(sample)
-        if source is None:
-            return
         self.delivered.forwarded(*source)
         att = sample.attachment
         number = att.to_bytes() if att is not None else b""

@@ -165,7 +165,7 @@ def test_a_frame_of_ten_thousand_nested_messages_is_counted_and_skipped(system: 
     try:
         assert xpub.poll(5000) and xpub.recv()[:1] == b"\x01"  # the subscription is live
         for levels in (200, 10_000):  # 200 levels used to kill the subscriber with SIGSEGV
-            xpub.send(b"\x07" * 16 + nested_frame(levels))
+            xpub.send(b"\x07" * 8 + levels.to_bytes(8, "little") + nested_frame(levels))  # a number each (or: seen)
         st = wait_until(lambda: (s := sub.ask("stats", timeout=5).get())["bad"] >= 2 and s)
     finally:
         xpub.close()
@@ -309,5 +309,41 @@ def test_a_raw_subscription_relays_frames_undecoded_and_the_receiver_decodes_or_
             s.close()
         pub_in.close()
         pub_out.close()
+        loop.close()
+        rt.close()
+
+
+def test_a_relay_restarted_under_its_sources_publisher_id_is_heard_once_and_a_jump_is_counted(tmp_path: Path) -> None:
+    # A Zenoh bridge publishes a source's samples under that source's id and numbers; its successor after a
+    # kill sends the last ones again (the killed one may not have got them out): each subscription drops
+    # the numbers it had, keep-all and keep-latest alike, and counts a jump as dropped.
+    rt, loop, kept, latest = Runtime(str(tmp_path), "relay"), Loop(), [], []
+    subs = [Subscription(rt, loop, "relayed", kept.append, keep="all", queue_size=100),
+            Subscription(rt, loop, "relayed", latest.append, keep="latest", queue_size=100)]
+    pubs = []
+    try:
+        with pytest.raises(ValueError, match="48 bits"):
+            TopicPublisher(rt, "relayed", pub_id=1 << 48)
+        first = TopicPublisher(rt, "relayed", pub_id=0xBEEF)
+        pubs.append(first)
+        for n in range(1, 6):
+            first.publish_frame(rt.codec.encode({"n": n})[0], seq=n)
+        assert loop.run(until=lambda: len(kept) == 5 and len(latest) == 5, timeout=10)
+        first.close()
+        pubs.remove(first)
+        again = TopicPublisher(rt, "relayed", pub_id=0xBEEF)  # the restarted relay
+        pubs.append(again)
+        for n in [3, 4, 5, 6, 7, 9]:
+            again.publish({"n": n}, seq=n)
+        assert loop.run(until=lambda: len(kept) == 8 and len(latest) == 8, timeout=10)
+        loop.run(until=lambda: False, timeout=0.2)  # nothing more comes
+        for got, sub in zip((kept, latest), subs, strict=True):
+            assert [m["n"] for m in got] == [1, 2, 3, 4, 5, 6, 7, 9]
+            assert sub.dropped == 1 and sub.received == 11
+    finally:
+        for s in subs:
+            s.close()
+        for p in pubs:
+            p.close()
         loop.close()
         rt.close()

@@ -146,7 +146,9 @@ def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_rep
 
     port = free_port()
     runs = str(tmp_path / "runs")
-    a = Run(write(tmp_path, "rkill_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", rate=50.0), runs)
+    # 200 Hz: a live sample often reaches the restarted bridge before the replies to its history query (zenoh-ext
+    # then drops them as old; the bridge fetches them): 4 runs in 14 had a gap before it did, 1 in 12 at 50 Hz.
+    a = Run(write(tmp_path, "rkill_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", rate=200.0), runs)
     b = Run(write(tmp_path, "rkill_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
     try:
         wait_for(lambda: len(b.got()) >= 20, 60, "messages on run B")
