@@ -190,7 +190,7 @@ class _Delivered:
         return sn <= self.last.get(source, -1)
 
     def forwarded(self, source: tuple[bytes, int], sn: int) -> None:
-        if sn <= self.last.get(source, -1):  # sent again (see RESEND)
+        if self.seen(source, sn):  # sent again (see RESEND)
             return
         self.tick += 1
         i = self.slot.get(source)
