@@ -18,6 +18,7 @@ Example::
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypedDict
 
@@ -69,6 +70,17 @@ class ActorContext:
         :class:`~actors.topics.Publisher` (a relay's, whose messages are numbered by their source).
         """
         return self._host.thread_publisher(topic, pub_id)
+
+    def thread_loop(self) -> AbstractContextManager[Any]:
+        """Inside it, one thread of the actor's own asks other actors on links of its own.
+
+        For a driver thread that asks and waits (the ROS bridge's service
+        thread): ``ref.ask(...).get()`` there blocks on its own socket instead
+        of handing the ask to the process's client IO thread and its answer
+        back (see :meth:`actors.runtime.Runtime.thread_loop`). Leave it before
+        the actor stops: stop the thread in ``on_stop``.
+        """
+        return self._host.rt.thread_loop()
 
     def subscribe(self, topic: str, callback: Callable[[Any], None], **options: Unpack[SubscribeOptions]) -> Subscription:
         """Call ``callback(message)`` on this actor's thread for each message on ``topic``.

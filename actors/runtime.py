@@ -9,10 +9,11 @@ client IO thread.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import msgpack
@@ -100,6 +101,32 @@ class Runtime:
     def adopt_loop(self, loop: Loop) -> None:
         """Make ``loop`` the IO loop of the calling thread."""
         self._loops[threading.get_ident()] = loop
+
+    @contextlib.contextmanager
+    def thread_loop(self) -> Iterator[Loop]:
+        """Give the calling thread an IO loop of its own while inside (a driver thread that asks actors).
+
+        Its asks then go out on links of its own and ``get()`` blocks on their
+        socket, as an actor's handler does: no hand-over to the client IO
+        thread and back (two wake-ups, ~90 us on a busy machine). Its links
+        are closed on the way out, in this thread; leave it before the
+        runtime closes. Raises RuntimeError in a thread that has a loop.
+        """
+        if self.loop_here() is not None:
+            raise RuntimeError("this thread already has an IO loop (an actor's or the client's)")
+        loop = Loop()
+        self.adopt_loop(loop)
+        try:
+            yield loop
+        finally:
+            self._loops.pop(loop.thread_id, None)
+            for key, link in list(self._links.items()):
+                if getattr(link, "loop", None) is loop:
+                    del self._links[key]
+                    loop.remove(link.sock)
+                    loop.remove(link.monitor)
+                    link.close()
+            loop.close()
 
     def loop_here(self) -> Loop | None:
         return self._loops.get(threading.get_ident())

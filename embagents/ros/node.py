@@ -39,6 +39,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from concurrent.futures import Future as Future_
 from concurrent.futures import InvalidStateError
 from typing import Any
@@ -170,8 +171,10 @@ class RosBridgeCore:
         actions: Sequence[RosAction] = (),
         *,
         flat: bool = False,
+        service_thread: Callable[[], AbstractContextManager[Any]] | None = None,
     ) -> None:
         self.flat = flat
+        self.service_thread = service_thread
         self.inputs = list(inputs)
         self.outputs = list(outputs)
         self.services = list(services)
@@ -184,6 +187,7 @@ class RosBridgeCore:
         self._lock = threading.Lock()
         self._run: _Running | None = None
         self._started_with: dict[str, Any] = {}
+        self._here = threading.local()  # the services' thread: its run's ``stopping``
         self.counts: dict[str, _Counts] = {}
 
     @property
@@ -371,34 +375,50 @@ class RosBridgeCore:
 
     def _serve(self, served: list[tuple[RosService, Any]], context: Context, wake: GuardCondition,
                stopping: Future) -> None:
-        """Take requests of our services and answer each with ``on_request`` (in this thread)."""
+        """Take requests of our services and answer each with ``on_request`` (in this thread).
+
+        Inside ``service_thread()`` when given (the bridge gives this thread links of its own to the
+        components it asks); ``on_request`` may ask :meth:`stopping_here` while it waits.
+        """
         assert self.on_request is not None
+        self._here.stopping = stopping
         try:
-            handle = context.handle
-            assert handle is not None  # rclpy.init ran on this context
-            with handle:
-                wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(served), 0, handle)
-            while not stopping.done() and context.ok():
-                wait_set.clear_entities()
-                for _, srv in served:
-                    wait_set.add_service(srv.handle)
-                wait_set.add_guard_condition(wake.handle)
-                wait_set.wait(-1)  # releases the GIL
-                if stopping.done():
-                    break
-                ready = wait_set.get_ready_entities("service")
-                for decl, srv in served:
-                    if srv.handle.pointer not in ready:
-                        continue
-                    with srv.handle:
-                        request, header = srv.handle.service_take_request(srv.srv_type.Request)
-                    if header is None:
-                        continue
-                    response = self.on_request(decl, request, srv.srv_type.Response())
-                    srv.send_response(response, header)
+            with self.service_thread() if self.service_thread is not None else nullcontext():
+                self._serve_requests(served, context, wake, stopping)
         except Exception:
             if not stopping.done() and context.ok():
                 log.exception("ROS service thread failed; services stop answering")
+
+    def stopping_here(self) -> bool:
+        """Whether the core's run of the calling thread (the services' thread) is stopping."""
+        stopping = getattr(self._here, "stopping", None)
+        return stopping is not None and stopping.done()
+
+    def _serve_requests(self, served: list[tuple[RosService, Any]], context: Context, wake: GuardCondition,
+                        stopping: Future) -> None:
+        assert self.on_request is not None
+        handle = context.handle
+        assert handle is not None  # rclpy.init ran on this context
+        with handle:
+            wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(served), 0, handle)
+        while not stopping.done() and context.ok():
+            wait_set.clear_entities()
+            for _, srv in served:
+                wait_set.add_service(srv.handle)
+            wait_set.add_guard_condition(wake.handle)
+            wait_set.wait(-1)  # releases the GIL
+            if stopping.done():
+                break
+            ready = wait_set.get_ready_entities("service")
+            for decl, srv in served:
+                if srv.handle.pointer not in ready:
+                    continue
+                with srv.handle:
+                    request, header = srv.handle.service_take_request(srv.srv_type.Request)
+                if header is None:
+                    continue
+                response = self.on_request(decl, request, srv.srv_type.Response())
+                srv.send_response(response, header)
 
     def call(self, ros_name: str, srv_type: str, fields: dict[str, Any], timeout: float) -> Any:
         """Call ROS service ``ros_name`` and return its ROS response (blocks up to ``timeout`` s).

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 
 import msgpack
@@ -110,6 +111,38 @@ def test_an_ask_awaiting_a_deferred_answer_fails_when_the_actor_dies(system: Act
     system.signal("d", signal.SIGKILL)
     with pytest.raises(ActorCrashed):
         held.get()
+
+
+def test_a_thread_with_a_loop_of_its_own_asks_on_its_own_links_and_closes_them_on_the_way_out(
+    system: ActorSystem,
+) -> None:
+    echo, counter = system.spawn(Echo, "echo"), system.spawn(Counter, "c")
+    seen: dict[str, object] = {}
+
+    def driver() -> None:
+        with system.rt.thread_loop() as loop:
+            seen["here"] = system.rt.loop_here() is loop
+            seen["answer"] = echo.ask("hi", timeout=5).get()
+            try:
+                counter.ask("hang", timeout=0.2).get()
+            except Timeout:
+                seen["timeout"] = True
+            seen["links"] = [link for link in system.rt.links() if getattr(link, "loop", None) is loop]
+            with pytest.raises(RuntimeError, match="already has an IO loop"):
+                with system.rt.thread_loop():
+                    pass
+        seen["after"] = [link for link in system.rt.links() if link in seen["links"]]  # type: ignore[operator]
+        seen["loop after"] = system.rt.loop_here()
+
+    t = threading.Thread(target=driver)
+    t.start()
+    t.join(20)
+    assert seen["here"] and seen["answer"] == "hi" and seen["timeout"]
+    links = seen["links"]
+    assert sorted(link.name for link in links) == ["c", "echo"]  # type: ignore[attr-defined]
+    assert seen["after"] == [] and all(link.closed for link in links)  # type: ignore[attr-defined]
+    assert seen["loop after"] is None
+    assert echo.ask("again", timeout=5).get() == "again"  # this thread's own link is untouched
 
 
 def test_ask_timeout_is_pykka_timeout(system: ActorSystem) -> None:
