@@ -39,9 +39,9 @@ import os
 import threading
 import time
 from collections.abc import Callable, Sequence
-from contextlib import AbstractContextManager, nullcontext
 from concurrent.futures import Future as Future_
 from concurrent.futures import InvalidStateError
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 import attrs
