@@ -2,16 +2,12 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import textwrap
-import threading
-import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,11 +15,6 @@ import pytest
 
 pytest.importorskip("rclpy", reason="ROS 2 bridge tests need: pip install 'embagents[ros]'")
 pytest.importorskip("std_srvs", reason="needs the std_srvs wheel: pip install ros-std-srvs")
-
-import embagents.requests  # noqa: E402, F401 - registers Call, which the bridge sends the target
-from actors import Actor, ActorSystem  # noqa: E402
-from embagents.ros.bridge_actor import RosBridgeActor  # noqa: E402
-from embagents.ros.fastdds_shm import sweeping_dead_peers  # noqa: E402
 
 DOMAIN_ID = 81 + os.getpid() % 60
 
@@ -279,78 +270,74 @@ def test_topics_flow_both_ways_while_a_called_service_is_slow(tmp_path: Path) ->
     assert len(during) >= 10, f"{len(during)} echoes during the slow call ({len(got['echoes'])} in all)\n{log}"
 
 
-class Target(Actor):
-    """A component's stand-in: its ``Call("quick")`` answers at once, ``slow`` after 1 s, ``hang`` after 60 s."""
 
-    def on_receive(self, message: Any) -> Any:
+# Serves /t/quick, /t/slow and /t/hang of actor "t" (timeout 2 s) through a bridge, and calls them from rclpy
+# in this process (after the fork server is forked: it must not inherit Fast DDS threads). argv[1]: "kill"
+# SIGKILLs "t" while /t/hang waits for it, "stop" stops the bridge then.
+SERVED = r"""
+import json, signal, sys, threading, time
+import embagents.requests  # registers Call, which the bridge sends the target
+from actors import Actor, ActorSystem
+from embagents.ros.bridge_actor import RosBridgeActor
+
+
+class Target(Actor):
+    def on_receive(self, message):
         time.sleep({"quick": 0.0, "slow": 1.0, "hang": 60.0}[message.method])
         return f"{message.method} done"
 
 
-# Reads lines of service names from stdin; calls them all at once, prints SENT, then their answers as JSON.
-CALLER = r"""
-import json, sys, time, rclpy
-from std_srvs.srv import Trigger
-rclpy.init()
-node = rclpy.create_node("served_calls_client")
-clients = {}
-for line in sys.stdin:
-    for name in line.split():
-        if name not in clients:
-            clients[name] = node.create_client(Trigger, name)
-            clients[name].wait_for_service(timeout_sec=30)
-    futures = [clients[name].call_async(Trigger.Request()) for name in line.split()]
-    print("SENT", flush=True)
-    end = time.time() + 30
-    while not all(f.done() for f in futures) and time.time() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    print(json.dumps([[f.result().success, f.result().message] if f.done() else None for f in futures]), flush=True)
+services = [{"ros_name": f"/t/{m}", "srv_type": "std_srvs/Trigger", "component": "t", "method": m, "timeout": 2.0}
+            for m in ("quick", "slow", "hang")]
+with ActorSystem() as asys:
+    asys.spawn(Target, "t")
+    asys.spawn(RosBridgeActor, "bridge", None, "served_calls_bridge", [], [], services, wait=60)
+    import rclpy
+    from std_srvs.srv import Trigger
+    rclpy.init()
+    node = rclpy.create_node("served_calls_client")
+    clients = {}
+
+    def call(*names):  # all at once; their answers, in order
+        for name in names:
+            if name not in clients:
+                clients[name] = node.create_client(Trigger, name)
+                clients[name].wait_for_service(timeout_sec=30)
+        futures = [clients[name].call_async(Trigger.Request()) for name in names]
+        end = time.time() + 30
+        while not all(f.done() for f in futures) and time.time() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        return json.dumps([[f.result().success, f.result().message] if f.done() else None for f in futures])
+
+    print("AT ONCE", call("/t/slow", "/t/quick", "/t/quick"), flush=True)
+    if sys.argv[1] == "kill":
+        threading.Timer(0.5, asys.signal, ["t", signal.SIGKILL]).start()
+        print("KILLED MID CALL", call("/t/hang"), flush=True)
+        print("NOBODY THERE", call("/t/quick"), flush=True)
+    else:
+        threading.Timer(0.5, asys.stop, ["bridge"]).start()
+        print("STOPPED MID CALL", call("/t/hang"), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
 """
 
 
-@contextlib.contextmanager
-def served(monkeypatch: pytest.MonkeyPatch, domain: int) -> Iterator[tuple[ActorSystem, Callable[[str], Any]]]:
-    """A bridge serving /t/quick, /t/slow and /t/hang of actor "t" (timeout 2 s); ``call(names)`` calls them."""
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    services = [{"ros_name": f"/t/{m}", "srv_type": "std_srvs/Trigger", "component": "t", "method": m, "timeout": 2.0}
-                for m in ("quick", "slow", "hang")]
-    client = subprocess.Popen([sys.executable, "-c", CALLER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                              text=True, env=dict(os.environ))
-    assert client.stdin is not None and client.stdout is not None
-    stdin, stdout = client.stdin, client.stdout
-
-    def call(names: str) -> Any:
-        stdin.write(names + "\n")
-        stdin.flush()
-        assert stdout.readline().strip() == "SENT"
-        return json.loads(stdout.readline())
-
-    try:
-        with sweeping_dead_peers(), ActorSystem() as asys:
-            asys.spawn(Target, "t")
-            asys.spawn(RosBridgeActor, "bridge", None, "served_calls_bridge", [], [], services, wait=60)
-            yield asys, call
-    finally:
-        client.kill()
-        client.wait()
+def _served(scenario: str, domain: int) -> dict[str, Any]:
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    out = subprocess.run([sys.executable, "-c", SERVED, scenario], capture_output=True, text=True, env=env, timeout=180)
+    lines = [line.split(" [", 1) for line in out.stdout.splitlines() if " [" in line]
+    return {what: json.loads("[" + answer) for what, answer in lines} | {"log": out.stdout + out.stderr}
 
 
-def test_calls_at_once_are_each_answered_and_a_component_killed_mid_call_is_an_error_not_a_hang(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    with served(monkeypatch, DOMAIN_ID + 2) as (asys, call):
-        assert call("/t/slow /t/quick /t/quick") == [[True, "slow done"], [True, "quick done"], [True, "quick done"]]
-        threading.Timer(0.5, asys.signal, ["t", signal.SIGKILL]).start()
-        [(ok, text)] = call("/t/hang")
-        assert not ok and "t.hang: " in text and "died" in text, text
-        [(ok, text)] = call("/t/quick")  # nobody there any more: the declared timeout
-        assert not ok and text == "t.quick: no answer within 2.0 s", text
+def test_calls_at_once_are_each_answered_and_a_component_killed_mid_call_is_an_error_not_a_hang() -> None:
+    got = _served("kill", DOMAIN_ID + 2)
+    assert got.get("AT ONCE") == [[True, "slow done"], [True, "quick done"], [True, "quick done"]], got["log"]
+    [(ok, text)] = got["KILLED MID CALL"]
+    assert not ok and "t.hang: " in text and "died" in text, got["log"]
+    assert got["NOBODY THERE"] == [[False, "t.quick: no answer within 2.0 s"]], got["log"]  # the declared timeout
 
 
-def test_a_bridge_stopped_while_a_call_waits_for_its_component_answers_the_call(monkeypatch: pytest.MonkeyPatch) -> None:
-    with served(monkeypatch, DOMAIN_ID + 3) as (asys, call):
-        assert call("/t/quick") == [[True, "quick done"]]
-        threading.Timer(0.5, asys.stop, ["bridge"]).start()
-        [(ok, text)] = call("/t/hang")  # the bridge's timeout is 2 s: the bridge stops first
-        assert not ok and text == "t.hang: the ROS bridge is stopping", text
+def test_a_bridge_stopped_while_a_call_waits_for_its_component_answers_the_call() -> None:
+    got = _served("stop", DOMAIN_ID + 3)
+    assert got.get("AT ONCE") == [[True, "slow done"], [True, "quick done"], [True, "quick done"]], got["log"]
+    assert got["STOPPED MID CALL"] == [[False, "t.hang: the ROS bridge is stopping"]], got["log"]  # not its 2 s timeout
