@@ -21,8 +21,8 @@ A subscription has a queue size and a policy:
   ZeroMQ drops at the publisher when the subscriber falls a high-water mark
   behind; both count as ``dropped``.
 - ``keep="all"``: a PULL socket with a PUSH of its own in each publisher.
-  The subscription stops reading when its queue is full, and a publisher
-  whose PUSH to it is full waits (it is slowed, as a reliable KEEP_ALL ROS 2
+  The subscription reads a message only once its callback returned from the
+  one before, and a publisher whose PUSH to it is full waits (it is slowed, as a reliable KEEP_ALL ROS 2
   reader slows its writer): nothing is lost while both sides live. The wait
   is bounded (``stall_timeout``, default 1 s): past it the subscriber is
   reported as stalled, and messages for it are dropped at once, counted,
