@@ -38,7 +38,6 @@ way are in ``embagents status``; an endpoint without a link for
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import logging
@@ -49,6 +48,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -78,13 +78,14 @@ RESEND = Publisher.window
 #: The longest a restarted bridge waits for a publisher's cache to answer (see ZenohBridgeActor._recover).
 RECOVER_TIMEOUT_S = 5.0
 #: The first bytes of our Zenoh payloads: the frame format's version.
-MAGIC = b"EZ1\0"
+MAGIC = b"EZ2\0"
 LZ4 = b"EZL\0"  # then an lz4 frame of a whole MAGIC payload
 JPEG = b"EZJ\0"  # then a MAGIC payload's rest: its message is a CompressedImage that goes on as an Image
 #: The most an lz4 payload may grow to (a decompression bomb is a corrupt frame).
 MAX_PAYLOAD = 256 * 1024 * 1024
-_HEAD = struct.Struct("<4sI")  # magic, msgpack body length
-#: A keep-all sample's attachment: its number among all its export's samples, across bridge restarts.
+#: Magic, msgpack body length, and a keep-all sample's number among all its export's samples across
+#: bridge restarts (0: none). In the header, not an attachment: that costs a put ~20 us with cold caches.
+_HEAD = struct.Struct("<4sIQ")
 _NUMBER = struct.Struct("<Q")
 #: Where a msgpack frame may hold an extension of type 3 (EXT_SHM: a shared-memory handle, or our
 #: payload's array handle): the header of each ext size, then the type. Nested messages are inside
@@ -96,7 +97,7 @@ _MAY_HOLD_HANDLES = re.compile(rb"[\xd4-\xd8]\x03|\xc7.\x03|\xc8..\x03|\xc9....\
 class _Blobs:
     """Large arrays out of band (the codec's sink and source, as shared memory is on a host).
 
-    A payload is ``MAGIC, len(body), body (msgpack), blob bytes``: each array of 64 KB or more is
+    A payload is ``MAGIC, len(body), number, body (msgpack), blob bytes``: each array of 64 KB or more is
     copied once, straight from its shared-memory ring into the payload, instead of through three
     msgpack buffers; its handle in the body is ``[offset, nbytes, dtype, shape]``. A receiver
     views it in the payload it got, after checking the handle against the payload's size.
@@ -115,9 +116,9 @@ class _Blobs:
         self.size += arr.nbytes
         return handle
 
-    def frame(self, body: bytes) -> bytearray:
+    def frame(self, body: bytes, number: int = 0) -> bytearray:
         out = bytearray(_HEAD.size + len(body) + self.size)  # zenoh takes a bytearray without a copy
-        _HEAD.pack_into(out, 0, MAGIC, len(body))
+        _HEAD.pack_into(out, 0, MAGIC, len(body), number)
         start = _HEAD.size + len(body)
         out[_HEAD.size:start] = body
         for arr in self.arrays:
@@ -130,7 +131,7 @@ class _Blobs:
     def split(self, data: bytes) -> memoryview:
         if len(data) < _HEAD.size:
             raise CorruptFrame(f"a {len(data)}-byte payload is no embagents frame")
-        magic, n = _HEAD.unpack_from(data)
+        magic, n, _ = _HEAD.unpack_from(data)
         if magic not in (MAGIC, JPEG) or _HEAD.size + n > len(data):
             raise CorruptFrame(f"not an embagents frame (magic {magic!r}, body {n} of {len(data)} bytes)")
         self._local.data, self._local.blobs = data, _HEAD.size + n
@@ -229,6 +230,19 @@ class _Numbers:
 
     def close(self) -> None:
         self.map.close()
+
+
+class _Source:
+    """A keep-all import's Zenoh source (an advanced publisher's incarnation), as its samples need it."""
+
+    __slots__ = ("id", "key", "pub", "resumed", "number")
+
+    def __init__(self, zid: Any, eid: int, key: str) -> None:
+        self.id: tuple[bytes, int] = (str(zid).encode(), int(eid))  # as _source gives it
+        self.key = key  # an advanced publisher puts on one key
+        self.pub: Publisher | None = None  # its ipc publisher (see ZenohBridgeActor._source_publisher)
+        self.resumed = False  # a restarted bridge forwarded a sample of it (see ZenohBridgeActor._recover)
+        self.number = 0  # the export's number of its last sample
 
 
 def _source(sample: Any) -> tuple[tuple[bytes, int], int] | None:
@@ -422,7 +436,7 @@ class ZenohBridgeActor(Actor):
         self.publishers: dict[str, Any] = {}
         self.exported: dict[str, Any] = {}  # topic -> its (raw) subscription
         self.compress = {e.topic: (e.compress, e.jpeg_quality) for e in spec.exports if e.compress}
-        # Keep-all samples are numbered across this bridge's incarnations (the attachment): a receiver
+        # Keep-all samples are numbered across this bridge's incarnations (in the header): a receiver
         # counts what a killed incarnation took but never got out (the advanced subscriber's sequence
         # numbers start again with each incarnation, so they cannot tell).
         self.sent = _Numbers(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.sent"), len(spec.exports))
@@ -438,13 +452,13 @@ class ZenohBridgeActor(Actor):
             else:
                 pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP, express=True)
             self.publishers[e.topic] = pub
-            # Raw: a frame goes on as it came (see _out); only one holding shared memory is decoded.
+            # Raw: a frame goes on as it came (see _exporter); only one holding shared memory is decoded.
             self.exported[e.topic] = ctx.subscribe(
-                e.topic, functools.partial(self._out, pub, topic=e.topic, number=n if e.keep == "all" else -1),
+                e.topic, self._exporter(pub, e.topic, n if e.keep == "all" else -1),
                 queue_size=max(10, min(e.window, 1000)), keep=e.keep, raw=True)
         # What this bridge's earlier incarnations forwarded (keep-all imports), by source and sequence number.
         self.delivered = _Delivered(os.path.join(ctx.run_dir, "zenoh", f"{ctx.name}.delivered"))
-        self.chains: dict[str, tuple[tuple[bytes, int], int]] = {}  # key -> last (source, number) received
+        self.chains: dict[str, _Source] = {}  # key -> the source of its last numbered sample
         self.subscribers: list[Any] = []
         self.miss_listeners: list[Any] = []
         # Imports are published from the zenoh thread that calls back with them, with publishers of
@@ -483,42 +497,50 @@ class ZenohBridgeActor(Actor):
         self._timer = ctx.call_later(CHECK_EVERY_S, self._check)
 
     # -- traffic ------------------------------------------------------------------------
-    def _out(self, pub: Any, frame: memoryview, topic: str = "", number: int = -1) -> None:
+    def _exporter(self, pub: Any, topic: str, number: int) -> Callable[[memoryview], None]:
+        """The callback that puts ``topic``'s frames on Zenoh (the actor's thread); ``number``: the
+        export's index among the numbered (keep-all) ones, else -1. A closure over what it uses:
+        each lookup and call costs with the cold caches of a 100 Hz stream."""
         how, quality = self.compress.get(topic, (None, 0))
-        try:
-            if how is None and not _MAY_HOLD_HANDLES.search(frame):
-                # The ipc frame is the payload's body as it is: no decode, no encode.
-                data = bytearray(_HEAD.size + len(frame))  # zenoh takes a bytearray without a copy
-                _HEAD.pack_into(data, 0, MAGIC, len(frame))
-                data[_HEAD.size:] = frame
-            else:
-                data = self._encode(self.exported[topic].decode(frame), how, quality)
-        except StaleFrame as exc:  # its shared memory was reused meanwhile: dropped, as a subscription drops it
-            self.exported[topic].dropped += 1
-            log.debug("topic %s: %s", topic, exc)
-            return
-        except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
-            self.blobs.arrays, self.blobs.size = [], 0
-            with self._lock:
-                self.counts["refused"] += 1
-            log.error("not sent on %s: %s", topic, exc)
-            return
-        if number < 0:
-            pub.put(data)
-        else:
-            n = self.numbers[number] = self.numbers[number] + 1
-            pub.put(data, attachment=_NUMBER.pack(n))
-            self.sent.set(number, n)  # after the put: a kill before it numbers the message again, never skips
-        with self._lock:
-            self.counts["msgs_out"] += 1
-            self.counts["bytes_out"] += len(data)
+        head, pack_into, search, put = _HEAD.size, _HEAD.pack_into, _MAY_HOLD_HANDLES.search, pub.put
+        numbers, counts, sent = self.numbers, self.counts, self.sent
 
-    def _encode(self, msg: Any, how: str | None, quality: int) -> bytearray:
+        def out(frame: memoryview) -> None:
+            n = numbers[number] + 1 if number >= 0 else 0
+            try:
+                if how is None and search(frame) is None:
+                    # The ipc frame is the payload's body as it is: no decode, no encode.
+                    data = bytearray(head + len(frame))  # zenoh takes a bytearray without a copy
+                    pack_into(data, 0, MAGIC, len(frame), n)
+                    data[head:] = frame
+                else:
+                    data = self._encode(self.exported[topic].decode(frame), how, quality, n)
+            except StaleFrame as exc:  # its shared memory was reused meanwhile: dropped, as a subscription drops it
+                self.exported[topic].dropped += 1
+                log.debug("topic %s: %s", topic, exc)
+                return
+            except Exception as exc:  # noqa: BLE001 - an unencodable message is dropped, counted, named
+                self.blobs.arrays, self.blobs.size = [], 0
+                with self._lock:
+                    self.counts["refused"] += 1
+                log.error("not sent on %s: %s", topic, exc)
+                return
+            put(data)
+            if n:
+                numbers[number] = n
+                sent.set(number, n)  # after the put: a kill before it numbers the message again, never skips
+            # Only this thread writes these two (status reads them): no lock.
+            counts["msgs_out"] += 1
+            counts["bytes_out"] += len(data)
+
+        return out
+
+    def _encode(self, msg: Any, how: str | None, quality: int, number: int) -> bytearray:
         """A decoded message's payload: its arrays copied out of shared memory, compressed if asked."""
         if how == "jpeg":
             msg = _to_jpeg(msg, quality)
         body, _ = self.codec.encode(msg, sink=self.blobs)
-        data = self.blobs.frame(body)
+        data = self.blobs.frame(body, number)
         if how == "jpeg":
             data[:4] = JPEG
         elif how == "lz4":
@@ -529,44 +551,56 @@ class ZenohBridgeActor(Actor):
 
     def _in_callback(self, topic: str, once: bool = False) -> Any:
         codec, blobs, counts, lock = self.codec, self.blobs, self.counts, self._lock
-        delivered, after, in_lock, pub = self.delivered, self._forwarded, self._in_lock, self.in_publishers[topic]
+        delivered, in_lock, pub, chains = self.delivered, self._in_lock, self.in_publishers[topic], self.chains
         relay_max = pub.rt.codec.max_frame_bytes
-        resumed: set[tuple[bytes, int]] = set()  # sources this incarnation forwarded a sample of
+        restarted = delivered.restarted  # only a restarted bridge gets replays of what it forwarded
+        head, unpack_from, search = _HEAD.size, _HEAD.unpack_from, _MAY_HOLD_HANDLES.search
+        # Keep-all: each source's id, key and ipc publisher, by its ZenohId object and entity id (worked out
+        # once: each call into zenoh or lookup costs with the cold caches of a 100 Hz stream). Not by its
+        # EntityGlobalId: that hashes by identity, and each sample brings a new one.
+        sources: dict[tuple[Any, int], _Source] = {}
 
         def on_sample(sample: Any) -> None:  # zenoh's thread (see on_start)
-            # Only a restarted bridge gets replays of what it forwarded (the publishers' caches again).
-            source = _source(sample) if once else None
-            if source is not None and delivered.restarted and (last := delivered.last.get(source[0])) is not None:
-                src, sn = source
-                if sn <= last - RESEND:  # surely got out by the killed incarnation
-                    with lock:
-                        counts["replayed"] += 1
-                    return
-                if src not in resumed:
-                    resumed.add(src)
-                    # The first sample after a restart further on than the resent ones: the advanced
-                    # subscriber skipped history (see _recover), fetched here and forwarded first.
-                    first = max(last - RESEND + 1, 0)
-                    if sn > first:
-                        for old in self._recover(str(sample.key_expr), src, first, sn - 1, last):
-                            on_sample(old)
-                if sn <= last:  # sent again: the component drops it if it had it
-                    with lock:
-                        counts["replayed"] += 1
+            source: _Source | None = None
+            info = sample.source_info if once else None  # None: a plain put (no advanced publisher)
+            if info is not None:
+                gid, sn = info.source_id, info.source_sn
+                zid, eid = gid.zid, gid.eid
+                source = sources.get((zid, eid))
+                if source is None:
+                    source = sources[(zid, eid)] = _Source(zid, eid, str(sample.key_expr))
+                if restarted and (last := delivered.last.get(source.id)) is not None:
+                    if sn <= last - RESEND:  # surely got out by the killed incarnation
+                        with lock:
+                            counts["replayed"] += 1
+                        return
+                    if not source.resumed:
+                        source.resumed = True
+                        # The first sample after a restart further on than the resent ones: the advanced
+                        # subscriber skipped history (see _recover), fetched here and forwarded first.
+                        first = max(last - RESEND + 1, 0)
+                        if sn > first:
+                            for old in self._recover(source.key, source.id, first, sn - 1, last):
+                                on_sample(old)
+                    if sn <= last:  # sent again: the component drops it if it had it
+                        with lock:
+                            counts["replayed"] += 1
             data = sample.payload.to_bytes()
             size = len(data)
             # A frame with no arrays after it and no handles in it goes on as it came: receivers
             # decode it (and drop, counted as bad, one that is not well formed). Any other is decoded
             # here: its arrays (views into the payload) go into this host's shared memory.
             body: memoryview | None = None
-            if (_HEAD.size < size <= relay_max and data[:4] == MAGIC and _HEAD.unpack_from(data)[1] == size - _HEAD.size
-                    and not _MAY_HOLD_HANDLES.search(data, _HEAD.size)):
-                body = memoryview(data)[_HEAD.size:]
-            else:
+            if head < size <= relay_max:
+                magic, length, number = unpack_from(data)
+                if magic == MAGIC and length == size - head and search(data, head) is None:
+                    body = memoryview(data)[head:]
+            if body is None:
                 try:
                     if data[:4] == LZ4:
                         data = _unlz4(data[4:])
                     msg = codec.decode(blobs.split(data))
+                    number = unpack_from(data)[2]  # split checked the header is there
                     if data[:4] == JPEG:
                         msg = _from_jpeg(msg)
                 except CodecError as exc:  # a peer's garbage: dropped and counted, never a crash
@@ -574,16 +608,15 @@ class ZenohBridgeActor(Actor):
                         counts["refused"] += 1
                     log.warning("dropped a frame on %s from %s: %s", sample.key_expr, topic, exc)
                     return
-            with lock:
-                counts["msgs_in"] += 1
-                counts["bytes_in"] += size
             with in_lock:
                 if self.stopped:  # on_stop undeclared us while this sample was on its way: the publishers go
                     return
+                counts["msgs_in"] += 1  # written under _in_lock only (status reads them)
+                counts["bytes_in"] += size
                 out, seq = pub, None
                 if source is not None:
-                    out = self.source_publishers.get((topic, source[0])) or self._source_publisher(topic, source[0])
-                    seq = source[1] + 1  # ipc numbers start at 1
+                    out = source.pub or self._source_publisher(topic, source)
+                    seq = sn + 1  # ipc numbers start at 1
                 try:
                     if body is not None:
                         out.publish_frame(body, seq)
@@ -594,16 +627,28 @@ class ZenohBridgeActor(Actor):
                         counts["refused"] += 1
                     log.error("not published on %s: %s", topic, exc)
                     return
-                if source is not None:
-                    after(sample, source)  # the bookkeeping once the message is on its way
+                if source is None:
+                    return
+                # The bookkeeping once the message is on its way: noted as forwarded (for a successor);
+                # a jump in the export's numbers counted (see _chain_broken).
+                delivered.forwarded(source.id, sn)
+                if number:
+                    prev = chains.get(source.key)
+                    if prev is not None and prev.id != source.id and number > prev.number + 1:
+                        self._chain_broken(source.key, number - prev.number - 1)
+                    source.number = number
+                    chains[source.key] = source
 
         return on_sample
 
-    def _source_publisher(self, topic: str, source: tuple[bytes, int]) -> Publisher:
+    def _source_publisher(self, topic: str, source: _Source) -> Publisher:
         """The ipc publisher of ``topic`` for one Zenoh source: its id is the source's (under _in_lock)."""
-        digest = hashlib.blake2b(repr((topic, source)).encode(), digest_size=6).digest()
-        pub = self.context.thread_publisher(topic, pub_id=int.from_bytes(digest, "little") or 1)
-        self.source_publishers[(topic, source)] = pub
+        pub = self.source_publishers.get((topic, source.id))  # two imports of one topic share it
+        if pub is None:
+            digest = hashlib.blake2b(repr((topic, source.id)).encode(), digest_size=6).digest()
+            pub = self.context.thread_publisher(topic, pub_id=int.from_bytes(digest, "little") or 1)
+            self.source_publishers[(topic, source.id)] = pub
+        source.pub = pub
         return pub
 
     def _recover(self, key: str, source: tuple[bytes, int], first: int, last: int, had: int) -> list[Any]:
@@ -639,22 +684,13 @@ class ZenohBridgeActor(Actor):
                       "bridge restarted", missing, key)
         return [found[sn] for sn in sorted(found)]
 
-    def _forwarded(self, sample: Any, source: tuple[tuple[bytes, int], int]) -> None:
-        """Note a keep-all sample as forwarded (for a successor); count a jump in its export's numbers (under _in_lock)."""
-        self.delivered.forwarded(*source)
-        att = sample.attachment
-        number = att.to_bytes() if att is not None else b""
-        if len(number) == 8:
-            # A new incarnation of the exporting bridge goes on from its predecessor's last number:
-            # a jump is what the killed one had taken from its component but never got out.
-            n, key = _NUMBER.unpack(number)[0], str(sample.key_expr)
-            prev = self.chains.get(key)
-            if prev is not None and prev[0] != source[0] and n > prev[1] + 1:
-                with self._lock:
-                    self.counts["lost"] += n - prev[1] - 1
-                log.error("%d message(s) on %s lost: the exporting bridge was killed with them taken from its "
-                          "component but not sent", n - prev[1] - 1, key)
-            self.chains[key] = (source[0], n)
+    def _chain_broken(self, key: str, n: int) -> None:
+        """A new incarnation of the exporting bridge goes on from its predecessor's last number: a jump
+        is what the killed one had taken from its component but never got out (under _in_lock)."""
+        with self._lock:
+            self.counts["lost"] += n
+        log.error("%d message(s) on %s lost: the exporting bridge was killed with them taken from its "
+                  "component but not sent", n, key)
 
     def _missed(self, key: str, source: str, n: int) -> None:  # zenoh's thread
         with self._lock:

@@ -47,7 +47,7 @@ def test_a_forged_array_handle_is_a_corrupt_frame_not_a_crash(handle: list) -> N
     import msgpack
 
     body = msgpack.packb(msgpack.ExtType(3, msgpack.packb(handle)))
-    data = _HEAD.pack(MAGIC, len(body)) + body + bytes(16)
+    data = _HEAD.pack(MAGIC, len(body), 0) + body + bytes(16)
     blobs = _Blobs()
     with pytest.raises(CorruptFrame):
         Codec(source=blobs).decode(blobs.split(data))
@@ -55,7 +55,7 @@ def test_a_forged_array_handle_is_a_corrupt_frame_not_a_crash(handle: list) -> N
 
 def test_a_payload_that_is_not_ours_is_a_corrupt_frame() -> None:
     blobs = _Blobs()
-    for data in (b"", b"hello world!", _HEAD.pack(MAGIC, 10**6) + b"x"):
+    for data in (b"", b"hello world!", _HEAD.pack(MAGIC, 10**6, 0) + b"x"):
         with pytest.raises(CorruptFrame):
             blobs.split(data)
 

@@ -184,7 +184,7 @@ def test_a_peers_frames_go_on_as_they_came_and_its_garbage_or_forged_handles_are
     from embagents.zenoh.bridge_actor import _HEAD, MAGIC
 
     def payload(body: bytes) -> bytes:
-        return _HEAD.pack(MAGIC, len(body)) + body
+        return _HEAD.pack(MAGIC, len(body), 0) + body
 
     port = free_port()
     conf = zenoh.Config()
