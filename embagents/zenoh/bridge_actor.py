@@ -132,6 +132,11 @@ class _Blobs:
         if len(data) < _HEAD.size:
             raise CorruptFrame(f"a {len(data)}-byte payload is no embagents frame")
         magic, n, _ = _HEAD.unpack_from(data)
+        if magic[:2] == MAGIC[:2] and magic != MAGIC and magic[3:] == b"\0":
+            # An older (or newer) bridge's frame format: say so, not just "corrupt".
+            raise CorruptFrame(f"frame format {magic[:3].decode(errors='replace')} from a bridge of another "
+                               f"embagents version (this one speaks {MAGIC[:3].decode()}): run the same "
+                               "embagents version on both hosts")
         if magic not in (MAGIC, JPEG) or _HEAD.size + n > len(data):
             raise CorruptFrame(f"not an embagents frame (magic {magic!r}, body {n} of {len(data)} bytes)")
         self._local.data, self._local.blobs = data, _HEAD.size + n

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +59,12 @@ def test_a_payload_that_is_not_ours_is_a_corrupt_frame() -> None:
     for data in (b"", b"hello world!", _HEAD.pack(MAGIC, 10**6, 0) + b"x"):
         with pytest.raises(CorruptFrame):
             blobs.split(data)
+
+
+def test_a_frame_of_an_older_bridge_names_the_version_mismatch() -> None:
+    old = struct.pack("<4sI", b"EZ1\0", 3) + b"abc" + bytes(8)
+    with pytest.raises(CorruptFrame, match="another embagents version.*same embagents version"):
+        _Blobs().split(old)
 
 
 def test_jpeg_brings_an_image_back_as_an_image_and_refuses_what_it_cannot_carry() -> None:
