@@ -71,6 +71,15 @@ class ActorContext:
         """
         return self._host.thread_publisher(topic, pub_id)
 
+    def close_thread_publisher(self, pub: Publisher) -> None:
+        """Close a :meth:`thread_publisher` before the actor stops, from the thread that uses it.
+
+        For a relay that makes one per source it forwards (the Zenoh bridge):
+        one whose source is gone for good does not keep its sockets for the
+        actor's whole life.
+        """
+        self._host.close_thread_publisher(pub)
+
     def thread_loop(self) -> AbstractContextManager[Any]:
         """Inside it, one thread of the actor's own asks other actors on links of its own.
 

@@ -191,6 +191,11 @@ class ActorHost:
         self.thread_publishers.append((topic, pub))
         return pub
 
+    def close_thread_publisher(self, pub: Publisher) -> None:
+        """Close one of :meth:`thread_publisher`'s before the actor stops (from the thread that uses it)."""
+        self.thread_publishers = [(t, p) for t, p in self.thread_publishers if p is not pub]
+        pub.close()
+
     def subscribe(self, topic: str, callback: Callable[[Any], None], **kw: Any) -> Subscription:
         if kw.get("keep") == "all" and "key" not in kw:
             # Durable across incarnations: the next one (a restart, the standby) gets what this one did not finish.

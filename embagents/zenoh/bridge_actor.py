@@ -48,6 +48,7 @@ import socket
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -77,6 +78,10 @@ HEALTH_TOPIC = "_health"
 RESEND = Publisher.window
 #: The longest a restarted bridge waits for a publisher's cache to answer (see ZenohBridgeActor._recover).
 RECOVER_TIMEOUT_S = 5.0
+#: Superseded Zenoh sources of one key (a peer bridge's earlier incarnations) whose ipc publishers stay
+#: open: a late sample of one still goes out under its own numbers. Older ones are closed, so a peer
+#: restarted again and again for days leaves no sockets behind here.
+KEEP_SOURCES = 4
 #: The first bytes of our Zenoh payloads: the frame format's version.
 MAGIC = b"EZ2\0"
 LZ4 = b"EZL\0"  # then an lz4 frame of a whole MAGIC payload
@@ -132,7 +137,7 @@ class _Blobs:
         if len(data) < _HEAD.size:
             raise CorruptFrame(f"a {len(data)}-byte payload is no embagents frame")
         magic, n, _ = _HEAD.unpack_from(data)
-        if magic[:2] == MAGIC[:2] and magic != MAGIC and magic[3:] == b"\0":
+        if magic[:2] == MAGIC[:2] and magic not in (MAGIC, JPEG, LZ4) and magic[3:] == b"\0":
             # An older (or newer) bridge's frame format: say so, not just "corrupt".
             raise CorruptFrame(f"frame format {magic[:3].decode(errors='replace')} from a bridge of another "
                                f"embagents version (this one speaks {MAGIC[:3].decode()}): run the same "
@@ -240,9 +245,10 @@ class _Numbers:
 class _Source:
     """A keep-all import's Zenoh source (an advanced publisher's incarnation), as its samples need it."""
 
-    __slots__ = ("id", "key", "pub", "resumed", "number")
+    __slots__ = ("id", "lookup", "key", "pub", "resumed", "number")
 
     def __init__(self, zid: Any, eid: int, key: str) -> None:
+        self.lookup = (zid, eid)  # its key among its import's sources
         self.id: tuple[bytes, int] = (str(zid).encode(), int(eid))  # as _source gives it
         self.key = key  # an advanced publisher puts on one key
         self.pub: Publisher | None = None  # its ipc publisher (see ZenohBridgeActor._source_publisher)
@@ -475,6 +481,9 @@ class ZenohBridgeActor(Actor):
         # Keep-all samples of an advanced publisher go on ipc from a publisher of their source's: its id is
         # the source's, its sequence numbers the source's, the same in this bridge's next incarnation (see RESEND).
         self.source_publishers: dict[tuple[str, tuple[bytes, int]], Publisher] = {}
+        # Sources a newer one took over from, by key (see KEEP_SOURCES), and each import's sources (under _in_lock).
+        self.superseded: dict[str, deque[_Source]] = {}
+        self.import_sources: list[dict[tuple[Any, int], _Source]] = []
         sub: Any
         for i in spec.imports:
             assert i.topic is not None  # Import fills it in from the key
@@ -564,6 +573,7 @@ class ZenohBridgeActor(Actor):
         # once: each call into zenoh or lookup costs with the cold caches of a 100 Hz stream). Not by its
         # EntityGlobalId: that hashes by identity, and each sample brings a new one.
         sources: dict[tuple[Any, int], _Source] = {}
+        self.import_sources.append(sources)
 
         def on_sample(sample: Any) -> None:  # zenoh's thread (see on_start)
             source: _Source | None = None
@@ -619,6 +629,14 @@ class ZenohBridgeActor(Actor):
                 counts["msgs_in"] += 1  # written under _in_lock only (status reads them)
                 counts["bytes_in"] += size
                 out, seq = pub, None
+                if source is not None and number and (prev := chains.get(source.key)) is not None \
+                        and prev.id != source.id and number <= prev.number:
+                    # The peer's bridge was killed after its put and before it noted the number: its next
+                    # incarnation sends what it had taken from its component again, numbered the same.
+                    delivered.forwarded(source.id, sn)
+                    with lock:
+                        counts["replayed"] += 1
+                    return
                 if source is not None:
                     out = source.pub or self._source_publisher(topic, source)
                     seq = sn + 1  # ipc numbers start at 1
@@ -639,12 +657,31 @@ class ZenohBridgeActor(Actor):
                 delivered.forwarded(source.id, sn)
                 if number:
                     prev = chains.get(source.key)
-                    if prev is not None and prev.id != source.id and number > prev.number + 1:
-                        self._chain_broken(source.key, number - prev.number - 1)
+                    if prev is not None and prev.id != source.id:
+                        if number > prev.number + 1:
+                            self._chain_broken(source.key, number - prev.number - 1)
+                        self._supersede(prev)
                     source.number = number
                     chains[source.key] = source
 
         return on_sample
+
+    def _supersede(self, old: _Source) -> None:
+        """A newer source took over ``old``'s key (its peer bridge restarted): past KEEP_SOURCES such, the
+        oldest one's ipc publishers are closed (under _in_lock)."""
+        gone = self.superseded.setdefault(old.key, deque())
+        if any(s.id == old.id for s in gone):
+            return
+        gone.append(old)
+        while len(gone) > KEEP_SOURCES:
+            oldest = gone.popleft()
+            for sources in self.import_sources:  # two imports of one topic may both know it
+                if (known := sources.get(oldest.lookup)) is not None and known.id == oldest.id:
+                    del sources[oldest.lookup]
+                    known.pub = None
+            for pair in [p for p in self.source_publishers if p[1] == oldest.id]:
+                self.context.close_thread_publisher(self.source_publishers.pop(pair))
+            log.debug("closed the ipc publisher(s) of %s's source %s (%d newer)", oldest.key, oldest.id, KEEP_SOURCES)
 
     def _source_publisher(self, topic: str, source: _Source) -> Publisher:
         """The ipc publisher of ``topic`` for one Zenoh source: its id is the source's (under _in_lock)."""
@@ -802,6 +839,7 @@ class ZenohBridgeActor(Actor):
                      f"in {rates['msgs_in']:g} msg/s {rates['bytes_in']:g} B/s, lost {counts['lost']}, "
                      f"refused {counts['refused']}, replayed {counts['replayed']}; health {self.health[0].name}")
         return {"links": links, "counts": counts, "rates": rates, "health": self.health[0].name,
+                "source_publishers": len(getattr(self, "source_publishers", ())),
                 "health_text": self.health[1], "lines": lines}
 
     def on_receive(self, message: Any) -> Any:

@@ -65,6 +65,9 @@ def test_a_frame_of_an_older_bridge_names_the_version_mismatch() -> None:
     old = struct.pack("<4sI", b"EZ1\0", 3) + b"abc" + bytes(8)
     with pytest.raises(CorruptFrame, match="another embagents version.*same embagents version"):
         _Blobs().split(old)
+    # This version's own formats are not taken for another version's.
+    jpeg = struct.pack("<4sIQ", b"EZJ\0", 3, 0) + b"abc"
+    assert bytes(_Blobs().split(jpeg)) == b"abc"
 
 
 def test_jpeg_brings_an_image_back_as_an_image_and_refuses_what_it_cannot_carry() -> None:

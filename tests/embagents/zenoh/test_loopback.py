@@ -140,6 +140,38 @@ def test_a_killed_bridge_is_restarted_and_the_topic_flows_again(tmp_path: Path) 
         b.stop(), a.stop()
 
 
+def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_the_other_side(tmp_path: Path) -> None:
+    import os
+    import signal
+    import time
+
+    from embagents.zenoh.bridge_actor import KEEP_SOURCES
+
+    port = free_port()
+    runs = str(tmp_path / "runs")
+    a = Run(write(tmp_path, "again_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", rate=50.0), runs)
+    b = Run(write(tmp_path, "again_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+    try:
+        wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B")
+        kills = KEEP_SOURCES + 2
+        for i in range(1, kills + 1):  # each incarnation of A's bridge is a new Zenoh source for B's
+            time.sleep(2.0)  # kills apart: 3 restarts in 5 s is the root supervisor's intensity
+            rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
+            os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
+            wait_for(lambda i=i: {r["name"]: r for r in (a.status() or {"rows": []})["rows"]}  # type: ignore[misc]
+                     .get("_zenoh_bridge", {}).get("restarts") == i, 30, f"the bridge's restart {i}")
+            n = len(b.got())
+            wait_for(lambda n=n: len(b.got()) >= n + 10, 60, f"messages after restart {i}")  # type: ignore[misc]
+        got = b.got()
+        assert len(set(got)) == len(got) and got == sorted(got)  # none twice, in order
+        detail = b.bridge()
+        assert detail is not None
+        # The current source and the KEEP_SOURCES before it; without the limit, one per incarnation (kills + 1).
+        assert detail["source_publishers"] == KEEP_SOURCES + 1
+    finally:
+        b.stop(), a.stop()
+
+
 def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_replay(tmp_path: Path) -> None:
     import os
     import signal
