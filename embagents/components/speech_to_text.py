@@ -673,7 +673,8 @@ class SpeechToText(ModelComponent):
         ``transcription_delay``: that decision -> the final transcript; ``turn_probability``: the turn
         model's last answer (how likely the user had finished); ``text_turn_probability``: the text
         check's; ``turns``: how turns ended (``model``, ``silence``; ``not_yet``: the audio model said the
-        user goes on; ``text_not_yet``: the audio said finished, the transcript not); ``speculations``:
+        user goes on; ``text_not_yet``: the audio said finished, the transcript not; ``sure``: the audio was
+        sure, at ``turn_sure_threshold``, and the text check was not waited for); ``speculations``:
         transcripts begun at a pause, ``used`` for the turn or ``dropped``; ``barge_ins``: pauses,
         resumes and interruptions published.
         """
