@@ -442,6 +442,7 @@ SURE: dict[str, Any] = {"turn_sure_threshold": 0.95, "turn_silence_ms": 64.0, "t
 TURN_SETUPS: tuple[tuple[str, bool, bool, float, float, dict[str, Any]], ...] = (
     ("model", True, False, 1000.0, 0.5, {}), ("model_text", True, True, 1000.0, 0.5, {}),
     ("model_text_sure", True, True, 1000.0, 0.5, SURE),
+    ("model_text_sure_after", True, True, 1000.0, 0.5, {**SURE, "speculate_after_turn": True}),
     ("text", False, True, 1000.0, 0.5, {}), ("strict", True, False, 1000.0, STRICT, {}),
     ("silence", False, False, 500.0, 0.5, {}))
 
@@ -493,7 +494,7 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
                               else None,
                               "speculations": spec}
     r = results
-    m, mt, ms_ = r["model"], r["model_text"], r["model_text_sure"]
+    m, mt, ms_, ma = r["model"], r["model_text"], r["model_text_sure"], r["model_text_sure_after"]
     said_done = sum(p is not None and p >= 0.5 for p in m["halves"])
 
     def ms(x: float | None) -> str:
@@ -516,7 +517,9 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         "the question spoken in one go, cut between two words); eou = end of speech (from the clip) -> the decision "
         f"(fallback: 1 s of silence); cut off / eou p50: Smart Turn alone {m['cutoffs']}/{n}, {ms(m['eou_p50_ms'])}; "
         f"Smart Turn + text check {mt['cutoffs']}/{n}, {ms(mt['eou_p50_ms'])}; Smart Turn sure at 0.95 (asked after 64 "
-        f"ms), else the text check {ms_['cutoffs']}/{n}, {ms(ms_['eou_p50_ms'])}; text check alone "
+        f"ms), else the text check {ms_['cutoffs']}/{n}, {ms(ms_['eou_p50_ms'])} (transcript "
+        f"{ms(ms_['transcript_p50_ms'])}); the same, its transcript begun after Smart Turn's first verdict "
+        f"{ma['cutoffs']}/{n}, {ms(ma['eou_p50_ms'])} (transcript {ms(ma['transcript_p50_ms'])}); text check alone "
         f"{r['text']['cutoffs']}/{n}, {ms(r['text']['eou_p50_ms'])}; Smart Turn at {STRICT} {r['strict']['cutoffs']}/{n}, "
         f"{ms(r['strict']['eou_p50_ms'])}; silence at 500 ms {r['silence']['cutoffs']}/{n}, "
         f"{ms(r['silence']['eou_p50_ms'])}; Smart Turn said finished (p >= 0.5) on {said_done}/{n} half sentences at "

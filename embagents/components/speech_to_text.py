@@ -203,7 +203,9 @@ class SpeechToTextConfig(BaseComponentConfig):
       at Smart Turn's speed (see ``embagents bench --only turn_detection``).
     - ``speculative_transcript``: with a turn model, start transcribing at the pause
       (in the speech model's actor, while the turn model decides): a turn that ends
-      has its transcript already, one that goes on drops it.
+      has its transcript already, one that goes on drops it. ``speculate_after_turn``:
+      begin it only after the pause's first turn verdict, so the two do not share
+      the CPU (the verdict sooner, the transcript later).
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -234,6 +236,7 @@ class SpeechToTextConfig(BaseComponentConfig):
     turn_sure_threshold: float | None = field(default=None, converter=_optional_unit)
     turn_reask_ms: float | None = field(default=None, converter=_optional_positive)
     speculative_transcript: bool = field(default=True, converter=to_bool)
+    speculate_after_turn: bool = field(default=False, converter=to_bool)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -418,7 +421,10 @@ class SpeechToText(ModelComponent):
             return
         if not self._vad.speaking:
             return
-        self._speculate()
+        # speculate_after_turn: the pause's first turn verdict is not shared with the transcript's CPU
+        first_verdict = self.turn_client is not None and self._turn_due <= self.config.turn_silence_ms
+        if not (self.config.speculate_after_turn and first_verdict):
+            self._speculate()
         pause_s = vad.quiet * vad.window / 16000
         if pause_s * 1000 < max(self._turn_due, self.config.turn_silence_ms):
             return
@@ -431,6 +437,7 @@ class SpeechToText(ModelComponent):
             except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
                 self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
                 return
+            self._speculate()
             p = verdict.get("probability")
             self.last_turn_probability = None if p is None else float(p)
             if not (bool(verdict.get("complete")) if p is None else float(p) >= self.config.turn_threshold):

@@ -206,6 +206,49 @@ def test_a_question_the_turn_model_is_sure_of_ends_without_waiting_for_the_text_
         SpeechToTextConfig(turn_sure_threshold=1.2)
 
 
+class _Noted:
+    """A model client that notes in ``log`` when the transcript is begun and when a turn verdict comes back."""
+
+    def __init__(self, client: LocalModelClient, log: list[str]) -> None:
+        self.client, self.log = client, log
+
+    def submit(self, *args: object, **kwargs: object) -> object:
+        self.log.append("transcript")
+        return self.client.submit(*args, **kwargs)  # type: ignore[arg-type]
+
+    def end_of_turn(self, audio: object) -> dict[str, object]:
+        got = self.client.end_of_turn(audio)
+        self.log.append("verdict")
+        return got
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.client, name)
+
+
+def test_speculate_after_turn_begins_the_transcript_after_the_pauses_first_turn_verdict(
+        actors: tuple[str, str]) -> None:
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(2 * RATE, np.int16)])
+
+    def order(after: bool) -> tuple[list[str], list[str]]:
+        log: list[str] = []
+        said: list[str] = []
+        comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                            model_client=_Noted(LocalModelClient(actors[0]), log),  # type: ignore[arg-type]
+                            turn_model_client=_Noted(LocalModelClient(actors[1]), log),  # type: ignore[arg-type]
+                            config=SpeechToTextConfig(min_silence_ms=1000.0, turn_silence_ms=64.0,
+                                                      speculate_after_turn=after))
+        comp.on_configure()
+        assert turn_run(comp, clip, time.time(), texts=said)[0] == 1
+        return log, said
+
+    log, said = order(False)
+    assert log[:2] == ["transcript", "verdict"], log
+    log, said = order(True)
+    assert log[:2] == ["verdict", "transcript"], log
+    assert "keys this morning" in said[0].lower(), said
+
+
 def test_a_chat_model_actor_answers_the_text_check_and_refuses_audio_with_where_it_goes(
         actors: tuple[str, str]) -> None:
     pytest.importorskip("llama_cpp")
