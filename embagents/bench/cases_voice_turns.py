@@ -434,10 +434,17 @@ def turn_run(ears: Any, clip: np.ndarray, t0: float, speech_end: int | None = No
     return n, delay
 
 
-#: The bench's turn-taking setups: (label, Smart Turn, text check, silence fallback ms, turn threshold).
-TURN_SETUPS = (("model", True, False, 1000.0, 0.5), ("model_text", True, True, 1000.0, 0.5),
-               ("text", False, True, 1000.0, 0.5), ("strict", True, False, 1000.0, STRICT),
-               ("silence", False, False, 500.0, 0.5))
+#: Smart Turn asked after 64 ms of pause (again 64 ms later after a no); at 0.95 or above it ends the turn
+#: alone, between 0.5 and 0.95 the text check decides (SpeechToTextConfig.turn_sure_threshold).
+SURE: dict[str, Any] = {"turn_sure_threshold": 0.95, "turn_silence_ms": 64.0, "turn_reask_ms": 64.0}
+
+#: The bench's turn-taking setups: (label, Smart Turn, text check, silence fallback ms, turn threshold, more config).
+TURN_SETUPS: tuple[tuple[str, bool, bool, float, float, dict[str, Any]], ...] = (
+    ("model", True, False, 1000.0, 0.5, {}), ("model_text", True, True, 1000.0, 0.5, {}),
+    ("model_text_sure", True, True, 1000.0, 0.5, SURE),
+    ("model_text_sure_after", True, True, 1000.0, 0.5, {**SURE, "speculate_after_turn": True}),
+    ("text", False, True, 1000.0, 0.5, {}), ("strict", True, False, 1000.0, STRICT, {}),
+    ("silence", False, False, 500.0, 0.5, {}))
 
 
 @case("turn_detection", transport="embagents", kind="speech", needs="sherpa_onnx")
@@ -454,7 +461,7 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         asys.spawn(ModelActor, "bench_turn", "turn", turn.resolve(), turn.options(), True, wait=120, heartbeat=None)
         asys.spawn(ModelActor, "bench_turn_text", "llama", default_llm_path(), {"n_ctx": 512, "n_threads": 1}, True,
                    wait=300, heartbeat=None)
-        for label, audio, text, silence, threshold in TURN_SETUPS:
+        for label, audio, text, silence, threshold, more in TURN_SETUPS:
             cutoffs, halves, wholes = 0, [], []
             delays: list[float] = []
             heard_delays: list[float] = []
@@ -468,7 +475,7 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
                                     turn_model_client=asked if audio else None,
                                     text_turn_client=LocalModelClient("bench_turn_text") if text else None,
                                     config=SpeechToTextConfig(min_silence_ms=silence, turn_threshold=threshold,
-                                                              log_level="warning"))
+                                                              log_level="warning", **more))
                 ears.on_configure()
                 heard, delay = turn_run(ears, clip, t0, end, None if split else heard_delays)
                 for k in spec:
@@ -487,7 +494,7 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
                               else None,
                               "speculations": spec}
     r = results
-    m, mt = r["model"], r["model_text"]
+    m, mt, ms_, ma = r["model"], r["model_text"], r["model_text_sure"], r["model_text_sure_after"]
     said_done = sum(p is not None and p >= 0.5 for p in m["halves"])
 
     def ms(x: float | None) -> str:
@@ -509,7 +516,10 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         f"{n} complete spoken questions and {n} with a 500-800 ms pause mid-sentence (Piper voice; each paused one is "
         "the question spoken in one go, cut between two words); eou = end of speech (from the clip) -> the decision "
         f"(fallback: 1 s of silence); cut off / eou p50: Smart Turn alone {m['cutoffs']}/{n}, {ms(m['eou_p50_ms'])}; "
-        f"Smart Turn + text check {mt['cutoffs']}/{n}, {ms(mt['eou_p50_ms'])}; text check alone "
+        f"Smart Turn + text check {mt['cutoffs']}/{n}, {ms(mt['eou_p50_ms'])}; Smart Turn sure at 0.95 (asked after 64 "
+        f"ms), else the text check {ms_['cutoffs']}/{n}, {ms(ms_['eou_p50_ms'])} (transcript "
+        f"{ms(ms_['transcript_p50_ms'])}); the same, its transcript begun after Smart Turn's first verdict "
+        f"{ma['cutoffs']}/{n}, {ms(ma['eou_p50_ms'])} (transcript {ms(ma['transcript_p50_ms'])}); text check alone "
         f"{r['text']['cutoffs']}/{n}, {ms(r['text']['eou_p50_ms'])}; Smart Turn at {STRICT} {r['strict']['cutoffs']}/{n}, "
         f"{ms(r['strict']['eou_p50_ms'])}; silence at 500 ms {r['silence']['cutoffs']}/{n}, "
         f"{ms(r['silence']['eou_p50_ms'])}; Smart Turn said finished (p >= 0.5) on {said_done}/{n} half sentences at "

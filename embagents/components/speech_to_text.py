@@ -83,6 +83,14 @@ def _unit(value: object) -> float:
     return out
 
 
+def _optional_unit(value: object) -> float | None:
+    return None if value is None or value == "" else _unit(value)
+
+
+def _optional_positive(value: object) -> float | None:
+    return None if value is None or value == "" else positive_float(value)
+
+
 def _phrase(value: object) -> str | None:
     if value is None or value == "":
         return None
@@ -176,7 +184,8 @@ class SpeechToTextConfig(BaseComponentConfig):
       :class:`~embagents.models.TurnDetectorModel`), the pause after which it is
       asked whether the user has finished: yes ends the utterance there; no
       waits, and ``min_silence_ms`` (raise it, e.g. to 1000) stays the fallback
-      and ``max_utterance_ms`` the hard maximum. ``turn_threshold``: the model's
+      and ``max_utterance_ms`` the hard maximum; ``turn_reask_ms``: after a no, ask
+      again once the pause is this much longer (None: one verdict per pause, Pipecat's). ``turn_threshold``: the model's
       probability at or above which the turn is finished (0.5, Pipecat's; a
       higher one cuts fewer users off mid-sentence and leaves more turns to the
       silence fallback: see ``embagents bench --only turn_detection``).
@@ -186,9 +195,17 @@ class SpeechToTextConfig(BaseComponentConfig):
       end-of-turn probability is at least this (4e-8: picked for the stock
       SmolLM2-135M-Instruct on 30 complete and 30 cut-off sentences that are not the
       bench's); below it the turn waits for more speech or the silence fallback.
+    - ``turn_sure_threshold``: with both clients, a turn model probability at or
+      above this ends the turn at once, without waiting for the transcript and the
+      text check (the audio is sure); between ``turn_threshold`` and it the text
+      check decides (None: it always does). The text check waits for Whisper's
+      transcript (300-500 ms on 2 CPU cores): this puts the turns the audio is sure of
+      at Smart Turn's speed (see ``embagents bench --only turn_detection``).
     - ``speculative_transcript``: with a turn model, start transcribing at the pause
       (in the speech model's actor, while the turn model decides): a turn that ends
-      has its transcript already, one that goes on drops it.
+      has its transcript already, one that goes on drops it. ``speculate_after_turn``:
+      begin it only after the pause's first turn verdict, so the two do not share
+      the CPU (the verdict sooner, the transcript later).
 
     >>> SpeechToTextConfig(vad_threshold="0.6").vad_threshold
     0.6
@@ -216,7 +233,10 @@ class SpeechToTextConfig(BaseComponentConfig):
     turn_silence_ms: float = field(default=150.0, converter=positive_float)
     turn_threshold: float = field(default=0.5, converter=_unit)
     text_turn_threshold: float = field(default=4e-8, converter=_unit)
+    turn_sure_threshold: float | None = field(default=None, converter=_optional_unit)
+    turn_reask_ms: float | None = field(default=None, converter=_optional_positive)
     speculative_transcript: bool = field(default=True, converter=to_bool)
+    speculate_after_turn: bool = field(default=False, converter=to_bool)
 
 
 def strip_wake_phrase(text: str, phrase: str) -> str | None:
@@ -250,10 +270,11 @@ class SpeechToText(ModelComponent):
         self.turn_client = turn_model_client  # an end-of-turn model (LocalModelClient(TurnDetectorModel(...)))
         self.text_turn_client = text_turn_client  # a chat model reading the transcript (LocalModelClient(LlamaModel))
         self._turn_vad: Any = None
-        self._turn_asked = False  # asked in this pause already
+        self._turn_due = 0.0  # the pause (ms) at which the turn model is asked next in this pause (inf: not again)
         # model: ended by the turn model(s); not_yet: the audio said the user goes on; text_not_yet: the audio said
         # finished, the transcript not.
-        self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0, "text_not_yet": 0}
+        # sure: ended by the turn model alone at turn_sure_threshold, the text check not waited for.
+        self.turns: dict[str, int] = {"model": 0, "silence": 0, "not_yet": 0, "text_not_yet": 0, "sure": 0}
         #: The text check's last probability that the user had finished (None: not asked yet).
         self.last_text_turn_probability: float | None = None
         self._spec: Any = None  # the pause's speech being transcribed (a PendingAnswer)
@@ -395,29 +416,40 @@ class SpeechToText(ModelComponent):
         vad = self._turn_vad
         vad.feed(samples)
         if vad.quiet == 0:
-            self._turn_asked = False
+            self._turn_due = self.config.turn_silence_ms
             self._drop_speculation()  # the user goes on: what was said so far is not the turn
             return
         if not self._vad.speaking:
             return
-        self._speculate()
+        # speculate_after_turn: the pause's first turn verdict is not shared with the transcript's CPU
+        first_verdict = self.turn_client is not None and self._turn_due <= self.config.turn_silence_ms
+        if not (self.config.speculate_after_turn and first_verdict):
+            self._speculate()
         pause_s = vad.quiet * vad.window / 16000
-        if self._turn_asked or pause_s * 1000 < self.config.turn_silence_ms:
+        if pause_s * 1000 < max(self._turn_due, self.config.turn_silence_ms):
             return
-        self._turn_asked = True
+        self._turn_due = float("inf")  # one verdict per pause, unless a "not yet" is asked again
         began = time.monotonic()
+        sure = False
         if self.turn_client is not None:
             try:
                 verdict = self.turn_client.end_of_turn(self._vad.current())
             except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
                 self.logger.warning("%s: the turn model did not answer (%s); silence ends the turn", self._label(), exc)
                 return
+            self._speculate()
             p = verdict.get("probability")
             self.last_turn_probability = None if p is None else float(p)
             if not (bool(verdict.get("complete")) if p is None else float(p) >= self.config.turn_threshold):
                 self.turns["not_yet"] += 1
+                if self.config.turn_reask_ms is not None:  # the probability rises as the pause grows: ask again
+                    self._turn_due = pause_s * 1000 + self.config.turn_reask_ms
                 return
-        if self.text_turn_client is not None and not self._text_says_finished():
+            sure = p is not None and self.config.turn_sure_threshold is not None and (
+                float(p) >= self.config.turn_sure_threshold)
+        if sure and self.text_turn_client is not None:
+            self.turns["sure"] += 1
+        elif self.text_turn_client is not None and not self._text_says_finished():
             self.turns["text_not_yet"] += 1
             return
         self.turns["model"] += 1
@@ -648,7 +680,8 @@ class SpeechToText(ModelComponent):
         ``transcription_delay``: that decision -> the final transcript; ``turn_probability``: the turn
         model's last answer (how likely the user had finished); ``text_turn_probability``: the text
         check's; ``turns``: how turns ended (``model``, ``silence``; ``not_yet``: the audio model said the
-        user goes on; ``text_not_yet``: the audio said finished, the transcript not); ``speculations``:
+        user goes on; ``text_not_yet``: the audio said finished, the transcript not; ``sure``: the audio was
+        sure, at ``turn_sure_threshold``, and the text check was not waited for); ``speculations``:
         transcripts begun at a pause, ``used`` for the turn or ``dropped``; ``barge_ins``: pauses,
         resumes and interruptions published.
         """

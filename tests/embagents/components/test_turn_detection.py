@@ -16,6 +16,7 @@ from actors import ActorSystem  # noqa: E402
 from embagents.bench.cases_voice_turns import QUESTIONS, turn_clips, turn_run  # noqa: E402
 from embagents.bench.echo_room import robot_says, said_with_a_pause  # noqa: E402
 from embagents.components import SpeechToText, SpeechToTextConfig  # noqa: E402
+from embagents.config import ConfigError
 from embagents.models import BadRequest, LocalModelClient, TurnDetectorModel  # noqa: E402
 from embagents.models.actor import ModelActor
 from embagents.models.backends.sherpa_stt import SherpaRecognizer
@@ -152,6 +153,100 @@ def test_a_paused_question_the_audio_model_calls_finished_is_held_by_the_text_ch
     assert stats["text_turn_probability"] >= SpeechToTextConfig().text_turn_threshold
     # The half was transcribed at the pause (and dropped when the user went on); the whole at the last pause.
     assert stats["speculations"] == {"used": 1, "dropped": 1}
+
+
+def test_a_no_from_the_turn_model_early_in_the_pause_is_asked_again_with_turn_reask_ms(
+        actors: tuple[str, str]) -> None:
+    # Asked after 32 ms of pause the model says "not yet" (0.13): the probability rises as the pause grows.
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("When is the package from my sister arriving?"),
+                           np.zeros(2 * RATE, np.int16)])
+
+    def ears_asking(again: float | None) -> SpeechToText:
+        comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                            model_client=LocalModelClient(actors[0]), turn_model_client=LocalModelClient(actors[1]),
+                            config=SpeechToTextConfig(min_silence_ms=1000.0, turn_silence_ms=32.0,
+                                                      turn_reask_ms=again))
+        comp.on_configure()
+        return comp
+
+    once = ears_asking(None)
+    assert turn_run(once, clip, time.time())[0] == 1
+    assert once.turns["not_yet"] == 1 and once.turns["silence"] == 1, "one verdict per pause: the no waits for silence"
+    again = ears_asking(64.0)
+    assert turn_run(again, clip, time.time())[0] == 1
+    assert again.turns["not_yet"] >= 1 and again.turns["model"] == 1 and again.turns["silence"] == 0, again.turns
+    assert again.last_turn_probability is not None and again.last_turn_probability >= 0.5
+
+
+def test_a_question_the_turn_model_is_sure_of_ends_without_waiting_for_the_text_check(
+        actors: tuple[str, str]) -> None:
+    pytest.importorskip("llama_cpp")
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(2 * RATE, np.int16)])
+
+    def ears_at(sure: float | None) -> SpeechToText:
+        comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                            model_client=LocalModelClient(actors[0]), turn_model_client=LocalModelClient(actors[1]),
+                            text_turn_client=LocalModelClient("turn_text_t"),
+                            config=SpeechToTextConfig(min_silence_ms=1000.0, turn_sure_threshold=sure))
+        comp.on_configure()
+        return comp
+
+    checked, said = ears_at(None), []
+    assert turn_run(checked, clip, time.time(), texts=said)[0] == 1
+    assert checked.last_turn_probability is not None and checked.last_turn_probability >= 0.9
+    assert checked.last_text_turn_probability is not None, "without a sure threshold the text check decides"
+    sure, said = ears_at(0.9), []
+    assert turn_run(sure, clip, time.time(), texts=said)[0] == 1
+    stats = sure.stats()
+    assert stats["turns"]["sure"] == 1 and stats["turns"]["model"] == 1 and stats["turns"]["silence"] == 0, stats
+    assert stats["text_turn_probability"] is None, "the text check was not waited for"
+    assert "keys this morning" in said[0].lower(), said
+    with pytest.raises(ConfigError, match="threshold"):
+        SpeechToTextConfig(turn_sure_threshold=1.2)
+
+
+class _Noted:
+    """A model client that notes in ``log`` when the transcript is begun and when a turn verdict comes back."""
+
+    def __init__(self, client: LocalModelClient, log: list[str]) -> None:
+        self.client, self.log = client, log
+
+    def submit(self, *args: object, **kwargs: object) -> object:
+        self.log.append("transcript")
+        return self.client.submit(*args, **kwargs)  # type: ignore[arg-type]
+
+    def end_of_turn(self, audio: object) -> dict[str, object]:
+        got = self.client.end_of_turn(audio)
+        self.log.append("verdict")
+        return got
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.client, name)
+
+
+def test_speculate_after_turn_begins_the_transcript_after_the_pauses_first_turn_verdict(
+        actors: tuple[str, str]) -> None:
+    clip = np.concatenate([np.zeros(RATE // 2, np.int16), robot_says("Where did you put my keys this morning?"),
+                           np.zeros(2 * RATE, np.int16)])
+
+    def order(after: bool) -> tuple[list[str], list[str]]:
+        log: list[str] = []
+        said: list[str] = []
+        comp = SpeechToText(name="ears", inputs=[Topic("mic", Audio, keep="all")], outputs=[Topic("heard", String)],
+                            model_client=_Noted(LocalModelClient(actors[0]), log),  # type: ignore[arg-type]
+                            turn_model_client=_Noted(LocalModelClient(actors[1]), log),  # type: ignore[arg-type]
+                            config=SpeechToTextConfig(min_silence_ms=1000.0, turn_silence_ms=64.0,
+                                                      speculate_after_turn=after))
+        comp.on_configure()
+        assert turn_run(comp, clip, time.time(), texts=said)[0] == 1
+        return log, said
+
+    log, said = order(False)
+    assert log[:2] == ["transcript", "verdict"], log
+    log, said = order(True)
+    assert log[:2] == ["verdict", "transcript"], log
+    assert "keys this morning" in said[0].lower(), said
 
 
 def test_a_chat_model_actor_answers_the_text_check_and_refuses_audio_with_where_it_goes(

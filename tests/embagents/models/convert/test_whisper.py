@@ -12,7 +12,12 @@ import pytest
 
 pytest.importorskip("onnx")
 
-from embagents.models.convert.whisper import gpt2_token_bytes, read_ct2_model  # noqa: E402
+from embagents.models.convert.whisper import (  # noqa: E402
+    OUT_BLOCK,
+    _uint8_blocks,
+    gpt2_token_bytes,
+    read_ct2_model,
+)
 
 
 def test_the_prepared_encoder_has_the_interface_and_metadata_sherpa_onnx_reads(whisper_dir: str) -> None:
@@ -28,6 +33,28 @@ def test_the_prepared_encoder_has_the_interface_and_metadata_sherpa_onnx_reads(w
     assert [i.name for i in dec.graph.input] == ["tokens", "in_n_layer_self_k_cache", "in_n_layer_self_v_cache",
                                                  "n_layer_cross_k", "n_layer_cross_v", "offset"]
     assert [o.name for o in dec.graph.output] == ["logits", "out_n_layer_self_k_cache", "out_n_layer_self_v_cache"]
+
+
+def test_the_output_layer_is_stored_in_8_bits_within_half_a_step_of_the_embeddings(whisper_dir: str) -> None:
+    # fp32, the 51864 x 384 output layer (80 MB) is read whole for every token and evicts the other core's cache.
+    import numpy as np
+    import onnx
+    from onnx import numpy_helper
+
+    from embagents.models.files.speech import _ct2_whisper_dir
+
+    dec = onnx.load(os.path.join(whisper_dir, "decoder.onnx"))
+    (out,) = [n for n in dec.graph.node if "logits" in n.output]
+    attrs = {a.name: onnx.helper.get_attribute_value(a) for a in out.attribute}
+    assert (out.op_type, out.domain, attrs["bits"], attrs["block_size"]) == ("MatMulNBits", "com.microsoft", 8, OUT_BLOCK)
+    init = {i.name: numpy_helper.to_array(i) for i in dec.graph.initializer}
+    q, scale, zero = (init[name] for name in out.input[1:4])
+    emb = read_ct2_model(os.path.join(_ct2_whisper_dir(progress=False), "model.bin"))["decoder/embeddings/weight"]
+    step = np.repeat(scale.reshape(q.shape[:2]), OUT_BLOCK, axis=1)
+    back = (q.astype(np.float32) - zero.reshape(q.shape[:2])[..., None]).reshape(emb.shape) * step
+    assert np.all(np.abs(back - emb) <= step * 0.5 + 1e-6)
+    with pytest.raises(ValueError, match="not a multiple of the 32-value quantization block"):
+        _uint8_blocks(np.ones((4, 40), np.float32), 32)
 
 
 def test_tokens_are_base64_of_the_bpe_bytes(whisper_dir: str) -> None:
