@@ -50,8 +50,30 @@ def clip() -> tuple[np.ndarray, np.ndarray]:
     return played, to_int16(mic)
 
 
+class _Clock:
+    """Wall time that moves only when the test says: a stall of the test process (a loaded machine) does not
+    shift the speaker's stream against the microphone's chunks, as it would with ``time.time``."""
+
+    def __init__(self) -> None:
+        self.now = 1_700_000_000.0
+
+    def time(self) -> float:
+        return self.now
+
+
 def run_source(path: str, played: np.ndarray | None) -> np.ndarray:
     """Step a WavFileSource through the clip; with ``played``, feed it the speaker's stream as the Speaker stamps it."""
+    import embagents.components.audio_io as audio_io
+
+    clock, real = _Clock(), audio_io.time
+    audio_io.time = clock  # type: ignore[assignment]  # the source stamps its chunks with it
+    try:
+        return _run_source(path, played, clock)
+    finally:
+        audio_io.time = real
+
+
+def _run_source(path: str, played: np.ndarray | None, clock: _Clock) -> np.ndarray:
     inputs = [Topic("played", Audio, keep="all")] if played is not None else []
     src = WavFileSource(name="mic", inputs=inputs, outputs=[Topic("mic", Audio, keep="all")], trigger=10.0,
                         config=WavFileSourceConfig(path=path, chunk_ms=100))
@@ -60,9 +82,10 @@ def run_source(path: str, played: np.ndarray | None) -> np.ndarray:
     src.on_configure()
     step = RATE // 10
     for at in range(0, len(src.samples) + step, step):
+        clock.now += 0.1
         if played is not None and at < len(played):
             # The chunk the source publishes next ends now: its first sample was played 0.1 s ago.
-            src.on_message("played", Audio(data=played[at:at + step], sample_rate=RATE, stamp=time.time() - 0.1))
+            src.on_message("played", Audio(data=played[at:at + step], sample_rate=RATE, stamp=clock.now - 0.1))
         src.execute()
     assert out[-1].data.size == 0, "the end-of-stream marker comes last"
     return np.concatenate([m.data for m in out])
