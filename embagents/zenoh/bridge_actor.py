@@ -629,8 +629,11 @@ class ZenohBridgeActor(Actor):
                 counts["msgs_in"] += 1  # written under _in_lock only (status reads them)
                 counts["bytes_in"] += size
                 out, seq = pub, None
-                if source is not None and number and (prev := chains.get(source.key)) is not None \
-                        and prev.id != source.id and number <= prev.number:
+                prev = None  # the source of the last numbered sample on this key, when another one (looked up once)
+                if source is not None and number and (chained := chains.get(source.key)) is not None \
+                        and chained.id != source.id:
+                    prev = chained
+                if prev is not None and source is not None and number <= prev.number:
                     # The peer's bridge was killed after its put and before it noted the number: its next
                     # incarnation sends what it had taken from its component again, numbered the same.
                     delivered.forwarded(source.id, sn)
@@ -656,8 +659,7 @@ class ZenohBridgeActor(Actor):
                 # a jump in the export's numbers counted (see _chain_broken).
                 delivered.forwarded(source.id, sn)
                 if number:
-                    prev = chains.get(source.key)
-                    if prev is not None and prev.id != source.id:
+                    if prev is not None:
                         if number > prev.number + 1:
                             self._chain_broken(source.key, number - prev.number - 1)
                         self._supersede(prev)
