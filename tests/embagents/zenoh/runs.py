@@ -114,6 +114,16 @@ class Run:
         rows = {r["name"]: r for r in (st or {}).get("rows", [])}
         return (rows.get("_zenoh_bridge") or {}).get("detail")
 
+    def kill_bridge(self, restarts: int) -> None:
+        """SIGKILL this run's Zenoh bridge and wait until its supervisor has restarted it (``restarts`` in all)."""
+        import os
+        import signal
+
+        rows = {r["name"]: r for r in self.status()["rows"]}  # type: ignore[index]
+        os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
+        wait_for(lambda: {r["name"]: r for r in (self.status() or {"rows": []})["rows"]}
+                 .get("_zenoh_bridge", {}).get("restarts") == restarts, 30, f"the bridge's restart {restarts}")
+
     def stop(self) -> int:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)

@@ -116,19 +116,13 @@ def test_an_lz4_compressed_topic_arrives_whole(tmp_path: Path) -> None:
 
 
 def test_a_killed_bridge_is_restarted_and_the_topic_flows_again(tmp_path: Path) -> None:
-    import os
-    import signal
-
     port = free_port()
     runs = str(tmp_path / "runs")
     a = Run(write(tmp_path, "kill_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']"), runs)
     b = Run(write(tmp_path, "kill_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
     try:
         wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B")
-        rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
-        os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
-        wait_for(lambda: {r["name"]: r for r in (a.status() or {"rows": []})["rows"]}
-                 .get("_zenoh_bridge", {}).get("restarts") == 1, 30, "the bridge restarted")
+        a.kill_bridge(1)
         n = len(b.got())
         wait_for(lambda: len(b.got()) >= n + 20, 60, "messages after the restart")
         got = b.got()
@@ -141,8 +135,6 @@ def test_a_killed_bridge_is_restarted_and_the_topic_flows_again(tmp_path: Path) 
 
 
 def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_the_other_side(tmp_path: Path) -> None:
-    import os
-    import signal
     import time
 
     from embagents.zenoh.bridge_actor import KEEP_SOURCES
@@ -156,10 +148,7 @@ def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_
         kills = KEEP_SOURCES + 2
         for i in range(1, kills + 1):  # each incarnation of A's bridge is a new Zenoh source for B's
             time.sleep(2.0)  # kills apart: 3 restarts in 5 s is the root supervisor's intensity
-            rows = {r["name"]: r for r in a.status()["rows"]}  # type: ignore[index]
-            os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
-            wait_for(lambda i=i: {r["name"]: r for r in (a.status() or {"rows": []})["rows"]}  # type: ignore[misc]
-                     .get("_zenoh_bridge", {}).get("restarts") == i, 30, f"the bridge's restart {i}")
+            a.kill_bridge(i)
             n = len(b.got())
             wait_for(lambda n=n: len(b.got()) >= n + 10, 60, f"messages after restart {i}")  # type: ignore[misc]
         got = b.got()
@@ -173,9 +162,6 @@ def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_
 
 
 def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_replay(tmp_path: Path) -> None:
-    import os
-    import signal
-
     port = free_port()
     runs = str(tmp_path / "runs")
     # 200 Hz: a live sample often reaches the restarted bridge before the replies to its history query (zenoh-ext
@@ -184,10 +170,7 @@ def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_rep
     b = Run(write(tmp_path, "rkill_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
     try:
         wait_for(lambda: len(b.got()) >= 20, 60, "messages on run B")
-        rows = {r["name"]: r for r in b.status()["rows"]}  # type: ignore[index]
-        os.kill(rows["_zenoh_bridge"]["pid"], signal.SIGKILL)
-        wait_for(lambda: {r["name"]: r for r in (b.status() or {"rows": []})["rows"]}
-                 .get("_zenoh_bridge", {}).get("restarts") == 1, 30, "the bridge restarted")
+        b.kill_bridge(1)
         n = len(b.got())
         wait_for(lambda: len(b.got()) >= n + 50, 60, "messages after the restart")
         got = b.got()
