@@ -55,6 +55,7 @@ from embagents.components.voice_stages import publish_stage
 from embagents.config import (
     BaseComponentConfig,
     ConfigError,
+    optional_positive_float,
     positive_float,
     positive_int,
     to_bool,
@@ -85,10 +86,6 @@ def _unit(value: object) -> float:
 
 def _optional_unit(value: object) -> float | None:
     return None if value is None or value == "" else _unit(value)
-
-
-def _optional_positive(value: object) -> float | None:
-    return None if value is None or value == "" else positive_float(value)
 
 
 def _phrase(value: object) -> str | None:
@@ -234,7 +231,7 @@ class SpeechToTextConfig(BaseComponentConfig):
     turn_threshold: float = field(default=0.5, converter=_unit)
     text_turn_threshold: float = field(default=4e-8, converter=_unit)
     turn_sure_threshold: float | None = field(default=None, converter=_optional_unit)
-    turn_reask_ms: float | None = field(default=None, converter=_optional_positive)
+    turn_reask_ms: float | None = field(default=None, converter=optional_positive_float)
     speculative_transcript: bool = field(default=True, converter=to_bool)
     speculate_after_turn: bool = field(default=False, converter=to_bool)
 
