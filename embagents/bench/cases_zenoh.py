@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import tempfile
 import time
 from typing import Any
 
@@ -46,6 +47,34 @@ def _free_port() -> int:
 
 def _peer(*args: str) -> list[str]:
     return [sys.executable, "-m", "embagents.zenoh.bench_peer", *args]
+
+
+def _chain(size: int, n: int, period: float) -> np.ndarray:
+    """The floor of the bridged path's shape: 4 processes, ipc -> Zenoh -> ipc, no embagents code."""
+    port = _free_port()
+    with tempfile.TemporaryDirectory(prefix="eb-chain-") as tmp:
+        a, b = f"{tmp}/a.sock", f"{tmp}/b.sock"
+        procs: list[subprocess.Popen[str]] = []
+        try:
+            for args in (("chain-dst", "--path", b, "--n", str(n), "--timeout", str(n * period + 30)),
+                         ("chain-hop-b", "--port", str(port), "--path", b),
+                         ("chain-hop-a", "--port", str(port), "--path", a)):
+                procs.append(subprocess.Popen(_peer(*args), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))
+                assert procs[-1].stdout is not None
+                if procs[-1].stdout.readline().strip() != "READY":
+                    raise RuntimeError(f"bench_peer {args[0]} did not start")
+            subprocess.run(_peer("chain-src", "--path", a, "--n", str(n), "--size", str(size), "--period",
+                                 str(period), "--warm", "1.0"), check=True, timeout=n * period + 60)
+            assert procs[0].stdout is not None
+            lat = json.loads(procs[0].stdout.readline() or "[]")
+        finally:
+            for proc in reversed(procs):
+                try:
+                    proc.communicate(timeout=10)  # stdin closes: the hops return
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+    return np.asarray(lat, dtype=np.int64)
 
 
 def _raw(size: int, n: int, period: float) -> np.ndarray:
@@ -135,9 +164,19 @@ def zenoh_bridge(opts: BenchOptions) -> dict[str, Any]:
         out.update({f"p50_us_{tag}": o["p50_us"], f"raw_p50_us_{tag}": r["p50_us"],
                     f"p99_us_{tag}": o["p99_us"], f"raw_p99_us_{tag}": r["p99_us"],
                     f"ratio_{tag}": o["p50_us"] / r["p50_us"], f"received_{tag}": len(ours)})
+        if size == 64:
+            # The floor of the bar's shape in the same run: what two ipc hops and two more processes cost
+            # before any embagents code runs (see docs/guides/zenoh.md, "Why 64 B misses its bar").
+            chain = _chain(size, n, period)
+            if len(chain) <= skip:
+                raise RuntimeError(f"{size} B: the bare chain received {len(chain)} of {n}")
+            c = percentiles(chain[skip:])
+            out.update({"chain_p50_us_64b": c["p50_us"], "chain_ratio_64b": c["p50_us"] / r["p50_us"],
+                        "ours_over_chain_64b": o["p50_us"] / c["p50_us"]})
     out["p50_us"], out["p99_us"] = out["p50_us_6mb"], out["p99_us_6mb"]
     out["note"] = ("one way, component on run A -> bridge -> Zenoh TCP loopback -> bridge -> component on run B, "
-                   "against raw zenoh pub -> sub processes (shm off); bars ratio_64b <= 2.0, ratio_6mb <= 1.3")
+                   "against raw zenoh pub -> sub processes (shm off); bars ratio_64b <= 2.0, ratio_6mb <= 1.3; "
+                   "chain_ratio_64b: the same shape with no embagents code (pyzmq ipc -> zenoh -> pyzmq ipc) / raw")
     return out
 
 

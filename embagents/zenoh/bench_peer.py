@@ -3,6 +3,11 @@
 - ``raw-sub`` / ``raw-pub``: plain zenoh-python publisher -> subscriber between two
   processes on one TCP endpoint, shared memory off (the baseline). The
   subscriber prints ``READY`` then one JSON line of one-way latencies (ns).
+- ``chain-dst`` / ``chain-hop-b`` / ``chain-hop-a`` / ``chain-src``: the floor of
+  the bridged path's shape with no embagents code in it: four processes, bytes
+  through pyzmq PUSH -> PULL over ipc, a Zenoh peer -> peer hop (the bridges'
+  publisher settings), and pyzmq ipc again. The hops run until their stdin
+  closes; ``chain-dst`` prints ``READY`` then one JSON line of latencies (ns).
 - ``send``: a run of its own (an actor system) with a Zenoh bridge exporting
   ``bench_z`` under namespace ``a`` and a sender actor publishing ``n``
   messages of ``size`` bytes, each ``{"i", "t" (CLOCK_MONOTONIC ns), "a" (uint8 array)}``,
@@ -24,6 +29,7 @@ import json
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -67,6 +73,81 @@ def _raw_sub(port: int, n: int, timeout: float) -> None:
     sub.undeclare()
     session.close()
     print(json.dumps(lat), flush=True)
+
+
+def _chain_dst(path: str, n: int, timeout: float) -> None:
+    import zmq
+
+    with zmq.Context() as ctx, ctx.socket(zmq.PULL) as pull:
+        pull.linger = 0
+        pull.bind(f"ipc://{path}")
+        print("READY", flush=True)
+        lat: list[int] = []
+        deadline = time.monotonic() + timeout
+        while len(lat) < n and time.monotonic() < deadline:
+            if pull.poll(int(max(0.0, deadline - time.monotonic()) * 1000)):
+                data = pull.recv()
+                lat.append(time.monotonic_ns() - int.from_bytes(data[:8], "little"))
+    print(json.dumps(lat), flush=True)
+
+
+def _until_stdin_closes(sock: Any, on_frame: Callable[[bytes], None]) -> None:
+    """Hand each frame ``sock`` gets to ``on_frame`` until stdin closes (one poll on both: no busy loop)."""
+    import zmq
+
+    poller = zmq.Poller()
+    poller.register(sock, zmq.POLLIN)
+    poller.register(sys.stdin.fileno(), zmq.POLLIN)
+    while True:
+        ready = dict(poller.poll())
+        if sock in ready:
+            on_frame(sock.recv())
+        if sys.stdin.fileno() in ready:
+            return
+
+
+def _chain_hop_b(port: int, path: str) -> None:
+    import zenoh
+    import zmq
+
+    with zmq.Context() as ctx, ctx.socket(zmq.PUSH) as push:
+        push.linger = 0
+        push.connect(f"ipc://{path}")
+        session = zenoh.open(_raw_config(port, listen=True))
+        sub = session.declare_subscriber("a/bench_z", lambda sample: push.send(sample.payload.to_bytes()))
+        print("READY", flush=True)
+        sys.stdin.read()
+        sub.undeclare()
+        session.close()
+
+
+def _chain_hop_a(port: int, path: str) -> None:
+    import zenoh
+    import zmq
+
+    with zmq.Context() as ctx, ctx.socket(zmq.PULL) as pull:
+        pull.linger = 0
+        pull.bind(f"ipc://{path}")
+        session = zenoh.open(_raw_config(port, listen=False))
+        pub = session.declare_publisher("a/bench_z", congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+        print("READY", flush=True)
+        _until_stdin_closes(pull, lambda frame: pub.put(bytearray(frame)))
+        pub.undeclare()
+        session.close()
+
+
+def _chain_src(path: str, n: int, size: int, period: float, warm: float) -> None:
+    import zmq
+
+    body = bytearray((np.arange(max(size, 8)) % 251).astype(np.uint8).tobytes())
+    with zmq.Context() as ctx, ctx.socket(zmq.PUSH) as push:
+        push.linger = 1000
+        push.connect(f"ipc://{path}")
+        time.sleep(warm)
+        for _ in range(n):
+            body[:8] = time.monotonic_ns().to_bytes(8, "little")
+            push.send(body)
+            time.sleep(period)
 
 
 def _raw_pub(port: int, n: int, size: int, period: float, warm: float) -> None:
@@ -141,8 +222,9 @@ def _send(port: int, n: int, size: int, period: float, warm: float, keep: str, w
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m embagents.zenoh.bench_peer")
-    p.add_argument("role", choices=["raw-sub", "raw-pub", "send"])
-    p.add_argument("--port", type=int, required=True)
+    p.add_argument("role", choices=["raw-sub", "raw-pub", "chain-dst", "chain-hop-b", "chain-hop-a", "chain-src",
+                                    "send"])
+    p.add_argument("--port", type=int, default=0, help="the Zenoh TCP port (not for chain-dst, chain-src)")
     p.add_argument("--n", type=int, default=100)
     p.add_argument("--size", type=int, default=64)
     p.add_argument("--period", type=float, default=0.01)
@@ -150,11 +232,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timeout", type=float, default=60.0)
     p.add_argument("--keep", default="all")
     p.add_argument("--window", type=int, default=5000)
+    p.add_argument("--path", default="", help="the chain's ipc socket file")
     a = p.parse_args(argv)
     if a.role == "raw-sub":
         _raw_sub(a.port, a.n, a.timeout)
     elif a.role == "raw-pub":
         _raw_pub(a.port, a.n, a.size, a.period, a.warm)
+    elif a.role == "chain-dst":
+        _chain_dst(a.path, a.n, a.timeout)
+    elif a.role == "chain-hop-b":
+        _chain_hop_b(a.port, a.path)
+    elif a.role == "chain-hop-a":
+        _chain_hop_a(a.port, a.path)
+    elif a.role == "chain-src":
+        _chain_src(a.path, a.n, a.size, a.period, a.warm)
     else:
         _send(a.port, a.n, a.size, a.period, a.warm, a.keep, a.window)
     return 0

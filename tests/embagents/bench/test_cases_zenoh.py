@@ -24,6 +24,9 @@ def test_the_zenoh_cases_measure_both_paths_and_a_cut_loses_nothing(tmp_path: Pa
     for tag in ("64b", "6mb"):
         assert type(bridge[f"ratio_{tag}"]) is float and bridge[f"raw_p50_us_{tag}"] > 0
     assert bridge["received_64b"] >= 90 and bridge["received_6mb"] >= 9
+    # the floor of the bar's shape (no embagents code) is measured in the same run, beside ours
+    assert bridge["chain_p50_us_64b"] > 0 and bridge["chain_ratio_64b"] == bridge["chain_p50_us_64b"] / bridge["raw_p50_us_64b"]
+    assert bridge["ours_over_chain_64b"] == bridge["p50_us_64b"] / bridge["chain_p50_us_64b"]
     assert cut["lost"] == 0 and cut["lost_reported"] == 0 and cut["duplicates"] == 0 and cut["in_order"] is True and cut["cuts"] == 2
     assert 0 < cut["resume_ms"] < 5000
     names = {b["name"] for b in doc["bars"]}
