@@ -230,3 +230,90 @@ def test_a_simulated_speaker_plays_in_real_time_and_after_an_interrupt_drops_wha
     assert set(values) == {500, 700} and values.index(700) > len(played) - 1, values
     assert out[len(played)].data.size == 0, "the stop says on the played stream that nothing plays from then on"
     assert speaker.stats()["dropped_s"] == pytest.approx(0.5)
+
+
+# --- the words played: an answer cut short is kept in the LLM's history as what the user heard ---------------
+
+ANSWER = ("Paris is the capital of France. It is known for the Eiffel Tower and its museums. "
+          "Many people visit it every year.")
+PLAYED_SYSTEM = '''
+from embagents.components import LLM, LLMConfig, Speaker, SpeakerConfig, TextToSpeech
+from embagents.models import LocalModelClient
+from embagents.msgs import Audio, BargeIn, StreamingString, String
+from embagents.system import System
+from embagents.topic import Topic
+
+ANSWER = WRITTEN
+
+
+class Written:
+    """Writes ANSWER a word per token at once: far ahead of the voice, as a model on a fast machine does."""
+
+    def chat_stream(self, messages, **options):
+        words = ANSWER.split(" ")
+        for i, w in enumerate(words):
+            yield {"delta": w if i == 0 else " " + w}
+        yield {"done": True, "finish_reason": "stop", "tool_calls": None}
+
+
+heard = Topic("heard", String, keep="all")
+barge = Topic("barge", BargeIn, keep="all")
+answer = Topic("answer", StreamingString, queue_size=1000, keep="all")
+speaker = Topic("speaker", Audio, queue_size=1000, keep="all")
+spoken = Topic("spoken", StreamingString, queue_size=1000, keep="all")  # the words the speaker played
+
+system = System(
+    [
+        LLM(name="llm", inputs=[heard, barge, spoken], outputs=[answer], model_client=Written(), trigger=heard,
+            config=LLMConfig(stream=True, chat_history=True)),
+        TextToSpeech(name="voice", inputs=[answer, barge], outputs=[speaker], model_client=LocalModelClient("joe_played")),
+        Speaker(name="speaker", inputs=[speaker, barge], outputs=[spoken], config=SpeakerConfig(simulated=True)),
+    ],
+    external=[heard, barge],
+)
+'''
+
+
+def test_an_answer_interrupted_mid_playback_is_kept_in_the_history_as_the_words_played(
+        tmp_path: Any, piper_dir: str) -> None:
+    import textwrap
+    from pathlib import Path
+
+    from actors.topics import Publisher
+    from embagents.requests import Call
+    from embagents.runtime.component_actor import ComponentActor
+    from embagents.system import load_system, remember_system
+    from tests.helpers import wait_until
+
+    path = str(tmp_path / "system.py")
+    Path(path).write_text(textwrap.dedent(PLAYED_SYSTEM).replace("WRITTEN", repr(ANSWER)))
+    system = load_system(path)
+    remember_system(path, system)
+    with ActorSystem() as asys:
+        asys.spawn(ModelActor, "joe_played", "tts", piper_dir, {"threads": 1}, True, wait=60)
+        for c in system.components:
+            asys.spawn(ComponentActor, c.name, path, c.name)
+        llm, speaker = asys.ref("llm"), asys.ref("speaker")
+        heard = asys.rt.on_client(lambda: Publisher(asys.rt, "heard"))
+        barge = asys.rt.on_client(lambda: Publisher(asys.rt, "barge"))
+        asys.rt.on_client(lambda: heard.publish(String(data="Tell me about Paris.")))
+        # The model wrote the whole answer long before the voice has said its first sentence.
+        wait_until(lambda: speaker.ask(Call("stats"), timeout=5).get()["played_s"] >= 2.2, 60, "2 s of the answer played")
+        assert llm.ask(Call("snapshot"), timeout=5).get()["history"][-1]["content"] == ANSWER
+        spoke = time.time()
+        asys.rt.on_client(lambda: barge.publish(BargeIn(action="pause", stamp=spoke)))  # the user speaks over it
+        time.sleep(0.4)
+        asys.rt.on_client(lambda: barge.publish(BargeIn(action="interrupt", text="Wait, stop.", stamp=spoke)))
+
+        def cut() -> dict[str, Any] | None:
+            last = llm.ask(Call("snapshot"), timeout=5).get()["history"][-1]
+            return last if last.get("interrupted") else None
+
+        entry = wait_until(cut, 10, "the answer marked interrupted")
+        time.sleep(0.5)  # words the speaker told after the interrupt would change it: none come
+        assert llm.ask(Call("snapshot"), timeout=5).get()["history"][-1] == entry
+        played = speaker.ask(Call("stats"), timeout=5).get()["played_s"]
+    words, said = entry["content"].split(), ANSWER.split()
+    assert entry["role"] == "assistant" and entry["interrupted"] is True
+    # What the user heard: the first sentence or so, a prefix of the answer, word for word; not what was written.
+    assert 3 <= len(words) < 12 and words == said[:len(words)], (entry, played)
