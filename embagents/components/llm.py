@@ -265,7 +265,7 @@ class LLM(ModelComponent):
     token by token between turns of the component's loop, so an ``interrupt``
     (or :meth:`interrupt`) cancels the generation where it is (the model actor
     stops at once) and the answer goes into the chat history cut short
-    (``"interrupted": True``; the model reads it with a trailing "...").
+    (``"interrupted": True``, for the application; the model reads the words kept, unmarked).
     With a ``StreamingString`` input, the Speaker's words played (its text
     output; TextToSpeech passes each sentence on with its audio), the answer cut
     short is kept as the words the user heard, not what the model had written
@@ -395,8 +395,9 @@ class LLM(ModelComponent):
             messages.append({"role": "system", "content": cfg.system_prompt})
         if cfg.chat_history:
             for m in copy.deepcopy(self._history):
-                if m.pop("interrupted", False):  # the model reads where the user cut it off
-                    m["content"] = f"{m.get('content') or ''}..."
+                # An answer cut short reads as the words the user heard, unmarked (as Pipecat and LiveKit send
+                # it): a small model copies a marker ("...") into its next answer (SmolLM2-135M, measured).
+                m.pop("interrupted", None)
                 messages.append(m)
         messages.append({"role": "user", "content": content})
         return messages
