@@ -58,9 +58,9 @@ def test_the_user_speaking_over_the_robot_pauses_it_then_interrupts_and_the_ques
     assert any("berlin" in h.lower() for h in got["heard"]), got
 
 
-# "Uh-huh": the mhm-like backchannel the Piper voice says so that Whisper hears a backchannel ("Uh", "ah", or no
-# word); its "Mhm." and "Mm-hmm." come back as words ("make them", "in a month") and interrupt.
-@pytest.mark.parametrize("said", ["Yeah.", "Okay.", "Right.", "Uh-huh.", "Uh-huh, uh-huh."])
+# "Uh-huh.": the mhm-like backchannel the Piper voice says so that Whisper hears no words, or a backchannel
+# (examples/voice.py's); its "Mhm." and "Mm-hmm." come back as words ("make them", "in a month") and interrupt.
+@pytest.mark.parametrize("said", ["Yeah.", "Okay.", "Right.", "Uh-huh."])
 def test_a_backchannel_pauses_the_robot_then_resumes_it_and_is_not_passed_on(whisper: str, said: str) -> None:
     got = trial(whisper, robot_says(said))
     assert "interrupt" not in got["actions"], got
