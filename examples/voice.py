@@ -37,7 +37,8 @@ every voice component publishes on; ``embagents status`` shows the same
 while the system runs), the WAV's path, then ``barge-in: user interrupted
 answer 1 after 1.2 s (cut short at "...")`` (the words played by then, from
 ``spoken``) and ``backchannel ignored: "..." during answer 2`` (what Whisper
-heard; ``(no words)`` for a sound too short for them), and, once the last answer
+heard; ``noise ignored`` when it heard no words: a sound too short for them, or
+the robot's own echo at the start of an answer), and, once the last answer
 has played to its end, the LLM's chat history entry of the answer cut short
 (``history: {'role': 'assistant', 'content': '<the words played>',
 'interrupted': True}``), and stops the system.
@@ -325,10 +326,13 @@ class Report(Component):
             if self.resumed is not None:
                 (text, n), self.resumed = self.resumed, None
                 held = msg.stamp - (self.paused_at or msg.stamp)  # from the user's first sound to the robot's next
-                self.ignored.append(n)
-                heard_as = f'"{text}"' if text else "(no words)"  # too short for the recognizer to make words of
-                print(f"backchannel ignored: {heard_as} during answer {n + 1} (the robot paused {held:.1f} s, "
-                      "then went on)", flush=True)
+                if text:
+                    self.ignored.append(n)
+                    print(f'backchannel ignored: "{text}" during answer {n + 1} (the robot paused {held:.1f} s, '
+                          "then went on)", flush=True)
+                else:  # the robot's own echo at the start of an answer, or a sound too short for words
+                    print(f"noise ignored during answer {n + 1} (the robot paused {held:.1f} s, then went on)",
+                          flush=True)
             return
         # Nothing plays from msg.stamp on: what the speaker had given its device after it was not heard.
         self.played = [[a, min(b, msg.stamp)] for a, b in self.played if a < msg.stamp]
