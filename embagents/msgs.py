@@ -154,12 +154,20 @@ class CompressedImage:
 @message("embagents/Audio")
 @attrs.define(eq=False)
 class Audio:
-    """PCM audio: ``data`` int16 or float32 samples, interleaved when channels > 1."""
+    """PCM audio: ``data`` int16 or float32 samples, interleaved when channels > 1.
+
+    ``text``: the words this audio says, when its maker knows them (TextToSpeech sets it on the first
+    chunk of each sentence; the chunks after it with the same ``stream_id`` and no ``text`` go on with
+    that sentence); ``stream_id``: the text stream it was made from (the ``StreamingString`` of an LLM's
+    answer). With them, the Speaker can say which words have been played (its ``StreamingString`` output).
+    """
 
     data: np.ndarray = attrs.field(factory=lambda: np.zeros(0, np.int16))
     sample_rate: int = 16000
     channels: int = 1
     stamp: float = 0.0
+    text: str = ""
+    stream_id: str = ""
 
 
 def _boxes() -> Any:  # an attrs field

@@ -1,4 +1,4 @@
-"""A voice robot, offline: the user asks, interrupts it mid-answer, says "yeah, okay" over the next; each model in its own process.
+"""A voice robot, offline: the user asks, interrupts it mid-answer, says "uh-huh" over the next; each model in its own process.
 
     pip install -e ".[llm,speech]"
     embagents supervise examples/voice.py
@@ -12,9 +12,12 @@ response, :mod:`embagents.bench.echo_room`) and the user's scripted turns,
 cancels the echo with the ``played`` reference (WebRTC AEC3, as the
 Microphone does) and publishes 20 ms chunks. The user (the Piper voice too)
 asks "Tell me about Paris."; 1 s after the robot starts answering, says "Wait,
-tell me about Berlin instead." over it; 2 s into that answer, says "Yeah,
-okay." (a backchannel: not "mhm", which the Piper voice says as no word
-Whisper knows).
+tell me about Berlin instead." over it; 2 s into that answer, says "Uh-huh."
+(a backchannel, as "mhm" is). Over the robot's echo, Whisper tiny.en hears the
+Piper voice's "uh-huh" as no words or as one ("Oh.", "of", "So,", "Wow."):
+ignored, as a sound shorter than ``interrupt_min_speech_ms`` takes two words
+that are not backchannels to interrupt; its hummed "Mhm." and "Mm-hmm." come
+back as two or three ("make them", "in a month") and would interrupt.
 
 ``ears`` (SpeechToText: Silero VAD, then the ``whisper`` model actor) hears the
 questions and, while the robot speaks, publishes barge-in decisions
@@ -24,15 +27,21 @@ for words or ``resume`` for a backchannel or a noise. ``llm`` (SmolLM2, the
 keeps the answer in its chat history marked cut short; ``voice``
 (TextToSpeech, the ``joe`` model actor: a Piper voice on sherpa-onnx) speaks
 each sentence as soon as it is written and drops the rest on ``interrupt``;
-the speaker pauses, resumes or drops what it holds; ``speaker_file`` writes
+the speaker pauses, resumes or drops what it holds, and tells the words it
+has played (``spoken``: each sentence's words as its audio is heard), which
+the LLM keeps as the answer cut short; ``speaker_file`` writes
 each answer as the voice made it to a WAV file (``EMBAGENTS_VOICE_OUT``,
 default ``voice_out/``). ``report`` prints ``heard: ...``, ``said: ...``,
 each turn's latency per stage (``stages: ...``: the ``voice_stages`` topic
 every voice component publishes on; ``embagents status`` shows the same
 while the system runs), the WAV's path, then ``barge-in: user interrupted
-answer 1 after 1.2 s (cut short at "...")`` (the words heard by then, from
-the seconds played of each sentence) and ``backchannel ignored: "..." during
-answer 2``, and stops the system once the last answer has played to its end.
+answer 1 after 1.2 s (cut short at "...")`` (the words played by then, from
+``spoken``) and ``backchannel ignored: "..." during answer 2`` (what Whisper
+heard; ``noise ignored`` when it heard no words: a sound too short for them, or
+the robot's own echo at the start of an answer), and, once the last answer
+has played to its end, the LLM's chat history entry of the answer cut short
+(``history: {'role': 'assistant', 'content': '<the words played>',
+'interrupted': True}``), and stops the system.
 
 Live: with ``EMBAGENTS_KEEP_RUNNING=1`` and a microphone that PortAudio finds,
 ``mic`` is a :class:`~embagents.components.Microphone` and ``speaker`` a
@@ -52,6 +61,7 @@ from typing import Any
 import numpy as np
 from attrs import define, field
 
+from actors import ActorRef
 from embagents.components import (
     LLM,
     Component,
@@ -70,12 +80,11 @@ from embagents.components.audio_devices import input_device_present
 from embagents.components.audio_format import to_mono_16k
 from embagents.components.audio_io import non_negative_float
 from embagents.components.echo_cancel import EchoCancelling
-from embagents.components.text_to_speech import take_sentences
 from embagents.components.voice_stages import VoiceTurns
 from embagents.config import BaseComponentConfig, positive_float, to_bool
 from embagents.models import LlamaModel, LocalModelClient, SpeechToTextModel, TextToSpeechModel
-from embagents.models.sentences import speakable
 from embagents.msgs import Audio, BargeIn, StreamingString, String, VoiceStage
+from embagents.requests import Call
 from embagents.system import SYSTEM_STOP, System
 from embagents.topic import Topic
 
@@ -86,9 +95,11 @@ RATE = 16000
 USER_TURNS = (
     ("Tell me about Paris.", "start", 0.5),
     ("Wait, tell me about Berlin instead.", "robot", 1.0),  # an interruption
-    # A backchannel. Not "mhm": the Piper voice's hum comes back from Whisper as "M-H-M." (a backchannel) one run
-    # and "and then hm." (words: an interruption) another; "yeah, okay" is heard the same way every run.
-    ("Yeah, okay.", "robot", 2.0),
+    # A backchannel, "mhm"-like. Over the robot's echo in 6-12 rooms, Whisper tiny.en heard the Piper voice's
+    # "Mhm.", "Mm-hmm.", "Mm hm." as words 4-7 times in 10 ("make them", "in a month", "them HM."): they interrupt;
+    # "Uh-huh, uh-huh." as "Uh" or "ah", but 2 times in 12 as "I thought"; "Uh-huh." 22 times in 22 as no words
+    # or one ("Oh.", "of"): ignored.
+    ("Uh-huh.", "robot", 2.0),
 )
 QUESTIONS = 2  # turns above that ask something: the robot's last answer is the second
 USER_DB = -18.0  # the user's level at the microphone (RMS dBFS): nearer it than the robot's speaker is
@@ -236,6 +247,7 @@ class Report(Component):
         self.received: list[tuple[str, Any]] = []
         self.answers: dict[str, str] = {}  # stream_id -> the LLM's text, in order
         self.sentences: list[list[float]] = [[]]  # per answer the voice made: each sentence's seconds
+        self.spoken: dict[str, str] = {}  # stream_id -> the words the speaker has played of that answer
         self.starts: list[float] = []  # per answer: when its first sound was heard (the speaker's speaker_start)
         self.played: list[list[float]] = []  # [start, end] of each played chunk (a pause cuts those after it)
         self.paused_at: float | None = None
@@ -284,6 +296,8 @@ class Report(Component):
                     self.sentences.append([])
             elif topic == played.name:
                 self.on_played(msg)
+            elif topic == spoken.name:
+                self.spoken[msg.stream_id] = self.spoken.get(msg.stream_id, "") + msg.data
             elif topic == barge.name:
                 self.on_barge_in(msg)
             elif topic == written.name:
@@ -316,7 +330,7 @@ class Report(Component):
                     self.ignored.append(n)
                     print(f'backchannel ignored: "{text}" during answer {n + 1} (the robot paused {held:.1f} s, '
                           "then went on)", flush=True)
-                else:
+                else:  # the robot's own echo at the start of an answer, or a sound too short for words
                     print(f"noise ignored during answer {n + 1} (the robot paused {held:.1f} s, then went on)",
                           flush=True)
             return
@@ -330,21 +344,8 @@ class Report(Component):
         return sum(b - a for a, b in self.played if lo <= a < hi)
 
     def words_heard(self, n: int) -> str:
-        """The words of answer ``n`` heard so far: its sentences' seconds played, a sentence's words evenly spread."""
-        text = list(self.answers.values())[n] if n < len(self.answers) else ""
-        said, rest = take_sentences(text + "\n")
-        said = [s for s in said + [rest.strip()] if speakable(s)]
-        lengths = self.sentences[n] if n < len(self.sentences) else []
-        left, out = self.heard_s(n), []
-        for sentence, seconds in zip(said, lengths, strict=False):
-            words = sentence.split()
-            if left >= seconds:
-                out += words
-                left -= seconds
-                continue
-            out += words[:round(len(words) * left / seconds)]
-            break
-        return " ".join(out)
+        """The words of answer ``n`` played so far, as the speaker tells them (``spoken``)."""
+        return self.spoken.get(list(self.answers)[n], "").strip() if n < len(self.answers) else ""
 
     def on_barge_in(self, msg: BargeIn) -> None:
         n = len(self.starts) - 1  # the answer playing
@@ -374,6 +375,10 @@ class Report(Component):
             return
         self.finishing = 0.0
         self.say_stages(at_last=True)
+        # The LLM's chat history keeps the answer cut short as the words played (the speaker's spoken topic).
+        for m in ActorRef("llm").ask(Call("snapshot")).get(timeout=30)["history"]:
+            if m.get("interrupted"):
+                print(f"history: {m}", flush=True)
         print(f"done: {len(self.interrupted)} interruption, {len(self.ignored)} backchannel ignored; answer {n + 1} "
               f"played {self.heard_s(n):.1f} s of {made:.1f} s", flush=True)
         self.publish(stop, String(data="answered"))
@@ -389,6 +394,7 @@ answer = Topic("answer", StreamingString, queue_size=1000, keep="all")
 speaker = Topic("speaker", Audio, queue_size=1000, keep="all")
 written = Topic("answer_wav", String, keep="all")
 played = Topic("played", Audio, queue_size=1000, keep="all")  # what the speaker plays: the echo reference
+spoken = Topic("spoken", StreamingString, queue_size=1000, keep="all")  # the words it has played, per answer
 barge = Topic("barge", BargeIn, queue_size=100, keep="all")  # the user speaks over the robot
 stages = Topic("voice_stages", VoiceStage, queue_size=100, keep="all")  # each turn's latency per stage
 stop = Topic(SYSTEM_STOP, String)
@@ -413,17 +419,17 @@ else:
 system = System(
     [
         ears_in,
-        Speaker(name="speaker", inputs=[speaker, barge], outputs=[played, stages], config=speaker_config),
+        Speaker(name="speaker", inputs=[speaker, barge], outputs=[played, stages, spoken], config=speaker_config),
         SpeechToText(name="ears", inputs=[mic, played], outputs=[heard, barge, stages],
                      model_client=LocalModelClient(whisper),
                      config=SpeechToTextConfig(min_silence_ms=300, playback_input="played")),
-        LLM(name="llm", inputs=[heard, barge], outputs=[answer, stages], model_client=LocalModelClient(smollm2),
+        LLM(name="llm", inputs=[heard, barge, spoken], outputs=[answer, stages], model_client=LocalModelClient(smollm2),
             trigger=heard, config=LLMConfig(stream=True, temperature=0.0, max_new_tokens=40, chat_history=True,
                                             system_prompt=SYSTEM_PROMPT)),
         TextToSpeech(name="voice", inputs=[answer, barge], outputs=[speaker, stages], model_client=LocalModelClient(joe)),
         WavFileSink(name="speaker_file", inputs=[speaker], outputs=[written],
                     config=WavFileSinkConfig(folder=os.environ.get("EMBAGENTS_VOICE_OUT", "voice_out"), prefix="answer")),
-        Report(name="report", inputs=[heard, answer, written, stages, speaker, played, barge], outputs=[stop]),
+        Report(name="report", inputs=[heard, answer, written, stages, speaker, played, barge, spoken], outputs=[stop]),
     ],
     models=[whisper, smollm2, joe],
     name="voice",

@@ -124,7 +124,7 @@ def test_listen_example_hears_the_six_phrases_of_the_clip(tmp_path: Path) -> Non
 
 def test_voice_example_is_interrupted_mid_answer_once_and_speaks_on_over_a_backchannel(tmp_path: Path) -> None:
     # The user's part is scripted against the simulated speaker (examples/voice.py's USER_TURNS): "Tell me about
-    # Paris."; 1 s into the answer, "Wait, tell me about Berlin instead."; 2 s into that answer, "Yeah, okay."
+    # Paris."; 1 s into the answer, "Wait, tell me about Berlin instead."; 2 s into that answer, "Uh-huh."
     for module in ("sherpa_onnx", "espeakng_loader", "livekit", "llama_cpp"):
         pytest.importorskip(module, reason="the example needs the llm and speech extras (pip install 'embagents[llm,speech]')")
     out = subprocess.run([sys.executable, "-m", "embagents.cli", "supervise", str(EXAMPLES / "voice.py")],
@@ -146,11 +146,24 @@ def test_voice_example_is_interrupted_mid_answer_once_and_speaks_on_over_a_backc
     # One backchannel: the robot paused while the user spoke, then went on and played its answer to the end.
     from embagents.components.speech_to_text import is_backchannel
 
-    nods = [re.fullmatch(r'backchannel ignored: "(.+)" during answer (\d) \(the robot paused (\d+\.\d) s, then went on\)', x)
-            for x in lines if x.startswith("backchannel ignored: ")]
-    assert len(nods) == 1 and nods[0] and is_backchannel(nods[0][1]) and nods[0][2] == "2", out.stdout
-    done = re.fullmatch(r"done: 1 interruption, 1 backchannel ignored; answer 2 played (\d+\.\d) s of (\d+\.\d) s",
-                        lines[-1])
+    # What Whisper heard of it: a backchannel, or one word ("Oh.", "Wow."), as a short sound takes two
+    # (interrupt_min_words) to interrupt; or no words ("noise ignored", as the robot's own echo at the start of
+    # an answer is, now and then).
+    nods = [re.fullmatch(r'(?:backchannel ignored: "(.+)"|noise ignored) during answer (\d) \(the robot paused '
+                         r'(\d+\.\d) s, then went on\)', x) for x in lines if x.startswith(("backchannel ", "noise "))]
+    assert all(nods) and [m[2] for m in nods if m].count("2") == 1, out.stdout
+    nod = next(m for m in nods if m and m[2] == "2")
+    assert nod[1] is None or is_backchannel(nod[1]) or len(re.findall(r"[\w']+", nod[1])) == 1, out.stdout
+    # The LLM keeps the answer cut short as the words played (the speaker's), not all it had written.
+    import ast
+
+    kept = [ast.literal_eval(x[len("history: "):]) for x in lines if x.startswith("history: ")]
+    assert len(kept) == 1 and kept[0]["role"] == "assistant" and kept[0]["interrupted"] is True, out.stdout
+    assert kept[0]["content"].endswith(cut[0][3].removeprefix("...")), out.stdout
+    assert words_said.startswith(kept[0]["content"]) and len(kept[0]["content"]) < len(words_said), out.stdout
+    said_nod = sum(m is not None and m[1] is not None for m in nods)
+    done = re.fullmatch(rf"done: 1 interruption, {said_nod} backchannel ignored; answer 2 played (\d+\.\d) s of "
+                        r"(\d+\.\d) s", lines[-1])
     assert done and float(done[1]) == float(done[2]) > 2.0, out.stdout
     # Each turn's latency per stage, the speaker's start included (the second too: after a stop, a new utterance).
     stages = [dict(x.rsplit(" ", 2)[:2] for x in line[len("stages: "):].split(", "))

@@ -60,7 +60,7 @@ from embagents.config import (
     positive_int,
     to_bool,
 )
-from embagents.msgs import Audio, BargeIn, VoiceStage
+from embagents.msgs import Audio, BargeIn, StreamingString, VoiceStage
 
 __all__ = ["Microphone", "MicrophoneConfig", "PacedOutput", "Speaker", "SpeakerConfig", "input_device_present"]
 
@@ -419,6 +419,19 @@ class Microphone(EchoCancelling, _SoundDevice):
                                       channels=self.config.channels))
 
 
+@define
+class _Sentence:
+    """A sentence the Speaker was given (``Audio.text``), on its timeline of frames queued: its words, told or not."""
+
+    stream_id: str
+    words: list[str]
+    start: int  # the frame it begins at, counted over all the audio queued
+    end: int
+    told: int = 0  # words published as played
+    closed: bool = False  # nothing more of it comes: the next sentence, other audio or the utterance's end came
+    last: bool = False  # the utterance ended after it
+
+
 class Speaker(_SoundDevice, AudioSink):
     """Plays the ``Audio`` it receives on an output device (see the module docstring).
 
@@ -428,6 +441,14 @@ class Speaker(_SoundDevice, AudioSink):
     sample leaves the speaker; an empty chunk stamped ``t`` says nothing plays from ``t`` on
     (after :meth:`pause` or :meth:`stop_playback`).
 
+    Its optional ``StreamingString`` output is what has been said aloud: the words of the audio it
+    got with a ``text`` (TextToSpeech's sentences), published as they are heard (the audio's
+    share of its sentence spread evenly over the words), with the ``stream_id`` of the text they
+    were made from, and ``done`` once that utterance has played to its end or was cut short (a
+    :meth:`stop_playback`, a barge-in). Words still in the device's buffer at a :meth:`pause` are
+    not heard: they come when it resumes. Wired into the LLM, an answer cut short is kept in its
+    chat history as the words the user heard.
+
     Its optional ``BargeIn`` input (SpeechToText's) acts at once, between two
     writes: ``pause`` -> :meth:`pause`, ``resume`` -> :meth:`resume`,
     ``interrupt`` -> :meth:`stop_playback`, and what still comes of the utterance in progress (a sentence the
@@ -435,7 +456,7 @@ class Speaker(_SoundDevice, AudioSink):
     """
 
     allowed_inputs = {"Required": [Audio], "Optional": [BargeIn]}
-    allowed_outputs = {"Optional": [Audio, VoiceStage]}
+    allowed_outputs = {"Optional": [Audio, VoiceStage, StreamingString]}
     config_class = SpeakerConfig
     kind = "output"
 
@@ -451,6 +472,12 @@ class Speaker(_SoundDevice, AudioSink):
         self._started = False  # the utterance in progress has reached the device (its speaker_start is out)
         self._receiving = False  # audio of an utterance has come whose end (an empty Audio) has not
         self._drop_rest = False  # stopped mid-utterance: what comes of it until its end is not played
+        # The words played (the StreamingString output): frames of audio queued and given to the device, counted
+        # over the speaker's life (a pause takes back what the device had not played), and the sentences in them.
+        self._fed = self._given = 0
+        self._dry_at = 0  # frames given when the device last ran dry: what it holds after that is audio
+        self._sentences: collections.deque[_Sentence] = collections.deque()
+        self._told_stream = ""  # the stream whose words were told last (the next of its words: after a space)
         self.played_s = 0.0
         self.dropped_s = 0.0
         self.utterances = 0
@@ -512,6 +539,8 @@ class Speaker(_SoundDevice, AudioSink):
                     self._drop_rest = False
                 else:
                     self._queue.append(None)
+                    if self._sentences and not self._sentences[-1].closed:
+                        self._sentences[-1].closed = self._sentences[-1].last = True
                 continue
             self._receiving = True
             if self._drop_rest:
@@ -527,7 +556,56 @@ class Speaker(_SoundDevice, AudioSink):
                 self._notes.add(note)
                 self.logger.info("%s: %s", self._label(), note)
             self._queue.append(frames)
+            self._queued_words(msg, len(frames))
         self._pump()
+
+    def _queued_words(self, msg: Audio, frames: int) -> None:
+        """Keep which frames ``msg``'s words (``Audio.text``, its ``stream_id``) are, to tell them once played."""
+        last = self._sentences[-1] if self._sentences else None
+        if msg.text and self._text_outputs:
+            if last is not None:
+                last.closed = True
+            self._sentences.append(_Sentence(msg.stream_id, msg.text.split(), self._fed, self._fed + frames))
+        elif last is not None and not last.closed and msg.stream_id == last.stream_id and last.end == self._fed:
+            last.end += frames  # the sentence goes on in this chunk
+        elif last is not None:
+            last.closed = True
+        self._fed += frames
+
+    @property
+    def _text_outputs(self) -> list[Any]:
+        return [t for t in self.outputs if t.msg_type is StreamingString]
+
+    def _unheard(self, now: float) -> int:
+        """Frames given to the device that it has not played by ``now`` (not the silence before them)."""
+        ahead = max(0.0, self._play_clock - now) if self._play_clock else 0.0
+        return min(int(ahead * self._rate), self._given - self._dry_at)
+
+    def _tell_words(self, cut: bool = False) -> None:
+        """Publish the words heard since the last call; ``cut``: the rest is not played (``done``)."""
+        if not self._sentences:
+            return
+        heard = self._given - self._unheard(time.time())
+        ended: list[str] = []
+        while self._sentences:
+            s = self._sentences[0]
+            share = (heard - s.start) / max(1, s.end - s.start)
+            k = len(s.words) if heard >= s.end and s.closed else min(len(s.words), max(0, round(len(s.words) * share)))
+            if k > s.told:
+                space = " " if s.told or self._told_stream == s.stream_id else ""
+                words = space + " ".join(s.words[s.told:k])
+                s.told, self._told_stream = k, s.stream_id
+                for t in self._text_outputs:
+                    self.publish(t, StreamingString(data=words, done=False, stream_id=s.stream_id))
+            if not cut and (s.told < len(s.words) or not s.closed):
+                break
+            self._sentences.popleft()
+            if (cut or s.last) and s.stream_id not in ended:
+                ended.append(s.stream_id)
+        for stream_id in ended:
+            self._told_stream = ""
+            for t in self._text_outputs:
+                self.publish(t, StreamingString(data="", done=True, stream_id=stream_id))
 
     def _pump(self) -> None:
         """Write what the device has room for; come back when it has room again, or to stop it once played."""
@@ -567,6 +645,7 @@ class Speaker(_SoundDevice, AudioSink):
                         self._queue.popleft()
                     else:
                         self._queue[0] = frames[n:]
+            self._tell_words()
             buffered_s = self.config.buffer_ms / 1000
             if self._queue:
                 self._later(buffered_s / 2)
@@ -576,6 +655,8 @@ class Speaker(_SoundDevice, AudioSink):
                     stream.stop()  # all of it has played: an idle stream costs nothing
                 else:
                     self._later(played_out - time.monotonic())
+            if not self._queue and self._sentences and self._unheard(time.time()):
+                self._later(self._play_clock - time.time() + 0.01)  # its last words, once heard
         except self._sd.PortAudioError as exc:
             self._lost(f"stopped playing ({exc}); {LIST_HINT}")
 
@@ -584,8 +665,10 @@ class Speaker(_SoundDevice, AudioSink):
         now = time.time()
         if self._play_clock < now:  # the device ran dry: this plays after its output latency
             self._play_clock = now + float(getattr(stream, "latency", 0.0) or 0.0)
+            self._dry_at = self._given
         stamp = self._play_clock
         self._play_clock += len(frames) / self._rate
+        self._given += len(frames)
         if not self._started:
             self._started = True
             publish_stage(self, "speaker_start", stamp)  # when the utterance's first sound will be heard
@@ -618,14 +701,15 @@ class Speaker(_SoundDevice, AudioSink):
         if self._paused:
             return self._queue_s()
         self._paused = True
-        unheard = max(0.0, self._play_clock - time.time())
-        n = int(unheard * self._rate) if self._rate else 0
+        n = self._unheard(time.time())
         if n and self._recent:
             tail = np.concatenate(list(self._recent))[-n:]
             self._queue.appendleft(tail)  # what the device held is played again on resume
+            self._given -= len(tail)
         if self._stream is not None and self._stream.active:
             self._stream.abort()  # abort, not stop: what the device holds is not played
         self._silenced()
+        self._tell_words()  # the words heard until now
         self.logger.info("%s: paused; %.2f s held", self._label(), self._queue_s())
         return self._queue_s()
 
@@ -648,6 +732,8 @@ class Speaker(_SoundDevice, AudioSink):
 
     def _drop(self, seconds: float, why: str) -> None:
         self._queue.clear()
+        self._fed = self._given
+        self._tell_words(cut=True)
         if seconds > 0:
             self.dropped_s += seconds
             self.logger.warning("%s: dropped %.2f s of audio: %s", self._label(), seconds, why)
@@ -666,10 +752,13 @@ class Speaker(_SoundDevice, AudioSink):
         taken = self.take()
         dropped = self._queue_s() + _seconds(taken)
         self._queue.clear()
+        self._given -= self._unheard(time.time())  # what the device held is not heard: not told
+        self._fed = self._given
         self._paused = False
         self._started = False  # the utterance's end was dropped with it: what comes next is a new one
         if self._stream is not None and self._stream.active:
             self._stream.abort()  # abort, not stop: what the device holds is not played
         self._silenced()
+        self._tell_words(cut=True)
         self.logger.info("%s: stopped; %.2f s of audio dropped", self._label(), dropped)
         return dropped

@@ -265,10 +265,17 @@ class LLM(ModelComponent):
     token by token between turns of the component's loop, so an ``interrupt``
     (or :meth:`interrupt`) cancels the generation where it is (the model actor
     stops at once) and the answer goes into the chat history cut short
-    (``"interrupted": True``; the model reads it with a trailing "...").
+    (``"interrupted": True``, for the application; the model reads the words kept, unmarked).
+    With a ``StreamingString`` input, the Speaker's words played (its text
+    output; TextToSpeech passes each sentence on with its audio), the answer cut
+    short is kept as the words the user heard, not what the model had written
+    (which runs ahead of the voice): ``history[-1]["content"]`` is the played
+    prefix. Words the speaker tells after the interrupt (it may stop after the
+    LLM hears of it) still go into that entry. Without that input it is the
+    text written so far.
     """
 
-    allowed_inputs = {"Required": [String], "Optional": [String, BargeIn]}
+    allowed_inputs = {"Required": [String], "Optional": [String, BargeIn, StreamingString]}
     allowed_outputs = {"Required": [[String, StreamingString]], "Optional": [String, StreamingString, VoiceStage]}
     config_class = LLMConfig
 
@@ -279,6 +286,9 @@ class LLM(ModelComponent):
         self.output_converters: dict[str, Callable[[str], Any]] = {
             (k.name if isinstance(k, Topic) else str(k).lstrip("/")): fn for k, fn in (output_converters or {}).items()}
         self._live: dict[str, Any] | None = None  # the answer being generated between loop turns (barge-in)
+        self._played: dict[str, str] = {}  # stream_id -> its words the speaker has played (newest answers)
+        self._last_stream = ""  # the stream of the answer last put into the history
+        self._cut: tuple[str, dict[str, Any]] | None = None  # the answer cut short: its stream, its history entry
         self.interrupted = 0  # answers cut short
         self._began = 0.0  # wall time the latest answer began
         super().__init__(name=name, **kw)
@@ -385,8 +395,9 @@ class LLM(ModelComponent):
             messages.append({"role": "system", "content": cfg.system_prompt})
         if cfg.chat_history:
             for m in copy.deepcopy(self._history):
-                if m.pop("interrupted", False):  # the model reads where the user cut it off
-                    m["content"] = f"{m.get('content') or ''}..."
+                # An answer cut short reads as the words the user heard, unmarked (as Pipecat and LiveKit send
+                # it): a small model copies a marker ("...") into its next answer (SmolLM2-135M, measured).
+                m.pop("interrupted", None)
                 messages.append(m)
         messages.append({"role": "user", "content": content})
         return messages
@@ -419,7 +430,24 @@ class LLM(ModelComponent):
     def _interruptible(self) -> bool:
         return any(t.msg_type is BargeIn for t in self.inputs)
 
+    @property
+    def _hears_itself(self) -> bool:
+        """The speaker's words played come in (a ``StreamingString`` input)."""
+        return any(t.msg_type is StreamingString for t in self.inputs)
+
+    def _words_played(self, msg: StreamingString) -> None:
+        """The speaker played more of an answer: keep it; an answer already cut short gets them too."""
+        played = self._played.pop(msg.stream_id, "") + msg.data
+        self._played[msg.stream_id] = played  # newest last
+        while len(self._played) > 8:  # a few answers back: what an interrupt may still be about
+            del self._played[next(iter(self._played))]
+        if self._cut is not None and self._cut[0] == msg.stream_id:
+            self._cut[1]["content"] = played
+
     def on_message(self, topic_name: str, msg: Any, now: float | None = None) -> bool:
+        if isinstance(msg, StreamingString) and topic_name in self._subscribed:
+            self._words_played(msg)  # not a question: no step
+            return False
         if isinstance(msg, BargeIn) and topic_name in self._subscribed:
             if msg.action == "interrupt" and msg.stamp and msg.stamp < self._began:
                 # The speech began before this answer did: this answer is the reply to it (the interrupt came
@@ -461,6 +489,7 @@ class LLM(ModelComponent):
             if interrupted:
                 said["interrupted"] = True
             self._history += live["turn"] + [said]
+            self._last_stream = stream_id
             self._trim_history()
 
     def answer(self, text: str, context: Mapping[str, str] | None = None) -> str:
@@ -502,19 +531,27 @@ class LLM(ModelComponent):
     def interrupt(self) -> str:
         """Cut the answer short: stop its generation and keep it in the history as interrupted; returns it.
 
-        With no answer being generated, the last answer (still being spoken) is the one marked.
+        With no answer being generated, the last answer (still being spoken) is the one marked. Kept
+        is what the user heard of it when the speaker's words played come in (see the class docstring),
+        else what the model wrote.
         """
         live, self._live = self._live, None
         if live is not None:
             live["steps"].close()  # closes the model stream: the model actor stops generating
-            said = "".join(live["said"])
+            stream_id = live["stream_id"]
+            said = self._played.get(stream_id, "") if self._hears_itself else "".join(live["said"])
             self._end(live, said, interrupted=True)
+            last = self._history[-1] if self.config.chat_history and self._history else None
         else:
             last = self._history[-1] if self._history else None
             if last is None or last.get("role") != "assistant":
                 return ""
+            stream_id = self._last_stream
             last["interrupted"] = True
+            if self._hears_itself:
+                last["content"] = self._played.get(stream_id, "")
             said = str(last.get("content") or "")
+        self._cut = (stream_id, last) if last is not None and self._hears_itself else None
         self.interrupted += 1
         self.logger.info("%s: interrupted after %r", self._label(), said[-60:])
         return said

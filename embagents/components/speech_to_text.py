@@ -66,9 +66,12 @@ from embagents.topic import Topic
 
 __all__ = ["BACKCHANNELS", "SpeechToText", "SpeechToTextConfig", "is_backchannel", "strip_wake_phrase"]
 
-#: What a listener says to show they follow, not to take the turn (Whisper's spellings included).
+#: What a listener says to show they follow, not to take the turn (Whisper's spellings included: tiny.en hears the
+#: Piper voice's "Uh-huh, uh-huh." as "Uh", "ah", "ah ah ah ah"; its "Ah ha." as "Uh-huh."; "Hm." as "HM", "M";
+#: "Aha, okay." as "ah ha okay"; a laugh as "Ha ha ha"). Compared word by word, lowercased, without punctuation
+#: or hyphens (``"Mm-hmm."`` is ``mmhmm``).
 BACKCHANNELS = ("mhm", "m", "mm", "hmm", "mmhmm", "mm-hmm", "uh-huh", "uh", "huh", "um", "hm", "ah", "oh", "yeah", "yes",
-                "yep", "ok", "okay", "right", "all right", "sure", "alright", "i see", "got it", "aha")
+                "yep", "ok", "okay", "right", "all right", "sure", "alright", "i see", "got it", "aha", "ah-ha", "ha")
 
 _WORD = re.compile(r"[\w']+")
 #: A hum Whisper spells out in letters ("M-H-M.", "M H H", "Mmh"): no English word is made of m and h alone.

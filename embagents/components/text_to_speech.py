@@ -8,7 +8,10 @@ OpenAI-compatible ``/audio/speech`` server
 at a time. Each sentence's audio is published as soon as it is made
 (float32 mono at the voice's rate), and an empty ``Audio`` follows the last
 sentence of each utterance: the end of the utterance (a WAV sink closes its
-file there, as SpeechToText ends an utterance on one).
+file there, as SpeechToText ends an utterance on one). The first chunk of each
+sentence carries the sentence (``Audio.text``) and every chunk the
+``stream_id`` of the text it speaks, so that a Speaker can say which words it
+has played (and an LLM keep only those of an answer cut short).
 
 A ``StreamingString`` (an LLM's token deltas, closed by ``done=True``) is
 spoken sentence by sentence as it arrives: the first sentence is heard while
@@ -107,7 +110,7 @@ class TextToSpeech(ModelComponent):
 
     def __init__(self, *, name: str, **kw: Any) -> None:
         self._received: list[Any] = []
-        self._queue: deque[tuple[str, bool]] = deque()  # (sentence, ends the utterance)
+        self._queue: deque[tuple[str, bool, str]] = deque()  # (sentence, ends the utterance, its stream_id)
         self._streams: dict[str, str] = {}  # stream_id -> text not yet a whole sentence
         self._muted: set[str] = set()  # streams cut short by say() or stop_playback()
         self._pumping = False
@@ -168,16 +171,16 @@ class TextToSpeech(ModelComponent):
         sentences, rest = take_sentences(buffer)
         if msg.done:
             sentences += [rest.strip()] if rest.strip() else []
-            self._enqueue(sentences, ends=True)
+            self._enqueue(sentences, ends=True, stream_id=msg.stream_id)
         else:
             self._streams[msg.stream_id] = rest
-            self._enqueue(sentences, ends=False)
+            self._enqueue(sentences, ends=False, stream_id=msg.stream_id)
 
     def _enqueue_text(self, text: str) -> None:
         sentences, rest = take_sentences(text + "\n")
         self._enqueue(sentences + ([rest.strip()] if rest.strip() else []), ends=True)
 
-    def _enqueue(self, sentences: list[str], *, ends: bool) -> None:
+    def _enqueue(self, sentences: list[str], *, ends: bool, stream_id: str = "") -> None:
         said = [s for s in sentences if speakable(s)]
         for s in sentences:
             if not speakable(s):
@@ -187,7 +190,7 @@ class TextToSpeech(ModelComponent):
                 self.logger.warning("%s: %d sentences queued already; dropped %r", self._label(), len(self._queue), s)
                 self.set_algorithm_failure("speech queue full: sentences dropped")
                 break
-            self._queue.append((s, ends and i == len(said) - 1))
+            self._queue.append((s, ends and i == len(said) - 1, stream_id))
         if ends and not said and self._in_utterance:
             self._end_utterance()
 
@@ -197,16 +200,17 @@ class TextToSpeech(ModelComponent):
         self._pumping = False
         if not self._queue:
             return
-        sentence, ends = self._queue.popleft()
-        self._speak(sentence)
+        sentence, ends, stream_id = self._queue.popleft()
+        self._speak(sentence, stream_id)
         if ends:
             self._end_utterance()
         if self._queue:
             self._pumping = True
             self.call_later(0.0, self._pump)
 
-    def _speak(self, sentence: str) -> None:
+    def _speak(self, sentence: str, stream_id: str = "") -> None:
         options = {"speed": self.config.speed} if self.config.speed is not None else {}
+        text = sentence  # on the sentence's first chunk: the Speaker tells which words were played
         try:
             for chunk in self.model_client.speak(sentence, **options):
                 audio = chunk.get("audio")
@@ -216,7 +220,9 @@ class TextToSpeech(ModelComponent):
                     self._in_utterance = True
                     for t in self._audio_outputs:
                         self.publish(t, Audio(data=np.ascontiguousarray(audio, np.float32),
-                                              sample_rate=int(chunk["sample_rate"]), stamp=time.time()))
+                                              sample_rate=int(chunk["sample_rate"]), stamp=time.time(), text=text,
+                                              stream_id=stream_id))
+                    text = ""
         except (ModelError, ModelUnavailable, ConnectionError, TimeoutError) as exc:
             self.logger.error("%s: could not speak %r: %s", self._label(), sentence, exc)
             self.set_algorithm_failure(f"speech failed: {exc}")

@@ -33,10 +33,15 @@ RATE = 16000
 
 
 @pytest.fixture(scope="module")
-def whisper(whisper_dir: str) -> Iterator[str]:
-    with ActorSystem() as asys:
-        asys.spawn(ModelActor, "whisper_barge", "stt", whisper_dir, {"threads": 1}, True, wait=60)
-        yield "whisper_barge"
+def asys() -> Iterator[ActorSystem]:
+    with ActorSystem() as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def whisper(asys: ActorSystem, whisper_dir: str) -> str:
+    asys.spawn(ModelActor, "whisper_barge", "stt", whisper_dir, {"threads": 1}, True, wait=60)
+    return "whisper_barge"
 
 
 def trial(whisper: str, user: np.ndarray, seed: int = 1, **config: Any) -> dict[str, Any]:
@@ -53,7 +58,9 @@ def test_the_user_speaking_over_the_robot_pauses_it_then_interrupts_and_the_ques
     assert any("berlin" in h.lower() for h in got["heard"]), got
 
 
-@pytest.mark.parametrize("said", ["Yeah.", "Okay.", "Right."])
+# "Uh-huh.": the mhm-like backchannel the Piper voice says so that Whisper hears no words, or a backchannel
+# (examples/voice.py's); its "Mhm." and "Mm-hmm." come back as words ("make them", "in a month") and interrupt.
+@pytest.mark.parametrize("said", ["Yeah.", "Okay.", "Right.", "Uh-huh."])
 def test_a_backchannel_pauses_the_robot_then_resumes_it_and_is_not_passed_on(whisper: str, said: str) -> None:
     got = trial(whisper, robot_says(said))
     assert "interrupt" not in got["actions"], got
@@ -83,6 +90,8 @@ def test_with_no_speaker_stream_the_same_speech_is_a_question_and_nothing_is_pau
 
 def test_backchannels_are_told_from_words_word_by_word() -> None:
     assert is_backchannel("Yeah, okay.") and is_backchannel("Mm-hmm.") and is_backchannel("[BLANK_AUDIO]")
+    # What Whisper tiny.en writes for the Piper voice's uh-huhs and hums, any case and punctuation.
+    assert all(is_backchannel(t) for t in ("Uh-huh.", "ah ah ah ah", "Uh", "ah ha okay", "Ha ha ha", "HM.", "Mmhmm"))
     assert not is_backchannel("Yeah, but stop.") and not is_backchannel("Berlin")
     assert is_backchannel("sure thing", ("sure", "thing"))
 
@@ -140,10 +149,10 @@ def test_an_interrupt_cancels_the_generation_where_it_is_and_the_history_says_cu
     assert deltas == ["word0 ", "word1 ", "word2 "] and sent[-1].done
     assert llm.history[-1] == {"role": "assistant", "content": "word0 word1 word2 ", "interrupted": True}
     assert llm.interrupted == 1
-    # The next question: the model reads the cut answer with "..." (no unknown key reaches it).
+    # The next question: the model reads the cut answer as it is (no unknown key reaches it, no marker to copy).
     assert llm.on_message("heard", String("And Berlin?")) and llm.execute()
     later.pop(0)()
-    assert client.calls[-1][-2] == {"role": "assistant", "content": "word0 word1 word2 ..."}
+    assert client.calls[-1][-2] == {"role": "assistant", "content": "word0 word1 word2 "}
 
 
 def test_an_interrupt_after_the_answer_was_written_marks_it_while_it_is_still_spoken() -> None:
@@ -230,3 +239,165 @@ def test_a_simulated_speaker_plays_in_real_time_and_after_an_interrupt_drops_wha
     assert set(values) == {500, 700} and values.index(700) > len(played) - 1, values
     assert out[len(played)].data.size == 0, "the stop says on the played stream that nothing plays from then on"
     assert speaker.stats()["dropped_s"] == pytest.approx(0.5)
+
+
+# --- the words played: an answer cut short is kept in the LLM's history as what the user heard ---------------
+
+ANSWER = ("Paris is the capital of France. It is known for the Eiffel Tower and its museums. "
+          "Many people visit it every year.")
+PLAYED_SYSTEM = '''
+from embagents.components import LLM, LLMConfig, Speaker, SpeakerConfig, TextToSpeech
+from embagents.models import LocalModelClient
+from embagents.msgs import Audio, BargeIn, StreamingString, String
+from embagents.system import System
+from embagents.topic import Topic
+
+ANSWER = WRITTEN
+
+
+class Written:
+    """Writes ANSWER a word per token at once: far ahead of the voice, as a model on a fast machine does."""
+
+    def chat_stream(self, messages, **options):
+        words = ANSWER.split(" ")
+        for i, w in enumerate(words):
+            yield {"delta": w if i == 0 else " " + w}
+        yield {"done": True, "finish_reason": "stop", "tool_calls": None}
+
+
+heard = Topic("heard", String, keep="all")
+barge = Topic("barge", BargeIn, keep="all")
+answer = Topic("answer", StreamingString, queue_size=1000, keep="all")
+speaker = Topic("speaker", Audio, queue_size=1000, keep="all")
+spoken = Topic("spoken", StreamingString, queue_size=1000, keep="all")  # the words the speaker played
+
+system = System(
+    [
+        LLM(name="llm", inputs=[heard, barge, spoken], outputs=[answer], model_client=Written(), trigger=heard,
+            config=LLMConfig(stream=True, chat_history=True)),
+        TextToSpeech(name="voice", inputs=[answer, barge], outputs=[speaker], model_client=LocalModelClient("joe_played")),
+        Speaker(name="speaker", inputs=[speaker, barge], outputs=[spoken], config=SpeakerConfig(simulated=True)),
+    ],
+    external=[heard, barge],
+)
+'''
+
+
+def test_an_answer_interrupted_mid_playback_is_kept_in_the_history_as_the_words_played(
+        asys: ActorSystem, tmp_path: Any, piper_dir: str) -> None:
+    import textwrap
+    from pathlib import Path
+
+    from actors.topics import Publisher
+    from embagents.requests import Call
+    from embagents.runtime.component_actor import ComponentActor
+    from embagents.system import load_system, remember_system
+    from tests.helpers import wait_until
+
+    path = str(tmp_path / "system.py")
+    Path(path).write_text(textwrap.dedent(PLAYED_SYSTEM).replace("WRITTEN", repr(ANSWER)))
+    system = load_system(path)
+    remember_system(path, system)
+    names = ["joe_played"] + [c.name for c in system.components]
+    asys.spawn(ModelActor, "joe_played", "tts", piper_dir, {"threads": 1}, True, wait=60)
+    try:
+        for c in system.components:
+            asys.spawn(ComponentActor, c.name, path, c.name)
+        llm, speaker = asys.ref("llm"), asys.ref("speaker")
+        heard = asys.rt.on_client(lambda: Publisher(asys.rt, "heard"))
+        barge = asys.rt.on_client(lambda: Publisher(asys.rt, "barge"))
+        asys.rt.on_client(lambda: heard.publish(String(data="Tell me about Paris.")))
+        # The model wrote the whole answer long before the voice has said its first sentence.
+        wait_until(lambda: speaker.ask(Call("stats"), timeout=5).get()["played_s"] >= 2.2, 60, "2 s of the answer played")
+        assert llm.ask(Call("snapshot"), timeout=5).get()["history"][-1]["content"] == ANSWER
+        spoke = time.time()
+        asys.rt.on_client(lambda: barge.publish(BargeIn(action="pause", stamp=spoke)))  # the user speaks over it
+        time.sleep(0.4)
+        asys.rt.on_client(lambda: barge.publish(BargeIn(action="interrupt", text="Wait, stop.", stamp=spoke)))
+
+        def cut() -> dict[str, Any] | None:
+            last = llm.ask(Call("snapshot"), timeout=5).get()["history"][-1]
+            return last if last.get("interrupted") else None
+
+        entry = wait_until(cut, 10, "the answer marked interrupted")
+        time.sleep(0.5)  # words the speaker told after the interrupt would change it: none come
+        assert llm.ask(Call("snapshot"), timeout=5).get()["history"][-1] == entry
+        played = speaker.ask(Call("stats"), timeout=5).get()["played_s"]
+    finally:
+        for name in reversed(names):
+            if name in asys.procs:
+                asys.stop(name)
+    words, said = entry["content"].split(), ANSWER.split()
+    assert entry["role"] == "assistant" and entry["interrupted"] is True
+    # What the user heard: the first sentence or so, a prefix of the answer, word for word; not what was written.
+    assert 3 <= len(words) < 12 and words == said[:len(words)], (entry, played)
+
+
+def test_words_the_speaker_tells_after_the_interrupt_still_go_into_the_answer_cut_short() -> None:
+    llm = LLM(name="llm", inputs=[Topic("heard", String), Topic("barge", BargeIn), Topic("spoken", StreamingString)],
+              outputs=[Topic("answer", StreamingString)], model_client=EndlessClient(),
+              config=LLMConfig(stream=True, chat_history=True))
+    sent: list[Any] = []
+    later: list[Callable[[], None]] = []
+    llm.attach(lambda topic, msg: sent.append(msg), None, lambda delay, fn: later.append(fn))
+    assert llm.on_message("heard", String("Tell me about Paris.")) and llm.execute()
+    for _ in range(5):
+        later.pop(0)()
+    stream_id = sent[0].stream_id
+    assert not llm.on_message("spoken", StreamingString(data="word0", stream_id=stream_id)), "not a question"
+    llm.on_message("barge", BargeIn(action="interrupt"))
+    assert llm.history[-1] == {"role": "assistant", "content": "word0", "interrupted": True}
+    # The speaker stopped after the LLM heard of the interrupt: the words it played until then still come.
+    llm.on_message("spoken", StreamingString(data=" word1", stream_id=stream_id))
+    llm.on_message("spoken", StreamingString(data="", done=True, stream_id=stream_id))
+    llm.on_message("spoken", StreamingString(data="other", stream_id="another-answer"))
+    assert llm.history[-1] == {"role": "assistant", "content": "word0 word1", "interrupted": True}
+
+
+def test_the_speaker_tells_the_words_as_they_are_heard_and_none_it_held_at_a_pause_or_dropped_at_a_stop() -> None:
+    from embagents.components import Speaker, SpeakerConfig
+    from embagents.msgs import Audio
+
+    out: list[StreamingString] = []
+    due: list[tuple[float, Callable[[], None]]] = []
+    speaker = Speaker(name="speaker", inputs=[Topic("said", Audio, keep="all"), Topic("barge", BargeIn)],
+                      outputs=[Topic("spoken", StreamingString, keep="all")], config=SpeakerConfig(simulated=True))
+    speaker.attach(lambda topic, msg: out.append(msg), None, lambda delay, fn: due.append((time.time() + delay, fn)))
+    speaker.on_configure()
+    speaker.on_activate()
+
+    def run(seconds: float) -> None:  # the component's loop, in real time: the simulated speaker plays at its pace
+        end = time.time() + seconds
+        while time.time() < end:
+            due.sort(key=lambda d: d[0])
+            if due and due[0][0] <= time.time():
+                due.pop(0)[1]()
+            time.sleep(0.005)
+
+    def told(stream_id: str) -> str:
+        return "".join(m.data for m in out if m.stream_id == stream_id)
+
+    # Two sentences of 1 s each; a third chunk without text goes on with the second sentence.
+    for samples, text in ((RATE, "one two three four"), (RATE // 2, "five six seven eight"), (RATE // 2, "")):
+        assert speaker.on_message("said", Audio(data=np.full(samples, 300, np.int16), text=text, stream_id="a"))
+        speaker.execute()
+    speaker.on_message("said", Audio(data=np.zeros(0, np.int16)))
+    speaker.execute()
+    run(0.8)
+    speaker.on_message("barge", BargeIn(action="pause"))
+    at_pause = told("a").split()
+    assert at_pause == "one two three four".split()[:len(at_pause)] and len(at_pause) < 4, at_pause
+    run(0.3)
+    assert told("a").split() == at_pause, "nothing is heard while paused"
+    speaker.on_message("barge", BargeIn(action="resume"))
+    run(2.5)
+    assert told("a") == "one two three four five six seven eight" and out[-1] == StreamingString("", True, "a")
+    # A stop: what was heard is told, then the answer is done; the rest is never told.
+    speaker.on_message("said", Audio(data=np.full(2 * RATE, 300, np.int16), text="nine ten eleven twelve", stream_id="b"))
+    speaker.execute()
+    run(0.9)
+    speaker.on_message("barge", BargeIn(action="interrupt"))
+    cut = told("b").split()
+    assert cut == "nine ten eleven twelve".split()[:len(cut)] and len(cut) < 4 and out[-1].done, cut
+    run(0.5)
+    assert told("b").split() == cut
