@@ -438,6 +438,9 @@ def turn_run(ears: Any, clip: np.ndarray, t0: float, speech_end: int | None = No
 #: alone, between 0.5 and 0.95 the text check decides (SpeechToTextConfig.turn_sure_threshold).
 SURE: dict[str, Any] = {"turn_sure_threshold": 0.95, "turn_silence_ms": 64.0, "turn_reask_ms": 64.0}
 
+#: The setup the bars grade (SpeechToTextConfig(**SURE, speculate_after_turn=True) with both clients).
+GRADED = "model_text_sure_after"
+
 #: The bench's turn-taking setups: (label, Smart Turn, text check, silence fallback ms, turn threshold, more config).
 TURN_SETUPS: tuple[tuple[str, bool, bool, float, float, dict[str, Any]], ...] = (
     ("model", True, False, 1000.0, 0.5, {}), ("model_text", True, True, 1000.0, 0.5, {}),
@@ -500,15 +503,16 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
     def ms(x: float | None) -> str:
         return "-" if x is None else f"{x:.0f} ms"
 
-    # The headline is the default (Smart Turn alone: the text check is off unless a text_turn_client is given).
+    # The graded setup is the headline (``cutoffs``, ``eou_p50_ms``: the bars): Smart Turn sure at 0.95, else the
+    # text check, the transcript begun after Smart Turn's first verdict. Every setup, the graded one included, is
+    # reported beside it as ``<label>_cutoffs`` etc. (``model``: Smart Turn alone, the default without a text check).
     out: dict[str, Any] = {
-        "p50_us": (m["eou_p50_ms"] or 0) * 1e3, "p99_us": (m["eou_max_ms"] or 0) * 1e3, "msgs_per_s": None,
-        "cutoffs": m["cutoffs"], "eou_p50_ms": m["eou_p50_ms"], "transcript_p50_ms": m["transcript_p50_ms"],
-        "clips": 2 * n, "strict_threshold": STRICT}
+        "p50_us": (ma["eou_p50_ms"] or 0) * 1e3, "p99_us": (ma["eou_max_ms"] or 0) * 1e3, "msgs_per_s": None,
+        "graded": GRADED, "cutoffs": ma["cutoffs"], "eou_p50_ms": ma["eou_p50_ms"],
+        "transcript_p50_ms": ma["transcript_p50_ms"], "clips": 2 * n, "strict_threshold": STRICT}
     for label in r:
-        if label != "model":
-            out[f"{label}_cutoffs"], out[f"{label}_eou_p50_ms"] = r[label]["cutoffs"], r[label]["eou_p50_ms"]
-            out[f"{label}_transcript_p50_ms"] = r[label]["transcript_p50_ms"]
+        out[f"{label}_cutoffs"], out[f"{label}_eou_p50_ms"] = r[label]["cutoffs"], r[label]["eou_p50_ms"]
+        out[f"{label}_transcript_p50_ms"] = r[label]["transcript_p50_ms"]
     out["speculations"] = {label: r[label]["speculations"] for label in r}
     out["half_sentence_probabilities"] = [None if p is None else round(p, 2) for p in m["halves"]]
     out["question_probabilities"] = [None if p is None else round(p, 2) for p in m["wholes"]]
@@ -523,5 +527,5 @@ def turn_detection(opts: BenchOptions) -> dict[str, Any]:
         f"{r['text']['cutoffs']}/{n}, {ms(r['text']['eou_p50_ms'])}; Smart Turn at {STRICT} {r['strict']['cutoffs']}/{n}, "
         f"{ms(r['strict']['eou_p50_ms'])}; silence at 500 ms {r['silence']['cutoffs']}/{n}, "
         f"{ms(r['silence']['eou_p50_ms'])}; Smart Turn said finished (p >= 0.5) on {said_done}/{n} half sentences at "
-        "the first pause; bars: cutoffs <= 2, eou_p50_ms <= 300")
+        "the first pause; bars (graded: the transcript after the first verdict): cutoffs <= 2, eou_p50_ms <= 300")
     return out
