@@ -438,7 +438,7 @@ def turn_run(ears: Any, clip: np.ndarray, t0: float, speech_end: int | None = No
 #: alone, between 0.5 and 0.95 the text check decides (SpeechToTextConfig.turn_sure_threshold).
 SURE: dict[str, Any] = {"turn_sure_threshold": 0.95, "turn_silence_ms": 64.0, "turn_reask_ms": 64.0}
 
-#: The setup the bars grade (SpeechToTextConfig(**SURE, speculate_after_turn=True) with both clients).
+#: The setup the bars grade: the :data:`SURE` settings and ``speculate_after_turn=True``, with both clients.
 GRADED = "model_text_sure_after"
 
 #: The bench's turn-taking setups: (label, Smart Turn, text check, silence fallback ms, turn threshold, more config).
