@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -12,7 +13,7 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +134,22 @@ class Run:
                 self.proc.kill()
                 self.proc.wait()
         return self.proc.returncode
+
+
+@contextlib.contextmanager
+def linked(tmp: Path, name: str, **sender: Any) -> Iterator[tuple[Run, Run]]:
+    """Run ``NAME_a`` (SENDER, ``write``'s ``sender`` options, listening on a free loopback port) and ``NAME_b``
+    (RECEIVER, connecting to it); both are stopped after, B first."""
+    port, runs = free_port(), str(tmp / "runs")
+    a = Run(write(tmp, f"{name}_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", **sender), runs)
+    try:
+        b = Run(write(tmp, f"{name}_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
+        try:
+            yield a, b
+        finally:
+            b.stop()
+    finally:
+        a.stop()
 
 
 def wait_for(fn: Callable[[], Any], timeout: float, what: str) -> Any:

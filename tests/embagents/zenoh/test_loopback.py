@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.embagents.zenoh.runs import RECEIVER, SENDER, Run, free_port, wait_for, write
+from tests.embagents.zenoh.runs import RECEIVER, SENDER, Run, free_port, linked, wait_for, write
 
 pytest.importorskip("zenoh")
 
@@ -102,25 +102,15 @@ def test_the_two_hosts_example_brings_detections_back_to_the_robot(tmp_path: Pat
 
 
 def test_an_lz4_compressed_topic_arrives_whole(tmp_path: Path) -> None:
-    port = free_port()
-    runs = str(tmp_path / "runs")
-    a = Run(write(tmp_path, "lz_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", compress="lz4"), runs)
-    b = Run(write(tmp_path, "lz_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
-    try:
+    with linked(tmp_path, "lz", compress="lz4") as (a, b):
         wait_for(lambda: len(b.got()) >= 10, 60, "lz4 messages on run B")
         got = b.got()
         assert got == list(range(got[0], got[0] + len(got)))
         assert b.bridge()["counts"]["refused"] == 0  # type: ignore[index]
-    finally:
-        b.stop(), a.stop()
 
 
 def test_a_killed_bridge_is_restarted_and_the_topic_flows_again(tmp_path: Path) -> None:
-    port = free_port()
-    runs = str(tmp_path / "runs")
-    a = Run(write(tmp_path, "kill_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']"), runs)
-    b = Run(write(tmp_path, "kill_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
-    try:
+    with linked(tmp_path, "kill") as (a, b):
         wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B")
         a.kill_bridge(1)
         n = len(b.got())
@@ -130,8 +120,6 @@ def test_a_killed_bridge_is_restarted_and_the_topic_flows_again(tmp_path: Path) 
         # What the killed bridge had taken but not got out (if anything) is counted on the other side.
         missing = set(range(got[0], got[-1] + 1)) - set(got)
         assert b.bridge()["counts"]["lost"] == len(missing)  # type: ignore[index]
-    finally:
-        b.stop(), a.stop()
 
 
 def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_the_other_side(tmp_path: Path) -> None:
@@ -139,11 +127,7 @@ def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_
 
     from embagents.zenoh.bridge_actor import KEEP_SOURCES
 
-    port = free_port()
-    runs = str(tmp_path / "runs")
-    a = Run(write(tmp_path, "again_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", rate=50.0), runs)
-    b = Run(write(tmp_path, "again_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
-    try:
+    with linked(tmp_path, "again", rate=50.0) as (a, b):
         wait_for(lambda: len(b.got()) >= 10, 60, "messages on run B")
         kills = KEEP_SOURCES + 2
         for i in range(1, kills + 1):  # each incarnation of A's bridge is a new Zenoh source for B's
@@ -157,18 +141,12 @@ def test_a_peer_bridge_restarted_again_and_again_leaves_no_publishers_behind_on_
         assert detail is not None
         # The current source and the KEEP_SOURCES before it; without the limit, one per incarnation (kills + 1).
         assert detail["source_publishers"] == KEEP_SOURCES + 1
-    finally:
-        b.stop(), a.stop()
 
 
 def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_replay(tmp_path: Path) -> None:
-    port = free_port()
-    runs = str(tmp_path / "runs")
     # 200 Hz: a live sample often reaches the restarted bridge before the replies to its history query (zenoh-ext
     # then drops them as old; the bridge fetches them): 4 runs in 14 had a gap before it did, 1 in 12 at 50 Hz.
-    a = Run(write(tmp_path, "rkill_a", SENDER, f"listen=['tcp/127.0.0.1:{port}']", rate=200.0), runs)
-    b = Run(write(tmp_path, "rkill_b", RECEIVER, f"connect=['tcp/127.0.0.1:{port}']"), runs)
-    try:
+    with linked(tmp_path, "rkill", rate=200.0) as (a, b):
         wait_for(lambda: len(b.got()) >= 20, 60, "messages on run B")
         b.kill_bridge(1)
         n = len(b.got())
@@ -180,8 +158,6 @@ def test_a_killed_receiving_bridge_delivers_each_message_once_and_counts_the_rep
         detail = b.bridge()
         assert detail is not None and detail["counts"]["replayed"] >= 20 and detail["counts"]["lost"] == 0
         assert any("replayed" in line for line in detail["lines"])
-    finally:
-        b.stop(), a.stop()
 
 
 def test_a_peers_frames_go_on_as_they_came_and_its_garbage_or_forged_handles_are_dropped_and_counted(
